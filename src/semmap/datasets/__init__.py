@@ -1,0 +1,77 @@
+"""Dataset readers: one file per on-disk format, all yielding :class:`semmap.types.Frame` lazily."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from semmap.datasets.base import (
+    Dataset,
+    SkippedFrame,
+    UnreadableFileError,
+    ensure_folder,
+    read_color,
+    read_depth,
+    read_label_image,
+)
+from semmap.datasets.label_folder import LabelFolder
+from semmap.datasets.sevenscenes import SevenScenesDataset
+from semmap.datasets.tum import TumDataset
+from semmap.datasets.tum_writer import write_tum_sequence
+from semmap.errors import DatasetError
+
+#: Format name -> reader class; every reader takes ``(root, *, stride, max_frames, labels_dir, ...)``.
+READERS: dict[str, type] = {
+    "tum": TumDataset,
+    "7scenes": SevenScenesDataset,
+}
+
+
+def detect_format(path: str | Path) -> str:
+    """Format of the sequence folder ``path``: "tum" (rgb.txt + depth.txt) or "7scenes" (frame-*.color.*)."""
+    root = ensure_folder(path)
+    if (root / "rgb.txt").is_file() and (root / "depth.txt").is_file():
+        return "tum"
+    if next(root.glob("frame-*.color.*"), None) is not None:
+        return "7scenes"
+    raise DatasetError(f"{root}: unknown dataset format; looked for rgb.txt and depth.txt (TUM RGB-D) "
+                       f"and frame-*.color.png|jpg files (7-Scenes)")
+
+
+def open_dataset(
+    path: str | Path,
+    format: str = "auto",
+    *,
+    labels: str | Path | LabelFolder | None = None,
+    stride: int = 1,
+    max_frames: int | None = None,
+    **kwargs,
+) -> Dataset:
+    """Open the sequence at ``path`` with the reader for ``format`` ("auto" detects it).
+
+    ``labels`` is an optional folder of per-frame label PNGs (see :class:`LabelFolder`); ``kwargs`` go to the
+    reader (e.g. ``depth_scale`` for TUM).
+    """
+    root = ensure_folder(path)
+    name = detect_format(root) if format == "auto" else format
+    try:
+        reader = READERS[name]
+    except KeyError:
+        raise DatasetError(f"unknown dataset format {name!r}; known: auto, {', '.join(READERS)}") from None
+    return reader(root, labels_dir=labels, stride=stride, max_frames=max_frames, **kwargs)
+
+
+__all__ = [
+    "READERS",
+    "Dataset",
+    "LabelFolder",
+    "SevenScenesDataset",
+    "SkippedFrame",
+    "TumDataset",
+    "UnreadableFileError",
+    "detect_format",
+    "open_dataset",
+    "read_color",
+    "read_depth",
+    "read_label_image",
+    "write_tum_sequence",
+]

@@ -1,0 +1,237 @@
+"""What every dataset reader shares: the ``Dataset`` protocol, image loading and the skip-a-bad-frame rule.
+
+Rule for damaged input: a *missing or undecodable* file costs one frame (a warning naming the file, the frame
+recorded in ``skipped``); a file that decodes but is *inconsistent* (wrong size, wrong channels, a non-finite
+pose) means the sequence is wrong and raises :class:`DatasetError` naming the file.
+"""
+
+from __future__ import annotations
+
+import logging
+from abc import ABC, abstractmethod
+from collections.abc import Callable, Iterator, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Generic, Protocol, TypeVar, runtime_checkable
+
+import cv2
+import numpy as np
+
+from semmap.errors import ConfigError, DatasetError
+from semmap.types import CameraIntrinsics, Frame, LabelSet
+
+LOG = logging.getLogger("semmap")
+
+
+@dataclass(frozen=True)
+class SkippedFrame:
+    """A frame left out while iterating because one of its files was missing or unreadable."""
+
+    name: str
+    path: str
+    reason: str
+
+
+class UnreadableFileError(DatasetError):
+    """A frame's file is missing, empty or cannot be decoded; readers skip that frame and go on."""
+
+    def __init__(self, path: str | Path, reason: str) -> None:
+        super().__init__(f"{path}: {reason}")
+        self.path = str(path)
+        self.reason = reason
+
+
+@runtime_checkable
+class Dataset(Protocol):
+    """A sequence of RGB-D frames read lazily, one frame in memory at a time."""
+
+    @property
+    def name(self) -> str: ...
+
+    @property
+    def intrinsics(self) -> CameraIntrinsics: ...
+
+    @property
+    def label_set(self) -> LabelSet | None: ...
+
+    @property
+    def skipped(self) -> list[SkippedFrame]: ...
+
+    def __iter__(self) -> Iterator[Frame]: ...
+
+    def __len__(self) -> int: ...
+
+
+# --------------------------------------------------------------------------------------------------
+# Image loading
+# --------------------------------------------------------------------------------------------------
+def _decode(path: str | Path) -> np.ndarray:
+    """Image as stored (any depth and channels); :class:`UnreadableFileError` if missing or corrupt."""
+    path = Path(path)
+    try:
+        data = path.read_bytes()
+    except FileNotFoundError:
+        raise UnreadableFileError(path, "file is missing") from None
+    except OSError as exc:
+        raise UnreadableFileError(path, f"cannot read file: {exc.strerror or exc}") from None
+    if not data:
+        raise UnreadableFileError(path, "file is empty")
+    try:
+        image = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED)
+    except cv2.error:
+        image = None
+    if image is None:
+        raise UnreadableFileError(path, "cannot decode image (corrupt or truncated)")
+    return image
+
+
+def read_color(path: str | Path) -> np.ndarray:
+    """Colour image as (H, W, 3) uint8 in RGB order (grey and BGRA files are converted)."""
+    image = _decode(path)
+    if image.dtype != np.uint8:
+        raise DatasetError(f"{path}: colour image must be 8-bit, got {image.dtype}")
+    if image.ndim == 2:
+        return cv2.cvtColor(image, cv2.COLOR_GRAY2RGB)
+    channels = image.shape[2]
+    if channels == 3:
+        return cv2.cvtColor(image, cv2.COLOR_BGR2RGB)
+    if channels == 4:
+        return cv2.cvtColor(image, cv2.COLOR_BGRA2RGB)
+    raise DatasetError(f"{path}: colour image has {channels} channels, expected 3")
+
+
+def read_depth(path: str | Path, scale: float, invalid_values: Sequence[int] = (0, 65535)) -> np.ndarray:
+    """Depth image as (H, W) float32 metres (stored value / ``scale``), 0 where the value is invalid."""
+    raw = _decode(path)
+    if raw.ndim != 2:
+        raise DatasetError(f"{path}: depth image must have one channel, got {raw.shape[2]}")
+    if raw.dtype not in (np.uint16, np.uint8):
+        raise DatasetError(f"{path}: depth image must be 8- or 16-bit integers, got {raw.dtype}")
+    depth = raw.astype(np.float32) / np.float32(scale)
+    if len(invalid_values):
+        depth[np.isin(raw, np.asarray(invalid_values))] = 0.0
+    return depth
+
+
+def read_label_image(path: str | Path) -> np.ndarray:
+    """Class-id image (8- or 16-bit single-channel PNG) as (H, W) uint16."""
+    image = _decode(path)
+    if image.ndim != 2:
+        raise DatasetError(f"{path}: label image must be single-channel class ids, "
+                           f"got {image.shape[2]} channels (a colour rendering?)")
+    if image.dtype not in (np.uint8, np.uint16):
+        raise DatasetError(f"{path}: label image must be 8- or 16-bit, got {image.dtype}")
+    return image.astype(np.uint16, copy=False)
+
+
+def check_image_size(image: np.ndarray, intrinsics: CameraIntrinsics, path: str | Path, what: str) -> None:
+    """Raise :class:`DatasetError` naming ``path`` unless the image matches the camera size."""
+    h, w = image.shape[:2]
+    if (w, h) != (intrinsics.width, intrinsics.height):
+        raise DatasetError(f"{path}: {what} image is {w}x{h}, "
+                           f"expected {intrinsics.width}x{intrinsics.height} (the camera intrinsics)")
+
+
+def image_size(paths: Sequence[Path], where: str | Path) -> tuple[int, int]:
+    """(width, height) of the first decodable colour image in ``paths``, for intrinsics without a size."""
+    for path in paths:
+        try:
+            h, w = read_color(path).shape[:2]
+        except UnreadableFileError:
+            continue
+        return w, h
+    raise DatasetError(f"{where}: no readable colour image to take the camera size from "
+                       f"({len(paths)} candidate frames)")
+
+
+# --------------------------------------------------------------------------------------------------
+# Iteration
+# --------------------------------------------------------------------------------------------------
+def load_or_skip(load: Callable[[], Frame], name: str, skipped: list[SkippedFrame]) -> Frame | None:
+    """``load()``, or None with a warning and a ``skipped`` entry when a file of the frame is unreadable."""
+    try:
+        return load()
+    except UnreadableFileError as exc:
+        LOG.warning("skipping frame %s: %s: %s", name, exc.path, exc.reason)
+        skipped.append(SkippedFrame(name, exc.path, exc.reason))
+        return None
+
+
+T = TypeVar("T")
+
+
+def select_frames(items: Sequence[T], stride: int, max_frames: int | None) -> list[T]:
+    """Every ``stride``-th item, at most ``max_frames`` of them."""
+    if int(stride) != stride or stride < 1:
+        raise ConfigError(f"stride must be a positive integer, got {stride}")
+    if max_frames is not None and (int(max_frames) != max_frames or max_frames < 0):
+        raise ConfigError(f"max_frames must be a non-negative integer or None, got {max_frames}")
+    chosen = list(items[:: int(stride)])
+    return chosen if max_frames is None else chosen[: int(max_frames)]
+
+
+class FrameRef(Protocol):
+    """The minimum a reader's per-frame record carries: the frame name."""
+
+    @property
+    def name(self) -> str: ...
+
+
+R = TypeVar("R", bound=FrameRef)
+
+
+class SequenceReader(ABC, Generic[R]):
+    """Shared reader plumbing: stride / max_frames selection, lazy loading and the skip rule.
+
+    Subclasses build one record per candidate frame and implement :meth:`_load` for one record.
+    """
+
+    def __init__(self, root: Path, refs: Sequence[R], *, stride: int, max_frames: int | None) -> None:
+        self._root = root
+        self._refs = select_frames(refs, stride, max_frames)
+        self._skipped: list[SkippedFrame] = []
+
+    @property
+    def name(self) -> str:
+        return self._root.resolve().name
+
+    @property
+    def root(self) -> Path:
+        return self._root
+
+    @property
+    def skipped(self) -> list[SkippedFrame]:
+        """Frames left out by the latest pass (reset when a new pass starts)."""
+        return self._skipped
+
+    @property
+    @abstractmethod
+    def intrinsics(self) -> CameraIntrinsics: ...
+
+    @property
+    @abstractmethod
+    def label_set(self) -> LabelSet | None: ...
+
+    def __len__(self) -> int:
+        return len(self._refs)
+
+    def __iter__(self) -> Iterator[Frame]:
+        self._skipped.clear()
+        for ref in self._refs:
+            frame = load_or_skip(lambda ref=ref: self._load(ref), ref.name, self._skipped)
+            if frame is not None:
+                yield frame
+
+    @abstractmethod
+    def _load(self, ref: R) -> Frame:
+        """Read one frame; raise :class:`UnreadableFileError` for a missing or corrupt file."""
+
+
+def ensure_folder(root: str | Path) -> Path:
+    """``root`` as a Path, or :class:`DatasetError` when it is not an existing folder."""
+    path = Path(root)
+    if not path.exists():
+        raise DatasetError(f"{path}: dataset folder does not exist")
+    if not path.is_dir():
+        raise DatasetError(f"{path}: is a file, expected a dataset folder")
+    return path

@@ -1,0 +1,148 @@
+"""Microsoft 7-Scenes sequences: ``frame-NNNNNN.color.png|jpg``, ``.depth.png`` (mm) and ``.pose.txt``.
+
+Colour and depth come from two cameras and are only roughly registered; the reader does not correct that.
+"""
+
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from semmap.datasets.base import (
+    SequenceReader,
+    UnreadableFileError,
+    check_image_size,
+    ensure_folder,
+    image_size,
+    read_color,
+    read_depth,
+)
+from semmap.datasets.label_folder import LabelFolder, as_label_folder, choose_label_set
+from semmap.errors import ConfigError, DatasetError
+from semmap.types import CameraIntrinsics, Frame, LabelSet, check_pose
+
+#: Colour file names; png is preferred when a frame has both.
+COLOR_PATTERN = re.compile(r"^(frame-(\d+))\.color\.(png|jpg)$")
+INTRINSICS_FILE = "camera-intrinsics.txt"
+#: 7-Scenes' documented calibration (fx, fy, cx, cy) when the folder has no camera-intrinsics.txt.
+DEFAULT_INTRINSICS = (585.0, 585.0, 320.0, 240.0)
+DEPTH_SCALE = 1000.0  # millimetres
+FRAME_RATE = 30.0  # Hz, for timestamps
+
+
+@dataclass(frozen=True)
+class _SevenScenesRef:
+    """Files of one 7-Scenes frame."""
+
+    index: int
+    name: str
+    color: Path
+
+    def sibling(self, suffix: str) -> Path:
+        return self.color.with_name(f"{self.name}{suffix}")
+
+
+class SevenScenesDataset(SequenceReader[_SevenScenesRef]):
+    """7-Scenes sequence folder; ``index`` is the frame number, ``timestamp = index / 30`` s.
+
+    Depth is uint16 millimetres with 0 and 65535 invalid; poses are camera-to-world (``T_world_cam``).
+    """
+
+    def __init__(
+        self,
+        root: str | Path,
+        *,
+        intrinsics: CameraIntrinsics | None = None,
+        stride: int = 1,
+        max_frames: int | None = None,
+        labels_dir: str | Path | LabelFolder | None = None,
+    ) -> None:
+        root = ensure_folder(root)
+        refs = find_frames(root)
+        if intrinsics is None:
+            intrinsics = _find_intrinsics(root, [r.color for r in refs])
+        self._intrinsics = intrinsics
+        self._labels = as_label_folder(labels_dir)
+        self._label_set = choose_label_set(self._labels, root)
+        super().__init__(root, refs, stride=stride, max_frames=max_frames)
+
+    @property
+    def intrinsics(self) -> CameraIntrinsics:
+        return self._intrinsics
+
+    @property
+    def label_set(self) -> LabelSet | None:
+        return self._label_set
+
+    def _load(self, ref: _SevenScenesRef) -> Frame:
+        cam = self._intrinsics
+        pose = read_pose(ref.sibling(".pose.txt"))
+        rgb = read_color(ref.color)
+        check_image_size(rgb, cam, ref.color, "colour")
+        depth_path = ref.sibling(".depth.png")
+        depth = read_depth(depth_path, DEPTH_SCALE, invalid_values=(0, 65535))
+        check_image_size(depth, cam, depth_path, "depth")
+        return Frame(
+            index=ref.index,
+            timestamp=ref.index / FRAME_RATE,
+            rgb=rgb,
+            depth=depth,
+            intrinsics=cam,
+            T_world_cam=pose,
+            labels=self._labels.read(ref.name, cam) if self._labels else None,
+            name=ref.name,
+        )
+
+
+def find_frames(root: Path) -> list[_SevenScenesRef]:
+    """One record per ``frame-N.color.*`` file, sorted by frame number."""
+    found: dict[int, _SevenScenesRef] = {}
+    for path in root.iterdir():
+        match = COLOR_PATTERN.match(path.name)
+        if match is None:
+            continue
+        number = int(match.group(2))
+        if number in found and found[number].color.suffix == ".png":
+            continue
+        found[number] = _SevenScenesRef(number, match.group(1), path)
+    return [found[n] for n in sorted(found)]
+
+
+def read_pose(path: Path) -> np.ndarray:
+    """4x4 ``T_world_cam`` from a 7-Scenes pose file; a missing file is :class:`UnreadableFileError`."""
+    try:
+        text = path.read_text()
+    except FileNotFoundError:
+        raise UnreadableFileError(path, "pose file is missing") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise UnreadableFileError(path, f"cannot read pose file: {exc}") from None
+    try:
+        values = np.array([float(v) for v in text.split()], dtype=np.float64)
+    except ValueError:
+        raise DatasetError(f"{path}: pose file must hold 16 numbers (a 4x4 matrix)") from None
+    if values.size != 16:
+        raise DatasetError(f"{path}: pose file must hold 16 numbers (a 4x4 matrix), got {values.size}")
+    return check_pose(values.reshape(4, 4), str(path))
+
+
+def _find_intrinsics(root: Path, color_paths: list[Path]) -> CameraIntrinsics:
+    """K from ``camera-intrinsics.txt`` (3x3) or 7-Scenes' default; the size from the first colour image."""
+    path = root / INTRINSICS_FILE
+    if path.is_file():
+        try:
+            K = np.array([float(v) for v in path.read_text().split()], dtype=np.float64)
+        except (OSError, ValueError) as exc:
+            raise DatasetError(f"{path}: cannot read camera matrix: {exc}") from None
+        if K.size != 9 or not np.isfinite(K).all():
+            raise DatasetError(f"{path}: expected a finite 3x3 camera matrix, got {K.size} values")
+        fx, fy, cx, cy = K[0], K[4], K[2], K[5]
+    else:
+        fx, fy, cx, cy = DEFAULT_INTRINSICS
+    width, height = image_size(color_paths, root)
+    try:
+        return CameraIntrinsics(width, height, float(fx), float(fy), float(cx), float(cy))
+    except ConfigError as exc:
+        raise DatasetError(f"{path}: {exc}") from None

@@ -1,0 +1,262 @@
+"""TUM RGB-D benchmark sequences (``rgb.txt``, ``depth.txt``, optional ``groundtruth.txt``).
+
+Also reads the per-frame ground truth our simulator writes next to them (``labels/``, ``instances/``,
+``labelset.json``, ``camera.json``; see :mod:`semmap.datasets.tum_writer`).
+"""
+
+from __future__ import annotations
+
+import json
+import re
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from semmap.datasets.base import (
+    LOG,
+    SequenceReader,
+    check_image_size,
+    ensure_folder,
+    image_size,
+    read_color,
+    read_depth,
+)
+from semmap.datasets.label_folder import LabelFolder, as_label_folder, choose_label_set
+from semmap.errors import ConfigError, DatasetError
+from semmap.types import CameraIntrinsics, Frame, LabelSet, check_pose, interpolate_pose, pose_from_tum
+
+#: Factory calibrations of the three Kinects (fx, fy, cx, cy), picked by the sequence folder name.
+FREIBURG_INTRINSICS = {
+    "freiburg1": (517.3, 516.5, 318.6, 255.3),
+    "freiburg2": (520.9, 521.0, 325.1, 249.7),
+    "freiburg3": (535.4, 539.2, 320.1, 247.6),
+}
+#: TUM's recommended default for unknown sequences (fx, fy, cx, cy).
+DEFAULT_INTRINSICS = (525.0, 525.0, 319.5, 239.5)
+CAMERA_FILE = "camera.json"
+
+
+@dataclass(frozen=True)
+class _TumRef:
+    """One associated rgb/depth pair and its ground-truth pose."""
+
+    index: int
+    timestamp: float
+    name: str
+    rgb: Path
+    depth: Path
+    T_world_cam: np.ndarray | None
+
+
+class TumDataset(SequenceReader[_TumRef]):
+    """TUM RGB-D sequence: rgb/depth associated by timestamp, pose interpolated from ``groundtruth.txt``.
+
+    ``depth_scale`` is stored units per metre (5000 for TUM); ``labels_dir`` overrides a ``labels/`` folder
+    in the root. Frames are named by the rgb file stem (``1305031102.175304``).
+    """
+
+    def __init__(
+        self,
+        root: str | Path,
+        *,
+        max_time_diff: float = 0.02,
+        depth_scale: float = 5000.0,
+        intrinsics: CameraIntrinsics | None = None,
+        stride: int = 1,
+        max_frames: int | None = None,
+        labels_dir: str | Path | LabelFolder | None = None,
+    ) -> None:
+        root = ensure_folder(root)
+        if not max_time_diff >= 0:
+            raise ConfigError(f"max_time_diff must be >= 0 seconds, got {max_time_diff}")
+        if not depth_scale > 0:
+            raise ConfigError(f"depth_scale must be positive, got {depth_scale}")
+        self._depth_scale = float(depth_scale)
+
+        rgb = read_file_list(root / "rgb.txt")
+        depth = read_file_list(root / "depth.txt")
+        pairs = associate([t for t, _ in rgb], [t for t, _ in depth], max_time_diff)
+        if len(pairs) < len(rgb):
+            LOG.info("%s: %d of %d colour frames have no depth frame within %.3f s",
+                     root, len(rgb) - len(pairs), len(rgb), max_time_diff)
+        gt_path = root / "groundtruth.txt"
+        gt_stamps, gt_rows = (read_groundtruth(gt_path) if gt_path.is_file()
+                              else (np.empty(0), np.empty((0, 7))))
+
+        refs = []
+        for index, (i, j) in enumerate(pairs):
+            stamp, rgb_rel = rgb[i]
+            rgb_path = root / rgb_rel
+            pose = pose_at(gt_stamps, gt_rows, stamp, max_time_diff)
+            if pose is not None:
+                check_pose(pose, f"{gt_path} at t={stamp:.6f}")
+            refs.append(_TumRef(index, stamp, rgb_path.stem, rgb_path, root / depth[j][1], pose))
+
+        if intrinsics is None:
+            intrinsics = _find_intrinsics(root, [r.rgb for r in refs])
+        self._intrinsics = intrinsics
+        self._labels = as_label_folder(labels_dir)
+        if self._labels is None and (root / "labels").is_dir():
+            self._labels = LabelFolder(root / "labels")
+        self._instances = (LabelFolder(root / "instances", kind="instance")
+                           if (root / "instances").is_dir() else None)
+        self._label_set = choose_label_set(self._labels, root)
+        super().__init__(root, refs, stride=stride, max_frames=max_frames)
+
+    @property
+    def intrinsics(self) -> CameraIntrinsics:
+        return self._intrinsics
+
+    @property
+    def label_set(self) -> LabelSet | None:
+        return self._label_set
+
+    def _load(self, ref: _TumRef) -> Frame:
+        cam = self._intrinsics
+        rgb = read_color(ref.rgb)
+        check_image_size(rgb, cam, ref.rgb, "colour")
+        depth = read_depth(ref.depth, self._depth_scale)
+        check_image_size(depth, cam, ref.depth, "depth")
+        labels = self._labels.read(ref.name, cam) if self._labels else None
+        instances = self._instances.read(ref.name, cam) if self._instances else None
+        return Frame(
+            index=ref.index,
+            timestamp=ref.timestamp,
+            rgb=rgb,
+            depth=depth,
+            intrinsics=cam,
+            T_world_cam=ref.T_world_cam,
+            labels=labels,
+            instances=None if instances is None else instances.astype(np.int32),
+            name=ref.name,
+        )
+
+
+# --------------------------------------------------------------------------------------------------
+# Text files
+# --------------------------------------------------------------------------------------------------
+def _data_lines(path: Path) -> list[tuple[int, list[str]]]:
+    """(line number, fields) of the non-comment, non-blank lines of a TUM text file."""
+    try:
+        text = path.read_text()
+    except FileNotFoundError:
+        raise DatasetError(f"{path}: file is missing (a TUM sequence needs rgb.txt and depth.txt)") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise DatasetError(f"{path}: cannot read: {exc}") from None
+    out = []
+    for number, line in enumerate(text.splitlines(), start=1):
+        line = line.strip()
+        if line and not line.startswith("#"):
+            out.append((number, re.split(r"[\s,]+", line)))
+    return out
+
+
+def _stamp(path: Path, number: int, field: str) -> float:
+    try:
+        value = float(field)
+    except ValueError:
+        raise DatasetError(f"{path}:{number}: timestamp {field!r} is not a number") from None
+    if not np.isfinite(value):
+        raise DatasetError(f"{path}:{number}: timestamp {field!r} is not finite")
+    return value
+
+
+def read_file_list(path: Path) -> list[tuple[float, str]]:
+    """Rows ``(timestamp, relative path)`` of ``rgb.txt`` / ``depth.txt`` in file order."""
+    rows = []
+    for number, fields in _data_lines(path):
+        if len(fields) < 2:
+            raise DatasetError(f"{path}:{number}: expected 'timestamp filename', got {' '.join(fields)!r}")
+        rows.append((_stamp(path, number, fields[0]), fields[1]))
+    return rows
+
+
+def read_groundtruth(path: Path) -> tuple[np.ndarray, np.ndarray]:
+    """Timestamps (N,) and rows ``tx ty tz qx qy qz qw`` (N, 7) of a TUM trajectory, sorted by time."""
+    stamps, rows = [], []
+    for number, fields in _data_lines(path):
+        if len(fields) != 8:
+            raise DatasetError(f"{path}:{number}: TUM trajectory rows need 8 values "
+                               f"(timestamp tx ty tz qx qy qz qw), got {len(fields)}")
+        try:
+            values = [float(v) for v in fields[1:]]
+        except ValueError:
+            raise DatasetError(f"{path}:{number}: pose values must be numbers") from None
+        if not np.isfinite(values).all():
+            raise DatasetError(f"{path}:{number}: pose has non-finite entries")
+        if np.linalg.norm(values[3:]) < 1e-9:
+            raise DatasetError(f"{path}:{number}: quaternion is zero")
+        stamps.append(_stamp(path, number, fields[0]))
+        rows.append(values)
+    times = np.asarray(stamps, dtype=np.float64)
+    order = np.argsort(times, kind="stable")
+    return times[order], np.asarray(rows, dtype=np.float64).reshape(-1, 7)[order]
+
+
+# --------------------------------------------------------------------------------------------------
+# Timing
+# --------------------------------------------------------------------------------------------------
+def associate(first: list[float], second: list[float], max_diff: float) -> list[tuple[int, int]]:
+    """One-to-one index pairs ``(i, j)`` with ``|first[i] - second[j]| <= max_diff``, sorted by ``i``.
+
+    Greedy by smallest time difference (as TUM's associate.py): the closest pair overall is taken first, then
+    the closest among the stamps still free, and so on.
+    """
+    a = np.asarray(first, dtype=np.float64)
+    b = np.asarray(second, dtype=np.float64)
+    order = np.argsort(b, kind="stable")
+    b_sorted = b[order]
+    lo = np.searchsorted(b_sorted, a - max_diff, side="left")
+    hi = np.searchsorted(b_sorted, a + max_diff, side="right")
+    candidates = []
+    for i in range(len(a)):
+        for k in range(lo[i], hi[i]):
+            j = int(order[k])
+            diff = abs(a[i] - b[j])
+            if diff <= max_diff:
+                candidates.append((diff, i, j))
+    candidates.sort()
+    used_a, used_b, pairs = set(), set(), []
+    for _, i, j in candidates:
+        if i not in used_a and j not in used_b:
+            used_a.add(i)
+            used_b.add(j)
+            pairs.append((i, j))
+    return sorted(pairs)
+
+
+def pose_at(stamps: np.ndarray, rows: np.ndarray, t: float, max_time_diff: float) -> np.ndarray | None:
+    """``T_world_cam`` at time ``t``: interpolated between the bracketing rows, clamped to an end row within
+    ``max_time_diff`` of the trajectory's time range, None further outside (or with no trajectory)."""
+    if len(stamps) == 0 or t < stamps[0] - max_time_diff or t > stamps[-1] + max_time_diff:
+        return None
+    if t <= stamps[0]:
+        return pose_from_tum(rows[0])
+    if t >= stamps[-1]:
+        return pose_from_tum(rows[-1])
+    j = int(np.searchsorted(stamps, t, side="right"))  # stamps[j - 1] <= t < stamps[j]
+    i = j - 1
+    if stamps[i] == t:
+        return pose_from_tum(rows[i])
+    alpha = (t - stamps[i]) / (stamps[j] - stamps[i])
+    return interpolate_pose(pose_from_tum(rows[i]), pose_from_tum(rows[j]), alpha)
+
+
+# --------------------------------------------------------------------------------------------------
+# Camera
+# --------------------------------------------------------------------------------------------------
+def _find_intrinsics(root: Path, rgb_paths: list[Path]) -> CameraIntrinsics:
+    """``camera.json`` in the root, else the Freiburg calibration named by the folder, else TUM's default."""
+    camera = root / CAMERA_FILE
+    if camera.is_file():
+        try:
+            return CameraIntrinsics.from_dict(json.loads(camera.read_text()))
+        except (OSError, json.JSONDecodeError) as exc:
+            raise DatasetError(f"{camera}: cannot read camera intrinsics: {exc}") from None
+        except ConfigError as exc:
+            raise DatasetError(f"{camera}: {exc}") from None
+    folder = root.resolve().name
+    fx, fy, cx, cy = next((v for key, v in FREIBURG_INTRINSICS.items() if key in folder), DEFAULT_INTRINSICS)
+    width, height = image_size(rgb_paths, root)
+    return CameraIntrinsics(width, height, fx, fy, cx, cy)

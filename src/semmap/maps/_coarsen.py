@@ -1,0 +1,54 @@
+"""Merge finest-level cells into their parents (numba): the inner-node rules of the semantic OctoMap paper."""
+
+from __future__ import annotations
+
+import numba as nb
+import numpy as np
+
+from semmap.fusion.topk_bayes import fuse_sets
+from semmap.types import EMPTY_LABEL
+
+
+@nb.njit(cache=True)
+def coarsen_cells(parent: np.ndarray, logodds: np.ndarray, attr: np.ndarray, rgb_sum: np.ndarray,
+                  rgb_count: np.ndarray, sem_labels: np.ndarray, sem_probs: np.ndarray,
+                  lam: float, max_confidence: float):
+    """Group cells by ``parent`` key (sorted ascending) and merge each group: max log-odds, summed colour
+    observations, semantic sets fused in key order (Algorithm 1).  Returns the parent cells compacted."""
+    n = parent.shape[0]
+    k = sem_labels.shape[1]
+    n_groups = 0
+    for i in range(n):
+        if i == 0 or parent[i] != parent[i - 1]:
+            n_groups += 1
+    out_key = np.empty(n_groups, np.int64)
+    out_lo = np.empty(n_groups, np.float32)
+    out_attr = np.full(n_groups, -1, np.int32)
+    o_sum = np.zeros((n_groups, 3), np.uint32)
+    o_cnt = np.zeros(n_groups, np.uint32)
+    o_lab = np.full((n_groups, k), EMPTY_LABEL, np.uint16)
+    o_prob = np.zeros((n_groups, k), np.float32)
+    si = np.empty((3, 16), np.int64)
+    sf = np.empty((3, 16), np.float64)
+    g = -1
+    n_attr = 0
+    for i in range(n):
+        if i == 0 or parent[i] != parent[i - 1]:
+            g += 1
+            out_key[g] = parent[i]
+            out_lo[g] = logodds[i]
+        elif logodds[i] > out_lo[g]:
+            out_lo[g] = logodds[i]
+        a = attr[i]
+        if a < 0:
+            continue
+        if out_attr[g] < 0:
+            out_attr[g] = n_attr
+            n_attr += 1
+        r = out_attr[g]
+        for c in range(3):
+            o_sum[r, c] += rgb_sum[a, c]
+        o_cnt[r] += rgb_count[a]
+        fuse_sets(o_lab[r], o_prob[r], sem_labels[a], sem_probs[a], lam, max_confidence, o_lab[r], o_prob[r],
+                  si, sf)
+    return out_key, out_lo, out_attr, o_sum[:n_attr], o_cnt[:n_attr], o_lab[:n_attr], o_prob[:n_attr]

@@ -1,0 +1,120 @@
+"""Sharded open-addressing hash table of finest-level voxels (numba, struct of arrays).
+
+Each slot holds the packed key (int64, -1 = empty), the occupancy log-odds (float32) and an index into
+the attribute arrays (int32, -1 = never hit, so free space carries no colour or semantics): 16 bytes.
+The table is split into ``n_shards`` equal contiguous shards chosen by the top bits of the key hash, so
+threads update disjoint shards without atomics, and a shard never changes when the table grows.
+Within a shard the slot of a key is a hashed group of 8 slots indexed by the low 3 bits of z: cells of
+a z-run sit side by side (locality for rays and scans); collisions probe linearly.
+"""
+
+from __future__ import annotations
+
+import numba as nb
+import numpy as np
+
+from semmap.maps._keys import EMPTY_KEY
+
+GROUP = 8  # slots per locality group (low bits of z)
+SHARD_BITS = 6
+N_SHARDS = 1 << SHARD_BITS
+#: A shard is grown once it is fuller than this after a frame.
+MAX_LOAD = 0.8
+#: Before a frame, a shard that could exceed this with every new cell is grown first (probing safety).
+HARD_LOAD = 0.95
+GROWTH = 1.5
+
+
+@nb.njit(cache=True, inline="always")
+def key_hash(k: np.int64) -> np.uint64:
+    """64-bit mix of (x, y, z >> 3): the same for the 8 cells of a z-group."""
+    x = np.uint64(k & 0xFFFF)
+    y = np.uint64((k >> 16) & 0xFFFF)
+    zg = np.uint64((k >> 35) & 0x1FFF)
+    h = x * np.uint64(0x9E3779B97F4A7C15) ^ y * np.uint64(0xC2B2AE3D27D4EB4F) ^ zg * np.uint64(0x165667B19E3779F9)
+    h ^= h >> np.uint64(31)
+    h *= np.uint64(0xD6E8FEB86659FD93)
+    h ^= h >> np.uint64(32)
+    return h
+
+
+@nb.njit(cache=True, inline="always")
+def shard_of(k: np.int64) -> np.int64:
+    return np.int64(key_hash(k) >> np.uint64(64 - SHARD_BITS))
+
+
+@nb.njit(cache=True, inline="always")
+def home_slot(k: np.int64, shard_cap: int) -> np.int64:
+    """Home slot of a key inside its shard (0 <= slot < shard_cap; shard_cap is a multiple of GROUP)."""
+    h = key_hash(k) & np.uint64(0xFFFFFFFF)
+    groups = np.uint64(shard_cap // GROUP)
+    g = np.int64((h * groups) >> np.uint64(32))
+    return g * GROUP + ((k >> 32) & (GROUP - 1))
+
+
+@nb.njit(cache=True, inline="always")
+def find_slot(keys: np.ndarray, shard_cap: int, k: np.int64) -> np.int64:
+    """Slot of ``k`` or -1 when absent."""
+    base = shard_of(k) * shard_cap
+    s = home_slot(k, shard_cap)
+    for _ in range(shard_cap):
+        v = keys[base + s]
+        if v == k:
+            return base + s
+        if v == EMPTY_KEY:
+            return -1
+        s += 1
+        if s == shard_cap:
+            s = 0
+    return -1
+
+
+@nb.njit(cache=True, inline="always")
+def find_or_insert(keys: np.ndarray, logodds: np.ndarray, attr: np.ndarray, counts: np.ndarray,
+                   shard: int, shard_cap: int, k: np.int64) -> np.int64:
+    """Slot of ``k`` in its shard, inserting it (log-odds 0, no attributes) when absent; -1 if full."""
+    base = shard * shard_cap
+    s = home_slot(k, shard_cap)
+    for _ in range(shard_cap):
+        v = keys[base + s]
+        if v == k:
+            return base + s
+        if v == EMPTY_KEY:
+            keys[base + s] = k
+            logodds[base + s] = 0.0
+            attr[base + s] = -1
+            counts[shard] += 1
+            return base + s
+        s += 1
+        if s == shard_cap:
+            s = 0
+    return -1
+
+
+@nb.njit(cache=True, parallel=True)
+def rehash(keys: np.ndarray, logodds: np.ndarray, attr: np.ndarray, shard_cap: int,
+           new_keys: np.ndarray, new_logodds: np.ndarray, new_attr: np.ndarray, new_cap: int,
+           counts: np.ndarray) -> None:
+    """Move every entry into a table with ``new_cap`` slots per shard (each shard in parallel)."""
+    for sh in nb.prange(N_SHARDS):
+        counts[sh] = 0
+        for i in range(sh * shard_cap, (sh + 1) * shard_cap):
+            k = keys[i]
+            if k != EMPTY_KEY:
+                s = find_or_insert(new_keys, new_logodds, new_attr, counts, sh, new_cap, k)
+                new_logodds[s] = logodds[i]
+                new_attr[s] = attr[i]
+
+
+@nb.njit(cache=True, parallel=True)
+def lookup_many(keys: np.ndarray, shard_cap: int, packed: np.ndarray) -> np.ndarray:
+    """Slots (or -1) of many packed keys."""
+    out = np.empty(packed.shape[0], np.int64)
+    for i in nb.prange(packed.shape[0]):
+        out[i] = find_slot(keys, shard_cap, packed[i])
+    return out
+
+
+def round_capacity(n: float) -> int:
+    """Shard capacity: at least GROUP, a multiple of GROUP."""
+    return max(GROUP, int(np.ceil(n / GROUP)) * GROUP)

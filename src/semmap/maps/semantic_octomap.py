@@ -1,0 +1,496 @@
+"""The semantic OctoMap: occupancy log-odds, free space, colour and fused top-k class probabilities per voxel.
+
+Leaves at the finest resolution live in a sharded hash table (see ``_hashtable``); inner nodes, pruning and
+coarser resolutions are derived from them on demand (``coarsen``, ``maps.octree_tree``).  Occupancy follows
+OctoMap exactly (float32 log-odds of hit 0.7 / miss 0.4, clamping 0.1192 / 0.971, occupied iff log-odds >= the
+threshold's), and a scan is inserted like ``insertPointCloud(discretize=True)``, so the occupied / free /
+unknown state of every cell matches the real OctoMap library's.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import time
+from dataclasses import dataclass, field
+
+import numba as nb
+import numpy as np
+
+from semmap.errors import ConfigError
+from semmap.fusion.topk_bayes import DEFAULT_LAMBDA, DEFAULT_MAX_CONFIDENCE
+from semmap.maps import _hashtable as ht
+from semmap.maps import _octree_kernels as kern
+from semmap.maps._coarsen import coarsen_cells
+from semmap.maps._keys import (
+    EMPTY_KEY,
+    KEY_LIMIT,
+    TREE_MAX_VAL,
+    coords_to_keys,
+    keys_to_coords,
+    pack_keys,
+    unpack_keys,
+)
+from semmap.types import EMPTY_LABEL, LabelSet, TopKProbs
+
+log = logging.getLogger("semmap")
+
+UNKNOWN, FREE, OCCUPIED = 0, 1, 2
+#: Largest temporary scan grid (cells = bytes); wider scans are range-limited with a warning.
+GRID_CELL_LIMIT = 1 << 27
+_INITIAL_SHARD_CAP = 1024
+
+
+def logodds(p: float) -> np.float32:
+    """OctoMap's float32 log-odds of a probability."""
+    return np.float32(math.log(p / (1.0 - p)))
+
+
+@dataclass(frozen=True)
+class OccupancyParams:
+    """OctoMap's sensor model: hit / miss probabilities, clamping bounds and the occupancy threshold."""
+
+    prob_hit: float = 0.7
+    prob_miss: float = 0.4
+    clamp_min: float = 0.1192
+    clamp_max: float = 0.971
+    occupancy_threshold: float = 0.5
+
+    def __post_init__(self) -> None:
+        for name in ("prob_hit", "prob_miss", "clamp_min", "clamp_max", "occupancy_threshold"):
+            v = getattr(self, name)
+            if not 0.0 < v < 1.0:
+                raise ConfigError(f"{name} must be a probability in (0, 1), got {v}")
+        if not self.prob_miss < 0.5 < self.prob_hit:
+            raise ConfigError("need prob_miss < 0.5 < prob_hit")
+        if not self.clamp_min < self.clamp_max:
+            raise ConfigError("need clamp_min < clamp_max")
+
+    @property
+    def hit_log(self) -> np.float32:
+        return logodds(self.prob_hit)
+
+    @property
+    def miss_log(self) -> np.float32:
+        return logodds(self.prob_miss)
+
+    @property
+    def min_log(self) -> np.float32:
+        return logodds(self.clamp_min)
+
+    @property
+    def max_log(self) -> np.float32:
+        return logodds(self.clamp_max)
+
+    @property
+    def threshold_log(self) -> np.float32:
+        return logodds(self.occupancy_threshold)
+
+
+@dataclass(frozen=True)
+class SemanticParams:
+    """Top-k label fusion: set size k, penalty λ, cap on the top confidence."""
+
+    k: int = 3
+    lam: float = DEFAULT_LAMBDA
+    max_confidence: float = DEFAULT_MAX_CONFIDENCE
+
+    def __post_init__(self) -> None:
+        if not 1 <= self.k <= 8:
+            raise ConfigError(f"semantic set size k must be in 1..8, got {self.k}")
+        if not 0.0 <= self.lam <= 1.0:
+            raise ConfigError(f"λ must be in [0, 1], got {self.lam}")
+        if not 0.0 < self.max_confidence <= 1.0:
+            raise ConfigError(f"max_confidence must be in (0, 1], got {self.max_confidence}")
+
+
+@dataclass
+class InsertStats:
+    """What one scan insertion did and how long each step took (milliseconds)."""
+
+    points: int = 0
+    endpoints: int = 0
+    hits: int = 0
+    free_cells: int = 0
+    ray_steps: int = 0
+    range_limited: bool = False
+    ms: dict[str, float] = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
+class VoxelCloud:
+    """Occupied (or any) voxels as flat arrays: keys, centres, log-odds, mean colour and top-k semantics."""
+
+    keys: np.ndarray  # (M, 3) int64 OctoMap keys
+    centers: np.ndarray  # (M, 3) float64 metres
+    logodds: np.ndarray  # (M,) float32
+    colors: np.ndarray  # (M, 3) uint8 mean observed colour (grey where never coloured)
+    labels: np.ndarray  # (M, k) uint16, EMPTY_LABEL where none
+    probs: np.ndarray  # (M, k) float32
+
+    def __len__(self) -> int:
+        return int(self.keys.shape[0])
+
+
+@dataclass(frozen=True)
+class CellArrays:
+    """Every stored finest-level cell, compacted: the raw state a file writer or a comparison needs."""
+
+    packed: np.ndarray  # (M,) int64 packed keys
+    logodds: np.ndarray  # (M,) float32
+    attr: np.ndarray  # (M,) int32 row into the attribute arrays, -1 = none
+    rgb_sum: np.ndarray  # (A, 3) uint32
+    rgb_count: np.ndarray  # (A,) uint32
+    sem_labels: np.ndarray  # (A, k) uint16
+    sem_probs: np.ndarray  # (A, k) float32
+
+
+class SemanticOctoMap:
+    """Probabilistic 3D occupancy map with colour and top-k semantics per voxel, OctoMap-compatible keys."""
+
+    def __init__(self, resolution: float = 0.05, *, occupancy: OccupancyParams | None = None,
+                 semantics: SemanticParams | None = None, label_set: LabelSet | None = None,
+                 max_range: float = -1.0, grid_cell_limit: int = GRID_CELL_LIMIT) -> None:
+        if not (math.isfinite(resolution) and 0.001 <= resolution <= 10.0):
+            raise ConfigError(f"resolution must be between 0.001 and 10 m, got {resolution}")
+        self.resolution = float(resolution)
+        self.occupancy = occupancy or OccupancyParams()
+        self.semantics = semantics or SemanticParams()
+        self.label_set = label_set
+        self.max_range = float(max_range)
+        self.grid_cell_limit = int(grid_cell_limit)
+        self._hit, self._miss = self.occupancy.hit_log, self.occupancy.miss_log
+        self._min, self._max = self.occupancy.min_log, self.occupancy.max_log
+        self._thr = self.occupancy.threshold_log
+        self._alloc_table(_INITIAL_SHARD_CAP)
+        self._alloc_attributes(1024)
+        self._n_attr = 0
+        self._grid = np.zeros(0, np.uint8)
+        self._warned_range = False
+
+    # ------------------------------------------------------------------ storage
+    def _alloc_table(self, shard_cap: int) -> None:
+        n = ht.N_SHARDS * shard_cap
+        self._shard_cap = shard_cap
+        self._keys = np.full(n, EMPTY_KEY, np.int64)
+        self._logodds = np.zeros(n, np.float32)
+        self._attr = np.full(n, -1, np.int32)
+        self._counts = np.zeros(ht.N_SHARDS, np.int64)
+
+    def _alloc_attributes(self, rows: int) -> None:
+        k = self.semantics.k
+        self._rgb_sum = np.zeros((rows, 3), np.uint32)
+        self._rgb_count = np.zeros(rows, np.uint32)
+        self._sem_labels = np.full((rows, k), EMPTY_LABEL, np.uint16)
+        self._sem_probs = np.zeros((rows, k), np.float32)
+
+    def _grow_table(self, min_cap: int) -> None:
+        cap = self._shard_cap
+        while cap < min_cap:
+            cap = ht.round_capacity(cap * ht.GROWTH)
+        old = (self._keys, self._logodds, self._attr, self._shard_cap)
+        self._alloc_table(cap)
+        ht.rehash(old[0], old[1], old[2], old[3], self._keys, self._logodds, self._attr, cap, self._counts)
+
+    def _ensure_attributes(self, rows: int) -> None:
+        have = self._rgb_count.shape[0]
+        if rows <= have:
+            return
+        new = have
+        while new < rows:
+            new = int(new * ht.GROWTH) + 1
+        old = (self._rgb_sum, self._rgb_count, self._sem_labels, self._sem_probs)
+        self._alloc_attributes(new)
+        n = self._n_attr
+        self._rgb_sum[:n], self._rgb_count[:n] = old[0][:n], old[1][:n]
+        self._sem_labels[:n], self._sem_probs[:n] = old[2][:n], old[3][:n]
+
+    def _grid_buffer(self, cells: int) -> np.ndarray:
+        if self._grid.shape[0] < cells:
+            self._grid = np.zeros(int(cells * 1.25) + 64, np.uint8)
+        return self._grid
+
+    # ------------------------------------------------------------------ insertion
+    def insert_points(self, points: np.ndarray, origin: np.ndarray, *, colors: np.ndarray | None = None,
+                      semantics: TopKProbs | None = None) -> InsertStats:
+        """Insert one scan: world points (N, 3) seen from sensor ``origin`` (3,), optional colours (N, 3)
+        uint8 and per-point top-k class distributions (N, k).  Points are used as float32, like OctoMap."""
+        t0 = time.perf_counter()
+        pts = np.ascontiguousarray(points, dtype=np.float32)
+        if pts.ndim != 2 or pts.shape[1] != 3:
+            raise ConfigError(f"points must be (N, 3), got {pts.shape}")
+        org = np.asarray(origin, dtype=np.float32).reshape(-1)
+        if org.shape != (3,) or not np.isfinite(org).all():
+            raise ConfigError(f"sensor origin must be 3 finite numbers, got {origin!r}")
+        n = pts.shape[0]
+        col = None
+        if colors is not None:
+            col = np.ascontiguousarray(colors, dtype=np.uint8)
+            if col.shape != (n, 3):
+                raise ConfigError(f"colours must be ({n}, 3), got {col.shape}")
+        sem_l = sem_p = None
+        if semantics is not None:
+            sem_l = np.ascontiguousarray(semantics.labels, dtype=np.uint16)
+            sem_p = np.ascontiguousarray(semantics.probs, dtype=np.float32)
+            if sem_l.shape != (n, self.semantics.k):
+                raise ConfigError(f"semantics must be ({n}, {self.semantics.k}), got {sem_l.shape}")
+            if self.label_set is not None:
+                bad = (sem_l != EMPTY_LABEL) & (sem_l >= len(self.label_set))
+                if bad.any():
+                    raise ConfigError(f"class id {int(sem_l[bad].max())} is outside the map's label set "
+                                      f"({len(self.label_set)} classes)")
+        stats = InsertStats(points=n)
+        if n == 0:
+            return stats
+        res, rf = self.resolution, 1.0 / self.resolution
+        threads = nb.get_num_threads()
+
+        # 1. keys and bounding box
+        keys, valid, boxes = kern.point_keys(pts, rf, threads)
+        lo, hi = boxes[:, :3].min(axis=0), boxes[:, 3:].max(axis=0)
+        t1 = time.perf_counter()
+        stats.ms["keys"] = (t1 - t0) * 1e3
+        if (hi < lo).any():
+            return stats
+        okey = coords_to_keys(org[None], res)[0]
+        origin_ok = bool(((okey >= 0) & (okey < KEY_LIMIT)).all())
+        if origin_ok:
+            lo, hi = np.minimum(lo, okey), np.maximum(hi, okey)
+        max_range = self.max_range
+        lo, hi = self._clip_box(lo, hi, okey, max_range, origin_ok)
+        dims = hi - lo + 1
+        if int(np.prod(dims)) > self.grid_cell_limit and origin_ok:
+            side = int(self.grid_cell_limit ** (1.0 / 3.0)) - 6
+            limit = side / 2 * res
+            max_range = limit if max_range < 0 else min(max_range, limit)
+            stats.range_limited = True
+            if not self._warned_range:
+                log.warning("a scan spans more than %d voxels at %.3f m; limiting its range to %.2f m "
+                            "(set max_range to choose)", self.grid_cell_limit, res, max_range)
+                self._warned_range = True
+            lo, hi = self._clip_box(lo, hi, okey, max_range, origin_ok)
+            dims = hi - lo + 1
+        if int(np.prod(dims)) > self.grid_cell_limit:
+            raise ConfigError(f"scan spans {dims.tolist()} voxels and its sensor origin {org.tolist()} is "
+                              "outside the map's key range")
+        gnx, gny, gnz = (int(v) for v in dims)
+        g0x, g0y, g0z = (int(v) for v in lo)
+        grid = self._grid_buffer(gnx * gny * gnz)
+
+        # 2. voxel filter: first point per endpoint cell
+        first = kern.dedupe_endpoints(keys, valid, grid, g0x, g0y, g0z, gnx, gny, gnz)
+        outside = self._far_endpoints(keys, valid, lo, hi) if max_range >= 0 else None
+        t2 = time.perf_counter()
+        stats.ms["voxel_filter"] = (t2 - t1) * 1e3
+
+        # 3. rays to every endpoint cell (or to the max-range point)
+        targets, hit = kern.endpoint_targets(keys, first, org, res, max_range, grid,
+                                             g0x, g0y, g0z, gnx, gny, gnz)
+        if outside is not None and outside.size:
+            far_t, _ = kern.endpoint_targets(keys, outside, org, res, max_range, grid,
+                                             g0x, g0y, g0z, gnx, gny, gnz)
+            targets = np.concatenate([targets, far_t])
+        if origin_ok:
+            stats.ray_steps = int(kern.cast_rays(org, targets, res, rf, grid, g0x, g0y, g0z, gny, gnz, threads))
+        t3 = time.perf_counter()
+        stats.ms["raycast"] = (t3 - t2) * 1e3
+
+        # 4. gather free cells by shard (resets the grid)
+        free, free_off = kern.collect_free(grid, g0x, g0y, g0z, gnx, gny, gnz)
+        hit_first = first[hit]
+        hit_packed = pack_keys(keys[hit_first])
+        order, hit_off = kern.bucket_by_shard(hit_packed)
+        t4 = time.perf_counter()
+        stats.ms["collect"] = (t4 - t3) * 1e3
+        stats.endpoints, stats.hits, stats.free_cells = int(first.size), int(hit_first.size), int(free.size)
+
+        # 5. occupancy, colour and semantics updates
+        incoming = np.diff(free_off) + np.diff(hit_off)
+        need = int(((self._counts + incoming) / ht.HARD_LOAD).max())
+        if need > self._shard_cap:
+            self._grow_table(need)
+        failed = kern.update_free(self._keys, self._logodds, self._attr, self._counts, self._shard_cap,
+                                  free, free_off, self._miss, self._min)
+        slots = kern.update_hits(self._keys, self._logodds, self._attr, self._counts, self._shard_cap,
+                                 hit_packed, order, hit_off, self._hit, self._max)
+        if failed or (slots < 0).any():
+            raise RuntimeError("internal error: hash table shard overflow")
+        t5 = time.perf_counter()
+        stats.ms["occupancy"] = (t5 - t4) * 1e3
+        if col is not None or sem_l is not None:
+            self._ensure_attributes(self._n_attr + hit_first.size)
+            self._n_attr = kern.assign_attributes(self._attr, slots, self._n_attr)
+            dummy_c = np.zeros((1, 3), np.uint8)
+            dummy_l = np.zeros((1, self.semantics.k), np.uint16)
+            dummy_p = np.zeros((1, self.semantics.k), np.float32)
+            kern.update_attributes(self._attr, slots, hit_first,
+                                   col if col is not None else dummy_c, col is not None,
+                                   sem_l if sem_l is not None else dummy_l,
+                                   sem_p if sem_p is not None else dummy_p, sem_l is not None,
+                                   self._rgb_sum, self._rgb_count, self._sem_labels, self._sem_probs,
+                                   self.semantics.lam, self.semantics.max_confidence, threads)
+        if self._counts.max() > ht.MAX_LOAD * self._shard_cap:
+            self._grow_table(ht.round_capacity(self._counts.max() / ht.MAX_LOAD * ht.GROWTH))
+        stats.ms["attributes"] = (time.perf_counter() - t5) * 1e3
+        return stats
+
+    def _clip_box(self, lo: np.ndarray, hi: np.ndarray, okey: np.ndarray, max_range: float,
+                  origin_ok: bool) -> tuple[np.ndarray, np.ndarray]:
+        """Scan grid box: the keys' box with a one-cell margin, cut to the max-range ball around the origin."""
+        lo = np.maximum(lo - 1, 0)
+        hi = np.minimum(hi + 1, KEY_LIMIT - 1)
+        if max_range >= 0 and origin_ok:
+            r = math.ceil(max_range / self.resolution) + 2
+            lo = np.maximum(lo, okey - r)
+            hi = np.minimum(hi, okey + r)
+        return lo, hi
+
+    @staticmethod
+    def _far_endpoints(keys: np.ndarray, valid: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+        """First point of each endpoint cell outside the range-limited grid (all of them max-range readings)."""
+        out = valid & ((keys < lo).any(axis=1) | (keys > hi).any(axis=1))
+        idx = np.flatnonzero(out)
+        if idx.size == 0:
+            return idx
+        _, first = np.unique(pack_keys(keys[idx]), return_index=True)
+        return np.sort(idx[first])
+
+    # ------------------------------------------------------------------ queries
+    @property
+    def num_leaves(self) -> int:
+        """Number of finest-level cells known (occupied or free)."""
+        return int(self._counts.sum())
+
+    def _used(self) -> np.ndarray:
+        return self._keys != EMPTY_KEY
+
+    @property
+    def num_occupied(self) -> int:
+        return int(((self._logodds >= self._thr) & self._used()).sum())
+
+    @property
+    def num_free(self) -> int:
+        return self.num_leaves - self.num_occupied
+
+    @property
+    def memory_bytes(self) -> int:
+        """Bytes held by the map: hash table (with its slack) and attribute arrays (not the scan scratch grid)."""
+        arrays = (self._keys, self._logodds, self._attr, self._counts, self._rgb_sum, self._rgb_count,
+                  self._sem_labels, self._sem_probs)
+        return int(sum(a.nbytes for a in arrays))
+
+    def _slots_of(self, points: np.ndarray) -> np.ndarray:
+        keys = coords_to_keys(np.asarray(points).reshape(-1, 3), self.resolution)
+        inside = ((keys >= 0) & (keys < KEY_LIMIT)).all(axis=1)
+        slots = np.full(keys.shape[0], -1, np.int64)
+        if inside.any():
+            slots[inside] = ht.lookup_many(self._keys, self._shard_cap, pack_keys(keys[inside]))
+        return slots
+
+    def state_at(self, points: np.ndarray) -> np.ndarray:
+        """Cell state (UNKNOWN 0, FREE 1, OCCUPIED 2) at each (N, 3) world point."""
+        slots = self._slots_of(points)
+        out = np.full(slots.shape[0], UNKNOWN, np.int8)
+        known = slots >= 0
+        out[known] = np.where(self._logodds[slots[known]] >= self._thr, OCCUPIED, FREE)
+        return out
+
+    def semantics_at(self, points: np.ndarray) -> TopKProbs:
+        """Fused top-k class distribution at each (N, 3) point (empty sets where nothing was observed)."""
+        slots = self._slots_of(points)
+        k = self.semantics.k
+        labels = np.full((slots.shape[0], k), EMPTY_LABEL, np.uint16)
+        probs = np.zeros((slots.shape[0], k), np.float32)
+        known = slots >= 0
+        rows = np.full(slots.shape[0], -1, np.int64)
+        rows[known] = self._attr[slots[known]]
+        has = rows >= 0
+        labels[has] = self._sem_labels[rows[has]]
+        probs[has] = self._sem_probs[rows[has]]
+        return TopKProbs(labels, probs)
+
+    def cells(self) -> CellArrays:
+        """All stored cells, compacted, sorted by packed key (deterministic order)."""
+        used = np.flatnonzero(self._used())
+        order = np.argsort(self._keys[used], kind="stable")
+        used = used[order]
+        n = self._n_attr
+        return CellArrays(self._keys[used].copy(), self._logodds[used].copy(), self._attr[used].copy(),
+                          self._rgb_sum[:n].copy(), self._rgb_count[:n].copy(),
+                          self._sem_labels[:n].copy(), self._sem_probs[:n].copy())
+
+    def voxels(self, *, occupied_only: bool = True) -> VoxelCloud:
+        """Voxels as flat arrays (occupied ones by default), sorted by key."""
+        c = self.cells()
+        sel = c.logodds >= self._thr if occupied_only else np.ones(c.packed.shape[0], bool)
+        keys = unpack_keys(c.packed[sel])
+        rows = c.attr[sel]
+        colors = np.full((keys.shape[0], 3), 128, np.uint8)
+        k = self.semantics.k
+        labels = np.full((keys.shape[0], k), EMPTY_LABEL, np.uint16)
+        probs = np.zeros((keys.shape[0], k), np.float32)
+        has = rows >= 0
+        cnt = c.rgb_count[rows[has]]
+        colored = np.flatnonzero(has)[cnt > 0]
+        r = rows[colored]
+        colors[colored] = np.round(c.rgb_sum[r] / c.rgb_count[r][:, None]).astype(np.uint8)
+        labels[has] = c.sem_labels[rows[has]]
+        probs[has] = c.sem_probs[rows[has]]
+        return VoxelCloud(keys, keys_to_coords(keys, self.resolution), c.logodds[sel], colors, labels, probs)
+
+    def is_occupied(self, logodds_values: np.ndarray) -> np.ndarray:
+        return np.asarray(logodds_values) >= self._thr
+
+    # ------------------------------------------------------------------ multi-resolution
+    def coarsen(self, levels: int = 1) -> SemanticOctoMap:
+        """The map at ``resolution * 2**levels``, as OctoMap's inner nodes at that depth: occupancy = max of
+        the children, colour = mean of the children's observations, semantics = fusion of the children's sets."""
+        if not 0 <= levels <= 15:
+            raise ConfigError(f"levels must be in 0..15, got {levels}")
+        out = SemanticOctoMap(self.resolution * 2**levels, occupancy=self.occupancy, semantics=self.semantics,
+                              label_set=self.label_set, max_range=self.max_range,
+                              grid_cell_limit=self.grid_cell_limit)
+        c = self.cells()
+        if levels == 0 or c.packed.size == 0:
+            out._load_cells(c)
+            return out
+        keys = unpack_keys(c.packed)
+        coarse = pack_keys(((keys - TREE_MAX_VAL) >> levels) + TREE_MAX_VAL)
+        order = np.argsort(coarse, kind="stable")
+        packed, lo, attr, rgb_sum, rgb_count, labels, probs = coarsen_cells(
+            coarse[order], c.logodds[order], c.attr[order], c.rgb_sum, c.rgb_count, c.sem_labels, c.sem_probs,
+            self.semantics.lam, self.semantics.max_confidence)
+        out._load_cells(CellArrays(packed, lo, attr, rgb_sum, rgb_count, labels, probs))
+        return out
+
+    def _load_cells(self, c: CellArrays) -> None:
+        """Replace the contents with compacted cells (used by coarsen and by file readers)."""
+        n = c.packed.shape[0]
+        self._alloc_table(ht.round_capacity(n / ht.N_SHARDS / (ht.MAX_LOAD * 0.9) + 1))
+        self._alloc_attributes(max(c.rgb_count.shape[0], 16))
+        self._n_attr = int(c.rgb_count.shape[0])
+        self._rgb_sum[: self._n_attr] = c.rgb_sum
+        self._rgb_count[: self._n_attr] = c.rgb_count
+        self._sem_labels[: self._n_attr] = c.sem_labels
+        self._sem_probs[: self._n_attr] = c.sem_probs
+        _insert_cells(self._keys, self._logodds, self._attr, self._counts, self._shard_cap,
+                      np.ascontiguousarray(c.packed, np.int64), np.ascontiguousarray(c.logodds, np.float32),
+                      np.ascontiguousarray(c.attr, np.int32))
+
+    @classmethod
+    def from_cells(cls, resolution: float, cells: CellArrays, **kwargs) -> SemanticOctoMap:
+        m = cls(resolution, **kwargs)
+        m._load_cells(cells)
+        return m
+
+    def __repr__(self) -> str:
+        return (f"SemanticOctoMap(resolution={self.resolution}, leaves={self.num_leaves}, "
+                f"occupied={self.num_occupied}, bytes={self.memory_bytes})")
+
+
+@nb.njit(cache=True)
+def _insert_cells(keys, logodds, attr, counts, shard_cap, packed, values, rows):
+    for i in range(packed.shape[0]):
+        s = ht.find_or_insert(keys, logodds, attr, counts, ht.shard_of(packed[i]), shard_cap, packed[i])
+        logodds[s] = values[i]
+        attr[s] = rows[i]

@@ -1,0 +1,19 @@
+"""The segmenter interface: a frame in, per-pixel class probabilities (top-k) out."""
+
+from __future__ import annotations
+
+from typing import Protocol, runtime_checkable
+
+from semmap.types import Frame, LabelSet, TopKProbs
+
+
+@runtime_checkable
+class Segmenter(Protocol):
+    """Anything that turns a frame into per-pixel class probabilities over its ``label_set``."""
+
+    @property
+    def label_set(self) -> LabelSet: ...
+
+    def segment(self, frame: Frame) -> TopKProbs:
+        """(H, W, k) top-k class distribution for ``frame`` (k = 3 unless configured otherwise)."""
+        ...

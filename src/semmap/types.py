@@ -1,0 +1,394 @@
+"""The small data types every stage speaks: frames, intrinsics, label sets, class probabilities, SE(3).
+
+Conventions: poses are ``T_world_cam`` 4x4 float64 (camera x right, y down, z forward), metres everywhere,
+label 0 is "unknown / void" in every :class:`LabelSet`.
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from semmap.errors import ConfigError, DatasetError
+
+#: Sentinel label id for an unused slot in a top-k semantic set.
+EMPTY_LABEL = np.uint16(65535)
+
+
+# --------------------------------------------------------------------------------------------------
+# Camera
+# --------------------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class CameraIntrinsics:
+    """Pinhole intrinsics of a depth-registered RGB-D camera (pixels)."""
+
+    width: int
+    height: int
+    fx: float
+    fy: float
+    cx: float
+    cy: float
+
+    def __post_init__(self) -> None:
+        if self.width <= 0 or self.height <= 0:
+            raise ConfigError(f"camera size must be positive, got {self.width}x{self.height}")
+        if not (np.isfinite([self.fx, self.fy, self.cx, self.cy]).all() and self.fx > 0 and self.fy > 0):
+            raise ConfigError(f"camera focal lengths must be finite and positive, got fx={self.fx} fy={self.fy}")
+
+    @property
+    def K(self) -> np.ndarray:
+        """3x3 camera matrix."""
+        return np.array([[self.fx, 0.0, self.cx], [0.0, self.fy, self.cy], [0.0, 0.0, 1.0]])
+
+    @classmethod
+    def from_matrix(cls, K: np.ndarray, width: int, height: int) -> CameraIntrinsics:
+        K = np.asarray(K, dtype=np.float64)
+        return cls(width, height, float(K[0, 0]), float(K[1, 1]), float(K[0, 2]), float(K[1, 2]))
+
+    def scaled(self, factor: float) -> CameraIntrinsics:
+        """Intrinsics of the image resized by ``factor`` (pixel-centre convention)."""
+        return CameraIntrinsics(
+            round(self.width * factor),
+            round(self.height * factor),
+            self.fx * factor,
+            self.fy * factor,
+            (self.cx + 0.5) * factor - 0.5,
+            (self.cy + 0.5) * factor - 0.5,
+        )
+
+    def to_dict(self) -> dict:
+        return {"width": self.width, "height": self.height, "fx": self.fx, "fy": self.fy,
+                "cx": self.cx, "cy": self.cy}
+
+    @classmethod
+    def from_dict(cls, d: dict) -> CameraIntrinsics:
+        try:
+            return cls(int(d["width"]), int(d["height"]), float(d["fx"]), float(d["fy"]),
+                       float(d["cx"]), float(d["cy"]))
+        except (KeyError, TypeError, ValueError) as exc:
+            raise ConfigError(f"camera intrinsics need width, height, fx, fy, cx, cy: {exc}") from exc
+
+
+# --------------------------------------------------------------------------------------------------
+# Labels
+# --------------------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class LabelSet:
+    """Class names and display colours, indexed by class id; id 0 is "unknown / void".
+
+    Colours are never pure white: OctoMap's ColorOcTree treats (255, 255, 255) as "colour not set".
+    """
+
+    names: tuple[str, ...]
+    colors: np.ndarray = field(repr=False)  # (K, 3) uint8
+
+    def __post_init__(self) -> None:
+        colors = np.asarray(self.colors, dtype=np.uint8).reshape(-1, 3)
+        if len(self.names) == 0:
+            raise ConfigError("a label set needs at least the 'unknown' class")
+        if colors.shape[0] != len(self.names):
+            raise ConfigError(f"label set has {len(self.names)} names but {colors.shape[0]} colours")
+        if len(self.names) >= int(EMPTY_LABEL):
+            raise ConfigError(f"at most {int(EMPTY_LABEL) - 1} classes are supported")
+        white = np.all(colors == 255, axis=1)
+        if white.any():
+            colors = colors.copy()
+            colors[white] = (254, 254, 254)
+        colors.setflags(write=False)
+        object.__setattr__(self, "colors", colors)
+
+    def __len__(self) -> int:
+        return len(self.names)
+
+    @property
+    def ids(self) -> np.ndarray:
+        return np.arange(len(self.names), dtype=np.uint16)
+
+    def id_of(self, name: str) -> int:
+        try:
+            return self.names.index(name)
+        except ValueError:
+            raise ConfigError(f"unknown class name {name!r}; known: {', '.join(self.names)}") from None
+
+    def colorize(self, labels: np.ndarray) -> np.ndarray:
+        """Class-colour image (…, 3) uint8 for an integer label array; ids out of range become black."""
+        labels = np.asarray(labels)
+        lut = np.zeros((max(int(labels.max(initial=0)) + 1, len(self)), 3), np.uint8)
+        lut[: len(self)] = self.colors
+        return lut[labels]
+
+    def to_dict(self) -> dict:
+        return {"classes": [{"id": i, "name": n, "color": [int(c) for c in self.colors[i]]}
+                            for i, n in enumerate(self.names)]}
+
+    @classmethod
+    def from_dict(cls, d: dict) -> LabelSet:
+        try:
+            entries = sorted(d["classes"], key=lambda e: int(e["id"]))
+            ids = [int(e["id"]) for e in entries]
+            if ids != list(range(len(ids))):
+                raise ValueError("class ids must be 0..K-1 without gaps")
+            return cls(tuple(str(e["name"]) for e in entries),
+                       np.array([e["color"] for e in entries], dtype=np.uint8))
+        except (KeyError, TypeError, ValueError) as exc:
+            raise ConfigError(f"malformed label set: {exc}") from exc
+
+    def save(self, path: str | Path) -> None:
+        from semmap.io.atomic import write_text_atomic
+
+        write_text_atomic(path, json.dumps(self.to_dict(), indent=1))
+
+    @classmethod
+    def load(cls, path: str | Path) -> LabelSet:
+        try:
+            return cls.from_dict(json.loads(Path(path).read_text()))
+        except (OSError, json.JSONDecodeError) as exc:
+            raise DatasetError(f"{path}: cannot read label set: {exc}") from exc
+        except ConfigError as exc:
+            raise DatasetError(f"{path}: {exc}") from exc
+
+    @classmethod
+    def generic(cls, num_classes: int) -> LabelSet:
+        """Label set with ``num_classes`` ids named ``class_i`` and well-spread colours (0 = unknown)."""
+        names = ("unknown", *tuple(f"class_{i}" for i in range(1, num_classes)))
+        return cls(names, distinct_colors(num_classes))
+
+
+def distinct_colors(n: int) -> np.ndarray:
+    """``n`` well-separated, deterministic, never-white colours; colour 0 is black (unknown)."""
+    colors = np.zeros((n, 3), np.uint8)
+    golden = 0.618033988749895
+    for i in range(1, n):
+        h = (i * golden) % 1.0
+        s = 0.65 + 0.35 * ((i * 7) % 3) / 2
+        v = 0.95 - 0.3 * ((i * 5) % 4) / 3
+        colors[i] = _hsv_to_rgb(h, s, v)
+    return colors
+
+
+def _hsv_to_rgb(h: float, s: float, v: float) -> tuple[int, int, int]:
+    i = int(h * 6) % 6
+    f = h * 6 - int(h * 6)
+    p, q, t = v * (1 - s), v * (1 - f * s), v * (1 - (1 - f) * s)
+    r, g, b = [(v, t, p), (q, v, p), (p, v, t), (p, q, v), (t, p, v), (v, p, q)][i]
+    return int(r * 255), int(g * 255), int(b * 255)
+
+
+# --------------------------------------------------------------------------------------------------
+# Class probabilities
+# --------------------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class TopKProbs:
+    """Per-pixel (or per-point) top-k class distribution; the missing mass is the "others" class.
+
+    ``labels`` (..., k) uint16 with :data:`EMPTY_LABEL` in unused slots, ``probs`` (..., k) float32,
+    sorted by decreasing probability; ``others = 1 - probs.sum(-1)``.
+    """
+
+    labels: np.ndarray
+    probs: np.ndarray
+
+    def __post_init__(self) -> None:
+        if self.labels.shape != self.probs.shape:
+            raise ConfigError(f"top-k labels {self.labels.shape} and probs {self.probs.shape} differ in shape")
+
+    @property
+    def k(self) -> int:
+        return int(self.labels.shape[-1])
+
+    @property
+    def others(self) -> np.ndarray:
+        return np.clip(1.0 - self.probs.sum(-1), 0.0, 1.0).astype(np.float32)
+
+    def argmax(self) -> np.ndarray:
+        return self.labels[..., 0]
+
+    def reshape_flat(self) -> TopKProbs:
+        """View as (N, k) rows, e.g. one per pixel."""
+        return TopKProbs(self.labels.reshape(-1, self.k), self.probs.reshape(-1, self.k))
+
+    @classmethod
+    def from_dense(cls, probs: np.ndarray, k: int = 3) -> TopKProbs:
+        """Top-``k`` of a dense (..., K) probability array (ties broken by the lower class id)."""
+        probs = np.asarray(probs)
+        K = probs.shape[-1]
+        k_eff = min(k, K)
+        flat = probs.reshape(-1, K).astype(np.float32)
+        # stable descending order: sort on (-p, id)
+        order = np.argsort(-flat, axis=1, kind="stable")[:, :k_eff]
+        top_p = np.take_along_axis(flat, order, axis=1)
+        labels = np.full((flat.shape[0], k), EMPTY_LABEL, np.uint16)
+        out_p = np.zeros((flat.shape[0], k), np.float32)
+        labels[:, :k_eff] = order
+        out_p[:, :k_eff] = top_p
+        shape = (*probs.shape[:-1], k)
+        return cls(labels.reshape(shape), out_p.reshape(shape))
+
+    @classmethod
+    def from_hard_labels(cls, labels: np.ndarray, confidence: float, num_classes: int, k: int = 3) -> TopKProbs:
+        """Distribution for a hard label map: ``confidence`` on the given class, the rest in "others"."""
+        if not 0.0 < confidence <= 1.0:
+            raise ConfigError(f"label confidence must be in (0, 1], got {confidence}")
+        labels = np.asarray(labels)
+        if labels.size and int(labels.max()) >= num_classes:
+            raise ConfigError(f"label id {int(labels.max())} is outside the label set (0..{num_classes - 1})")
+        out_l = np.full((*labels.shape, k), EMPTY_LABEL, np.uint16)
+        out_p = np.zeros((*labels.shape, k), np.float32)
+        out_l[..., 0] = labels
+        out_p[..., 0] = confidence
+        return cls(out_l, out_p)
+
+
+# --------------------------------------------------------------------------------------------------
+# Frames
+# --------------------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class Frame:
+    """One registered RGB-D frame and whatever ground truth or perception came with it.
+
+    ``depth`` is float32 metres with 0 for invalid; ``T_world_cam`` is None when the source has no pose.
+    """
+
+    index: int
+    timestamp: float
+    rgb: np.ndarray  # (H, W, 3) uint8
+    depth: np.ndarray  # (H, W) float32 metres, 0 = invalid
+    intrinsics: CameraIntrinsics
+    T_world_cam: np.ndarray | None = None  # (4, 4) float64
+    labels: np.ndarray | None = None  # (H, W) uint16 class ids, 0 = unknown
+    instances: np.ndarray | None = None  # (H, W) int32 instance ids, 0 = none
+    semantics: TopKProbs | None = None  # (H, W, k) per-pixel class distribution
+    name: str = ""
+
+    def __post_init__(self) -> None:
+        h, w = self.intrinsics.height, self.intrinsics.width
+        where = f"frame {self.name or self.index}"
+        if self.rgb.shape != (h, w, 3) or self.rgb.dtype != np.uint8:
+            raise DatasetError(f"{where}: colour image is {self.rgb.shape} {self.rgb.dtype}, "
+                               f"expected ({h}, {w}, 3) uint8")
+        if self.depth.shape != (h, w) or self.depth.dtype != np.float32:
+            raise DatasetError(f"{where}: depth image is {self.depth.shape} {self.depth.dtype}, "
+                               f"expected ({h}, {w}) float32")
+        for what, arr in (("labels", self.labels), ("instances", self.instances)):
+            if arr is not None and arr.shape != (h, w):
+                raise DatasetError(f"{where}: {what} image is {arr.shape}, expected ({h}, {w})")
+        if self.semantics is not None and self.semantics.labels.shape[:2] != (h, w):
+            raise DatasetError(f"{where}: class probabilities are {self.semantics.labels.shape[:2]}, "
+                               f"expected ({h}, {w})")
+        if self.T_world_cam is not None:
+            check_pose(self.T_world_cam, where)
+
+    def with_(self, **changes) -> Frame:
+        """Copy with some fields replaced (frames are immutable)."""
+        from dataclasses import replace
+
+        return replace(self, **changes)
+
+
+# --------------------------------------------------------------------------------------------------
+# SE(3)
+# --------------------------------------------------------------------------------------------------
+def check_pose(T: np.ndarray, where: str = "pose") -> np.ndarray:
+    """Validate a 4x4 rigid transform; raise :class:`DatasetError` naming ``where`` otherwise."""
+    T = np.asarray(T, dtype=np.float64)
+    if T.shape != (4, 4):
+        raise DatasetError(f"{where}: pose must be 4x4, got {T.shape}")
+    if not np.isfinite(T).all():
+        raise DatasetError(f"{where}: pose has non-finite entries")
+    R = T[:3, :3]
+    if not np.allclose(R @ R.T, np.eye(3), atol=1e-3) or not np.allclose(T[3], [0, 0, 0, 1], atol=1e-6):
+        raise DatasetError(f"{where}: pose is not a rigid transform (rotation not orthonormal)")
+    return T
+
+
+def make_pose(R: np.ndarray, t: Sequence[float] | np.ndarray) -> np.ndarray:
+    """4x4 transform from a 3x3 rotation and a translation."""
+    T = np.eye(4)
+    T[:3, :3] = R
+    T[:3, 3] = np.asarray(t, dtype=np.float64).reshape(3)
+    return T
+
+
+def invert_pose(T: np.ndarray) -> np.ndarray:
+    """Inverse of a rigid transform without a general matrix inverse."""
+    R, t = T[:3, :3], T[:3, 3]
+    return make_pose(R.T, -R.T @ t)
+
+
+def transform_points(T: np.ndarray, points: np.ndarray) -> np.ndarray:
+    """Apply a 4x4 transform to (N, 3) points; keeps float32 input as float32 (computed in float64)."""
+    pts = np.asarray(points)
+    out = pts.astype(np.float64) @ T[:3, :3].T + T[:3, 3]
+    return out.astype(pts.dtype if pts.dtype in (np.float32, np.float64) else np.float64)
+
+
+def quat_xyzw_to_rot(q: Sequence[float] | np.ndarray) -> np.ndarray:
+    """Rotation matrix from a quaternion in TUM order (qx, qy, qz, qw); normalises the input."""
+    x, y, z, w = np.asarray(q, dtype=np.float64) / np.linalg.norm(q)
+    return np.array([
+        [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+        [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+        [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
+    ])
+
+
+def rot_to_quat_xyzw(R: np.ndarray) -> np.ndarray:
+    """Quaternion (qx, qy, qz, qw) with qw >= 0 from a rotation matrix (Shepperd's method)."""
+    R = np.asarray(R, dtype=np.float64)
+    tr = np.trace(R)
+    if tr > 0:
+        s = np.sqrt(tr + 1.0) * 2
+        q = [(R[2, 1] - R[1, 2]) / s, (R[0, 2] - R[2, 0]) / s, (R[1, 0] - R[0, 1]) / s, 0.25 * s]
+    elif R[0, 0] > R[1, 1] and R[0, 0] > R[2, 2]:
+        s = np.sqrt(1.0 + R[0, 0] - R[1, 1] - R[2, 2]) * 2
+        q = [0.25 * s, (R[0, 1] + R[1, 0]) / s, (R[0, 2] + R[2, 0]) / s, (R[2, 1] - R[1, 2]) / s]
+    elif R[1, 1] > R[2, 2]:
+        s = np.sqrt(1.0 + R[1, 1] - R[0, 0] - R[2, 2]) * 2
+        q = [(R[0, 1] + R[1, 0]) / s, 0.25 * s, (R[1, 2] + R[2, 1]) / s, (R[0, 2] - R[2, 0]) / s]
+    else:
+        s = np.sqrt(1.0 + R[2, 2] - R[0, 0] - R[1, 1]) * 2
+        q = [(R[0, 2] + R[2, 0]) / s, (R[1, 2] + R[2, 1]) / s, 0.25 * s, (R[1, 0] - R[0, 1]) / s]
+    q = np.asarray(q)
+    q /= np.linalg.norm(q)
+    return -q if q[3] < 0 else q
+
+
+def pose_from_tum(values: Sequence[float]) -> np.ndarray:
+    """``T_world_cam`` from a TUM row ``tx ty tz qx qy qz qw``."""
+    v = np.asarray(values, dtype=np.float64)
+    return make_pose(quat_xyzw_to_rot(v[3:7]), v[:3])
+
+
+def pose_to_tum(T: np.ndarray) -> np.ndarray:
+    """TUM row ``tx ty tz qx qy qz qw`` for a 4x4 transform."""
+    return np.concatenate([T[:3, 3], rot_to_quat_xyzw(T[:3, :3])])
+
+
+def slerp(q0: np.ndarray, q1: np.ndarray, alpha: float) -> np.ndarray:
+    """Spherical linear interpolation of unit quaternions (xyzw), shortest path."""
+    q0 = np.asarray(q0, float) / np.linalg.norm(q0)
+    q1 = np.asarray(q1, float) / np.linalg.norm(q1)
+    dot = float(q0 @ q1)
+    if dot < 0:
+        q1, dot = -q1, -dot
+    if dot > 0.9995:
+        q = q0 + alpha * (q1 - q0)
+        return q / np.linalg.norm(q)
+    theta = np.arccos(np.clip(dot, -1.0, 1.0))
+    return (np.sin((1 - alpha) * theta) * q0 + np.sin(alpha * theta) * q1) / np.sin(theta)
+
+
+def interpolate_pose(T0: np.ndarray, T1: np.ndarray, alpha: float) -> np.ndarray:
+    """Pose at fraction ``alpha`` between T0 and T1: linear in translation, slerp in rotation."""
+    q = slerp(rot_to_quat_xyzw(T0[:3, :3]), rot_to_quat_xyzw(T1[:3, :3]), alpha)
+    t = (1 - alpha) * T0[:3, 3] + alpha * T1[:3, 3]
+    return make_pose(quat_xyzw_to_rot(q), t)
+
+
+def rotation_angle(R: np.ndarray) -> float:
+    """Angle (radians) of a rotation matrix."""
+    return float(np.arccos(np.clip((np.trace(R) - 1) / 2, -1.0, 1.0)))

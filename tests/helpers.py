@@ -1,0 +1,79 @@
+"""Synthetic frames, trajectories and on-disk sequences for tests (small, deterministic)."""
+
+from __future__ import annotations
+
+from collections.abc import Iterable
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from semmap.types import CameraIntrinsics, Frame, make_pose
+
+SMALL_CAMERA = CameraIntrinsics(32, 24, 30.0, 30.0, 15.5, 11.5)
+
+
+def rotation_z(angle: float) -> np.ndarray:
+    """Rotation about the z axis by ``angle`` radians."""
+    c, s = np.cos(angle), np.sin(angle)
+    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+
+
+def make_frames(
+    n: int,
+    *,
+    camera: CameraIntrinsics = SMALL_CAMERA,
+    seed: int = 0,
+    t0: float = 1305031102.175304,
+    dt: float = 1 / 30,
+    with_labels: bool = True,
+) -> list[Frame]:
+    """``n`` frames with random images, a few invalid depth pixels and a slowly turning, moving camera."""
+    rng = np.random.default_rng(seed)
+    h, w = camera.height, camera.width
+    frames = []
+    for i in range(n):
+        depth = rng.uniform(0.3, 6.0, (h, w)).astype(np.float32)
+        depth[rng.random((h, w)) < 0.1] = 0.0
+        frames.append(Frame(
+            index=i,
+            timestamp=t0 + i * dt,
+            rgb=rng.integers(0, 256, (h, w, 3), dtype=np.uint8),
+            depth=depth,
+            intrinsics=camera,
+            T_world_cam=make_pose(rotation_z(0.05 * i), [0.1 * i, -0.02 * i, 1.0]),
+            labels=rng.integers(0, 300, (h, w)).astype(np.uint16) if with_labels else None,
+            instances=rng.integers(0, 1000, (h, w)).astype(np.int32) if with_labels else None,
+            name=f"{t0 + i * dt:.6f}",
+        ))
+    return frames
+
+
+def write_png(path: Path, image: np.ndarray) -> Path:
+    """Write ``image`` as PNG exactly as given (no colour conversion)."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    ok, data = cv2.imencode(".png", image)
+    assert ok, path
+    path.write_bytes(data.tobytes())
+    return path
+
+
+def write_7scenes_sequence(root: Path, frames: Iterable[Frame], *, color_ext: str = ".png",
+                           write_intrinsics: bool = True) -> Path:
+    """Write frames in 7-Scenes layout (``frame-NNNNNN.*``, frame number = ``frame.index``, depth in mm)."""
+    root.mkdir(parents=True, exist_ok=True)
+    camera = None
+    for frame in frames:
+        camera = frame.intrinsics
+        stem = root / f"frame-{frame.index:06d}"
+        bgr = cv2.cvtColor(frame.rgb, cv2.COLOR_RGB2BGR)
+        if color_ext == ".png":
+            write_png(Path(f"{stem}.color.png"), bgr)
+        else:
+            cv2.imwrite(f"{stem}.color{color_ext}", bgr)
+        write_png(Path(f"{stem}.depth.png"), np.rint(frame.depth * 1000).astype(np.uint16))
+        if frame.T_world_cam is not None:
+            np.savetxt(f"{stem}.pose.txt", frame.T_world_cam)
+    if write_intrinsics and camera is not None:
+        np.savetxt(root / "camera-intrinsics.txt", camera.K)
+    return root
