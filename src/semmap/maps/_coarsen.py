@@ -10,11 +10,12 @@ from semmap.types import EMPTY_LABEL
 
 
 @nb.njit(cache=True)
-def coarsen_cells(parent: np.ndarray, logodds: np.ndarray, attr: np.ndarray, rgb_sum: np.ndarray,
+def coarsen_cells(parent: np.ndarray, logodds: np.ndarray, attr: np.ndarray, rgb: np.ndarray,
                   rgb_count: np.ndarray, sem_labels: np.ndarray, sem_probs: np.ndarray,
                   lam: float, max_confidence: float):
-    """Group cells by ``parent`` key (sorted ascending) and merge each group: max log-odds, summed colour
-    observations, semantic sets fused in key order (Algorithm 1).  Returns the parent cells compacted."""
+    """Group cells by ``parent`` key (sorted ascending) and merge each group: max log-odds, colour = mean of
+    the children's means weighted by their observation counts, semantic sets fused in key order
+    (Algorithm 1).  Returns the parent cells compacted."""
     n = parent.shape[0]
     k = sem_labels.shape[1]
     n_groups = 0
@@ -24,8 +25,8 @@ def coarsen_cells(parent: np.ndarray, logodds: np.ndarray, attr: np.ndarray, rgb
     out_key = np.empty(n_groups, np.int64)
     out_lo = np.empty(n_groups, np.float32)
     out_attr = np.full(n_groups, -1, np.int32)
-    o_sum = np.zeros((n_groups, 3), np.uint32)
-    o_cnt = np.zeros(n_groups, np.uint32)
+    o_sum = np.zeros((n_groups, 3), np.float64)
+    o_cnt = np.zeros(n_groups, np.int64)
     o_lab = np.full((n_groups, k), EMPTY_LABEL, np.uint16)
     o_prob = np.zeros((n_groups, k), np.float32)
     si = np.empty((3, 16), np.int64)
@@ -47,8 +48,15 @@ def coarsen_cells(parent: np.ndarray, logodds: np.ndarray, attr: np.ndarray, rgb
             n_attr += 1
         r = out_attr[g]
         for c in range(3):
-            o_sum[r, c] += rgb_sum[a, c]
+            o_sum[r, c] += np.float64(rgb[a, c]) * rgb_count[a]
         o_cnt[r] += rgb_count[a]
         fuse_sets(o_lab[r], o_prob[r], sem_labels[a], sem_probs[a], lam, max_confidence, o_lab[r], o_prob[r],
                   si, sf)
-    return out_key, out_lo, out_attr, o_sum[:n_attr], o_cnt[:n_attr], o_lab[:n_attr], o_prob[:n_attr]
+    o_rgb = np.zeros((n_attr, 3), np.uint8)
+    o_n = np.zeros(n_attr, np.uint16)
+    for r in range(n_attr):
+        if o_cnt[r] > 0:
+            for c in range(3):
+                o_rgb[r, c] = np.uint8(np.int64(o_sum[r, c] / o_cnt[r] + 0.5))
+            o_n[r] = min(o_cnt[r], 65535)
+    return out_key, out_lo, out_attr, o_rgb, o_n, o_lab[:n_attr], o_prob[:n_attr]

@@ -19,7 +19,7 @@ GROUP = 8  # slots per locality group (low bits of z)
 SHARD_BITS = 6
 N_SHARDS = 1 << SHARD_BITS
 #: A shard is grown once it is fuller than this after a frame.
-MAX_LOAD = 0.8
+MAX_LOAD = 0.85
 #: Before a frame, a shard that could exceed this with every new cell is grown first (probing safety).
 HARD_LOAD = 0.95
 GROWTH = 1.5

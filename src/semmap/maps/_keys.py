@@ -58,6 +58,18 @@ def key_in_range(k: np.int64) -> bool:
     return 0 <= k < KEY_LIMIT
 
 
+@nb.njit(cache=True, inline="always")
+def _axis_setup(d: np.float32, o: np.float32, k: np.int64, resolution: float, half: float):
+    """Step, first crossing and crossing interval along one axis (OctoMap's DDA initialisation)."""
+    if d > 0.0:
+        border = key_to_coord(k, resolution) + half
+        return 1, (border - np.float64(o)) / np.float64(d), resolution / np.float64(d)
+    if d < 0.0:
+        border = key_to_coord(k, resolution) - half
+        return -1, (border - np.float64(o)) / np.float64(d), resolution / -np.float64(d)
+    return 0, 1.7976931348623157e308, 1.7976931348623157e308
+
+
 @nb.njit(cache=True)
 def trace_ray(ox: np.float32, oy: np.float32, oz: np.float32, ex: np.float32, ey: np.float32, ez: np.float32,
               resolution: float, res_factor: float,
@@ -67,35 +79,29 @@ def trace_ray(ox: np.float32, oy: np.float32, oz: np.float32, ex: np.float32, ey
 
     With ``collect`` the keys go to ``out_keys`` (M, 3) and the count is returned (-1 if an end is out of
     the key range, -2 if ``out_keys`` is too small).  Otherwise each cell is marked free (1) in the dense
-    ``grid`` unless already marked (hits are marked 2 before any ray runs), and the number of steps is
+    ``grid`` unless already marked (hits are marked 2 before any ray runs), and the number of cells is
     returned.  The grid covers keys ``g0 + [0, n)`` per axis, z fastest.
     """
-    kox = coord_to_key(ox, res_factor)
-    koy = coord_to_key(oy, res_factor)
-    koz = coord_to_key(oz, res_factor)
+    kx = coord_to_key(ox, res_factor)
+    ky = coord_to_key(oy, res_factor)
+    kz = coord_to_key(oz, res_factor)
     kex = coord_to_key(ex, res_factor)
     key_ey = coord_to_key(ey, res_factor)
     kez = coord_to_key(ez, res_factor)
-    if not (key_in_range(kox) and key_in_range(koy) and key_in_range(koz)
+    if not (key_in_range(kx) and key_in_range(ky) and key_in_range(kz)
             and key_in_range(kex) and key_in_range(key_ey) and key_in_range(kez)):
         return -1
-    if kox == kex and koy == key_ey and koz == kez:
+    if kx == kex and ky == key_ey and kz == kez:
         return 0
     size = grid.shape[0]
-    sy = gnz
     sx = gny * gnz
-    cur = np.empty(3, np.int64)
-    cur[0] = kox
-    cur[1] = koy
-    cur[2] = koz
-    n = 0
-    idx = (kox - g0x) * sx + (koy - g0y) * sy + (koz - g0z)
+    idx = (kx - g0x) * sx + (ky - g0y) * gnz + (kz - g0z)
     if collect:
         if out_keys.shape[0] < 1:
             return -2
-        out_keys[0, 0] = kox
-        out_keys[0, 1] = koy
-        out_keys[0, 2] = koz
+        out_keys[0, 0] = kx
+        out_keys[0, 1] = ky
+        out_keys[0, 2] = kz
     elif 0 <= idx < size and grid[idx] == 0:
         grid[idx] = 1
     n = 1
@@ -104,51 +110,46 @@ def trace_ray(ox: np.float32, oy: np.float32, oz: np.float32, ex: np.float32, ey
     dx = ex - ox
     dy = ey - oy
     dz = ez - oz
-    nsq = dx * dx + dy * dy + dz * dz
-    length = np.float32(math.sqrt(np.float64(nsq)))
+    length = np.float32(math.sqrt(np.float64(dx * dx + dy * dy + dz * dz)))
     dx = dx / length
     dy = dy / length
     dz = dz / length
     half = np.float64(np.float32(resolution * 0.5))
-    big = 1.7976931348623157e308
-
-    step = np.zeros(3, np.int64)
-    t_max = np.empty(3, np.float64)
-    t_delta = np.empty(3, np.float64)
-    d = (dx, dy, dz)
-    o = (ox, oy, oz)
-    strides = (sx, sy, 1)
-    for i in range(3):
-        di = d[i]
-        if di > 0.0:
-            step[i] = 1
-        elif di < 0.0:
-            step[i] = -1
-        if step[i] != 0:
-            border = key_to_coord(cur[i], resolution)
-            border += half if step[i] > 0 else -half
-            t_max[i] = (border - np.float64(o[i])) / np.float64(di)
-            t_delta[i] = resolution / abs(np.float64(di))
-        else:
-            t_max[i] = big
-            t_delta[i] = big
+    stx, tmx, tdx = _axis_setup(dx, ox, kx, resolution, half)
+    sty, tmy, tdy = _axis_setup(dy, oy, ky, resolution, half)
+    stz, tmz, tdz = _axis_setup(dz, oz, kz, resolution, half)
+    ix = stx * sx
+    iy = sty * gnz
+    iz = stz
     flen = np.float64(length)
     while True:
-        dim = (0 if t_max[0] < t_max[2] else 2) if t_max[0] < t_max[1] else 1 if t_max[1] < t_max[2] else 2
-        cur[dim] += step[dim]
-        t_max[dim] += t_delta[dim]
-        idx += step[dim] * strides[dim]
-        if cur[0] == kex and cur[1] == key_ey and cur[2] == kez:
+        if tmx < tmy:
+            if tmx < tmz:
+                kx += stx
+                tmx += tdx
+                idx += ix
+            else:
+                kz += stz
+                tmz += tdz
+                idx += iz
+        elif tmy < tmz:
+            ky += sty
+            tmy += tdy
+            idx += iy
+        else:
+            kz += stz
+            tmz += tdz
+            idx += iz
+        if kx == kex and ky == key_ey and kz == kez:
             break
-        dist = min(t_max[0], min(t_max[1], t_max[2]))
-        if dist > flen:
+        if min(tmx, min(tmy, tmz)) > flen:
             break
         if collect:
             if n >= out_keys.shape[0]:
                 return -2
-            out_keys[n, 0] = cur[0]
-            out_keys[n, 1] = cur[1]
-            out_keys[n, 2] = cur[2]
+            out_keys[n, 0] = kx
+            out_keys[n, 1] = ky
+            out_keys[n, 2] = kz
         elif 0 <= idx < size and grid[idx] == 0:
             grid[idx] = 1
         n += 1

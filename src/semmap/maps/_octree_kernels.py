@@ -22,7 +22,7 @@ import numba as nb
 import numpy as np
 
 from semmap.fusion.topk_bayes import fuse_sets
-from semmap.maps._hashtable import N_SHARDS, find_or_insert, shard_of
+from semmap.maps._hashtable import N_SHARDS, find_or_insert, find_slot, shard_of
 from semmap.maps._keys import KEY_LIMIT, coord_to_key, key_to_coord, pack_key, trace_ray
 
 
@@ -148,16 +148,25 @@ def cast_rays(origin: np.ndarray, targets: np.ndarray, resolution: float, res_fa
 @nb.njit(cache=True, parallel=True)
 def collect_free(grid: np.ndarray, g0x: int, g0y: int, g0z: int, gnx: int, gny: int, gnz: int):
     """Packed keys of the free cells (grid value 1), grouped by hash shard and in grid order within a shard,
-    with the shard offsets (N_SHARDS + 1,).  Resets every touched grid cell to 0."""
+    with the shard offsets (N_SHARDS + 1,).  Resets every touched grid cell to 0.
+
+    ``gnz`` must be a multiple of 8: the grid is scanned 8 bytes at a time, skipping untouched words.
+    """
     plane = gny * gnz
+    words = grid[: gnx * plane].view(np.uint64)
+    wplane = plane // 8
     counts = np.zeros((gnx, N_SHARDS), np.int64)
     for x in nb.prange(gnx):
-        base = x * plane
-        for r in range(plane):
-            if grid[base + r] == 1:
-                y = r // gnz
-                z = r - y * gnz
-                counts[x, shard_of(pack_key(g0x + x, g0y + y, g0z + z))] += 1
+        wbase = x * wplane
+        for w in range(wplane):
+            if words[wbase + w] == 0:
+                continue
+            for b in range(8):
+                r = w * 8 + b
+                if grid[x * plane + r] == 1:
+                    y = r // gnz
+                    z = r - y * gnz
+                    counts[x, shard_of(pack_key(g0x + x, g0y + y, g0z + z))] += 1
     # exclusive prefix sum in shard-major order: shard s, then slab x
     offsets = np.zeros(N_SHARDS + 1, np.int64)
     starts = np.empty((gnx, N_SHARDS), np.int64)
@@ -170,12 +179,14 @@ def collect_free(grid: np.ndarray, g0x: int, g0y: int, g0z: int, gnx: int, gny: 
     offsets[N_SHARDS] = total
     out = np.empty(total, np.int64)
     for x in nb.prange(gnx):
-        base = x * plane
+        wbase = x * wplane
         pos = starts[x].copy()
-        for r in range(plane):
-            v = grid[base + r]
-            if v != 0:
-                grid[base + r] = 0
+        for w in range(wplane):
+            if words[wbase + w] == 0:
+                continue
+            for b in range(8):
+                r = w * 8 + b
+                v = grid[x * plane + r]
                 if v == 1:
                     y = r // gnz
                     z = r - y * gnz
@@ -183,6 +194,7 @@ def collect_free(grid: np.ndarray, g0x: int, g0y: int, g0z: int, gnx: int, gny: 
                     s = shard_of(k)
                     out[pos[s]] = k
                     pos[s] += 1
+            words[wbase + w] = 0
     return out, offsets
 
 
@@ -209,37 +221,55 @@ def bucket_by_shard(packed: np.ndarray):
 
 @nb.njit(cache=True, parallel=True)
 def update_free(keys: np.ndarray, logodds: np.ndarray, attr: np.ndarray, counts: np.ndarray, shard_cap: int,
-                free: np.ndarray, offsets: np.ndarray, miss: np.float32, clamp_min: np.float32) -> int:
+                free: np.ndarray, progress: np.ndarray, offsets: np.ndarray, miss: np.float32,
+                clamp_min: np.float32, fill_limit: int) -> bool:
     """Add the miss log-odds to every free cell (creating it at 0 first), clamped below; per shard in parallel.
-    Returns the number of cells that could not be inserted (always 0 when capacities were checked)."""
-    failed = np.zeros(N_SHARDS, np.int64)
+
+    ``progress[s]`` is where shard s resumes; a shard stops before a new key would take it past ``fill_limit``
+    entries.  Returns True when every shard finished (otherwise grow the table and call again).
+    """
     for sh in nb.prange(N_SHARDS):
-        for i in range(offsets[sh], offsets[sh + 1]):
+        i = progress[sh]
+        end = offsets[sh + 1]
+        while i < end:
+            if counts[sh] >= fill_limit and find_slot(keys, shard_cap, free[i]) < 0:
+                break
             s = find_or_insert(keys, logodds, attr, counts, sh, shard_cap, free[i])
-            if s < 0:
-                failed[sh] += 1
-                continue
             v = logodds[s] + miss
             logodds[s] = clamp_min if v < clamp_min else v
-    return failed.sum()
+            i += 1
+        progress[sh] = i
+    done = True
+    for sh in range(N_SHARDS):
+        if progress[sh] < offsets[sh + 1]:
+            done = False
+    return done
 
 
 @nb.njit(cache=True, parallel=True)
 def update_hits(keys: np.ndarray, logodds: np.ndarray, attr: np.ndarray, counts: np.ndarray, shard_cap: int,
-                hit_keys: np.ndarray, order: np.ndarray, offsets: np.ndarray, hit: np.float32,
-                clamp_max: np.float32) -> np.ndarray:
-    """Add the hit log-odds to every hit cell, clamped above; returns the slot of each hit key (-1 = full)."""
-    slots = np.empty(hit_keys.shape[0], np.int64)
+                hit_keys: np.ndarray, order: np.ndarray, progress: np.ndarray, offsets: np.ndarray,
+                hit: np.float32, clamp_max: np.float32, fill_limit: int, slots: np.ndarray) -> bool:
+    """Add the hit log-odds to every hit cell, clamped above, recording its slot; resumable like
+    :func:`update_free`.  Returns True when every shard finished."""
     for sh in nb.prange(N_SHARDS):
-        for j in range(offsets[sh], offsets[sh + 1]):
+        j = progress[sh]
+        end = offsets[sh + 1]
+        while j < end:
             i = order[j]
+            if counts[sh] >= fill_limit and find_slot(keys, shard_cap, hit_keys[i]) < 0:
+                break
             s = find_or_insert(keys, logodds, attr, counts, sh, shard_cap, hit_keys[i])
             slots[i] = s
-            if s < 0:
-                continue
             v = logodds[s] + hit
             logodds[s] = clamp_max if v > clamp_max else v
-    return slots
+            j += 1
+        progress[sh] = j
+    done = True
+    for sh in range(N_SHARDS):
+        if progress[sh] < offsets[sh + 1]:
+            done = False
+    return done
 
 
 @nb.njit(cache=True)
@@ -257,9 +287,9 @@ def assign_attributes(attr: np.ndarray, slots: np.ndarray, n_attr: int) -> int:
 def update_attributes(attr: np.ndarray, slots: np.ndarray, point_index: np.ndarray,
                       colors: np.ndarray, has_colors: bool,
                       sem_labels: np.ndarray, sem_probs: np.ndarray, has_semantics: bool,
-                      rgb_sum: np.ndarray, rgb_count: np.ndarray, map_labels: np.ndarray, map_probs: np.ndarray,
+                      rgb: np.ndarray, rgb_count: np.ndarray, map_labels: np.ndarray, map_probs: np.ndarray,
                       lam: float, max_confidence: float, n_chunks: int) -> None:
-    """Colour running sums and top-k Bayesian label fusion for the hit cells (each row touched once)."""
+    """Colour running means and top-k Bayesian label fusion for the hit cells (each row touched once)."""
     m = slots.shape[0]
     chunk = (m + n_chunks - 1) // n_chunks
     for c in nb.prange(n_chunks):
@@ -271,11 +301,14 @@ def update_attributes(attr: np.ndarray, slots: np.ndarray, point_index: np.ndarr
                 continue
             a = attr[s]
             p = point_index[j]
-            if has_colors:
-                rgb_sum[a, 0] += colors[p, 0]
-                rgb_sum[a, 1] += colors[p, 1]
-                rgb_sum[a, 2] += colors[p, 2]
-                rgb_count[a] += 1
+            if has_colors:  # running mean (a slow moving average once the count saturates)
+                n = np.int64(rgb_count[a]) + 1
+                if n > 65535:
+                    n = 65535
+                rgb_count[a] = n
+                for ch in range(3):
+                    m = np.float64(rgb[a, ch])
+                    rgb[a, ch] = np.uint8(np.int64(m + (np.float64(colors[p, ch]) - m) / n + 0.5))
             if has_semantics:
                 fuse_sets(map_labels[a], map_probs[a], sem_labels[p], sem_probs[p], lam, max_confidence,
                           map_labels[a], map_probs[a], si, sf)

@@ -31,6 +31,7 @@ from semmap.maps._keys import (
     pack_keys,
     unpack_keys,
 )
+from semmap.maps.octree_tree import UNSET_COLOR, OctreeNodes, build_tree
 from semmap.types import EMPTY_LABEL, LabelSet, TopKProbs
 
 log = logging.getLogger("semmap")
@@ -38,7 +39,7 @@ log = logging.getLogger("semmap")
 UNKNOWN, FREE, OCCUPIED = 0, 1, 2
 #: Largest temporary scan grid (cells = bytes); wider scans are range-limited with a warning.
 GRID_CELL_LIMIT = 1 << 27
-_INITIAL_SHARD_CAP = 1024
+_INITIAL_SHARD_CAP = 64
 
 
 def logodds(p: float) -> np.float32:
@@ -139,8 +140,8 @@ class CellArrays:
     packed: np.ndarray  # (M,) int64 packed keys
     logodds: np.ndarray  # (M,) float32
     attr: np.ndarray  # (M,) int32 row into the attribute arrays, -1 = none
-    rgb_sum: np.ndarray  # (A, 3) uint32
-    rgb_count: np.ndarray  # (A,) uint32
+    rgb: np.ndarray  # (A, 3) uint8 running mean of the observed colours
+    rgb_count: np.ndarray  # (A,) uint16 colour observations (saturates; then a slow moving average)
     sem_labels: np.ndarray  # (A, k) uint16
     sem_probs: np.ndarray  # (A, k) float32
 
@@ -163,7 +164,7 @@ class SemanticOctoMap:
         self._min, self._max = self.occupancy.min_log, self.occupancy.max_log
         self._thr = self.occupancy.threshold_log
         self._alloc_table(_INITIAL_SHARD_CAP)
-        self._alloc_attributes(1024)
+        self._alloc_attributes(256)
         self._n_attr = 0
         self._grid = np.zeros(0, np.uint8)
         self._warned_range = False
@@ -179,8 +180,8 @@ class SemanticOctoMap:
 
     def _alloc_attributes(self, rows: int) -> None:
         k = self.semantics.k
-        self._rgb_sum = np.zeros((rows, 3), np.uint32)
-        self._rgb_count = np.zeros(rows, np.uint32)
+        self._rgb = np.zeros((rows, 3), np.uint8)
+        self._rgb_count = np.zeros(rows, np.uint16)
         self._sem_labels = np.full((rows, k), EMPTY_LABEL, np.uint16)
         self._sem_probs = np.zeros((rows, k), np.float32)
 
@@ -192,17 +193,26 @@ class SemanticOctoMap:
         self._alloc_table(cap)
         ht.rehash(old[0], old[1], old[2], old[3], self._keys, self._logodds, self._attr, cap, self._counts)
 
+    def _grow_for(self, pending: np.ndarray) -> None:
+        """Grow by the usual factor, or at once to fit a frame much bigger than the map (its first frames)."""
+        need = self._shard_cap * ht.GROWTH
+        if pending.sum() > self._counts.sum():
+            need = max(need, ((self._counts + pending) / ht.MAX_LOAD).max())
+        self._grow_table(ht.round_capacity(need))
+
+    def _fill_limit(self) -> int:
+        """Entries a shard may hold before it must grow (keeps linear probing short)."""
+        return int(ht.HARD_LOAD * self._shard_cap)
+
     def _ensure_attributes(self, rows: int) -> None:
         have = self._rgb_count.shape[0]
         if rows <= have:
             return
-        new = have
-        while new < rows:
-            new = int(new * ht.GROWTH) + 1
-        old = (self._rgb_sum, self._rgb_count, self._sem_labels, self._sem_probs)
+        new = max(rows, int(have * ht.GROWTH))
+        old = (self._rgb, self._rgb_count, self._sem_labels, self._sem_probs)
         self._alloc_attributes(new)
         n = self._n_attr
-        self._rgb_sum[:n], self._rgb_count[:n] = old[0][:n], old[1][:n]
+        self._rgb[:n], self._rgb_count[:n] = old[0][:n], old[1][:n]
         self._sem_labels[:n], self._sem_probs[:n] = old[2][:n], old[3][:n]
 
     def _grid_buffer(self, cells: int) -> np.ndarray:
@@ -273,6 +283,13 @@ class SemanticOctoMap:
         if int(np.prod(dims)) > self.grid_cell_limit:
             raise ConfigError(f"scan spans {dims.tolist()} voxels and its sensor origin {org.tolist()} is "
                               "outside the map's key range")
+        pad = (-int(dims[2])) % 8  # the free-cell scan reads the grid 8 bytes at a time
+        if pad:
+            if hi[2] + pad < KEY_LIMIT:
+                hi[2] += pad
+            else:
+                lo[2] -= pad
+            dims = hi - lo + 1
         gnx, gny, gnz = (int(v) for v in dims)
         g0x, g0y, g0z = (int(v) for v in lo)
         grid = self._grid_buffer(gnx * gny * gnz)
@@ -304,21 +321,21 @@ class SemanticOctoMap:
         stats.ms["collect"] = (t4 - t3) * 1e3
         stats.endpoints, stats.hits, stats.free_cells = int(first.size), int(hit_first.size), int(free.size)
 
-        # 5. occupancy, colour and semantics updates
-        incoming = np.diff(free_off) + np.diff(hit_off)
-        need = int(((self._counts + incoming) / ht.HARD_LOAD).max())
-        if need > self._shard_cap:
-            self._grow_table(need)
-        failed = kern.update_free(self._keys, self._logodds, self._attr, self._counts, self._shard_cap,
-                                  free, free_off, self._miss, self._min)
-        slots = kern.update_hits(self._keys, self._logodds, self._attr, self._counts, self._shard_cap,
-                                 hit_packed, order, hit_off, self._hit, self._max)
-        if failed or (slots < 0).any():
-            raise RuntimeError("internal error: hash table shard overflow")
+        # 5. occupancy, colour and semantics updates (a shard that fills up pauses; grow and resume)
+        progress = free_off[:-1].copy()
+        while not kern.update_free(self._keys, self._logodds, self._attr, self._counts, self._shard_cap,
+                                   free, progress, free_off, self._miss, self._min, self._fill_limit()):
+            self._grow_for(free_off[1:] - progress)
+        slots = np.full(hit_packed.shape[0], -1, np.int64)
+        progress = hit_off[:-1].copy()
+        while not kern.update_hits(self._keys, self._logodds, self._attr, self._counts, self._shard_cap,
+                                   hit_packed, order, progress, hit_off, self._hit, self._max,
+                                   self._fill_limit(), slots):
+            self._grow_for(hit_off[1:] - progress)
         t5 = time.perf_counter()
         stats.ms["occupancy"] = (t5 - t4) * 1e3
         if col is not None or sem_l is not None:
-            self._ensure_attributes(self._n_attr + hit_first.size)
+            self._ensure_attributes(self._n_attr + int((self._attr[slots] < 0).sum()))
             self._n_attr = kern.assign_attributes(self._attr, slots, self._n_attr)
             dummy_c = np.zeros((1, 3), np.uint8)
             dummy_l = np.zeros((1, self.semantics.k), np.uint16)
@@ -327,10 +344,10 @@ class SemanticOctoMap:
                                    col if col is not None else dummy_c, col is not None,
                                    sem_l if sem_l is not None else dummy_l,
                                    sem_p if sem_p is not None else dummy_p, sem_l is not None,
-                                   self._rgb_sum, self._rgb_count, self._sem_labels, self._sem_probs,
+                                   self._rgb, self._rgb_count, self._sem_labels, self._sem_probs,
                                    self.semantics.lam, self.semantics.max_confidence, threads)
         if self._counts.max() > ht.MAX_LOAD * self._shard_cap:
-            self._grow_table(ht.round_capacity(self._counts.max() / ht.MAX_LOAD * ht.GROWTH))
+            self._grow_table(ht.round_capacity(self._shard_cap * ht.GROWTH))
         stats.ms["attributes"] = (time.perf_counter() - t5) * 1e3
         return stats
 
@@ -375,7 +392,7 @@ class SemanticOctoMap:
     @property
     def memory_bytes(self) -> int:
         """Bytes held by the map: hash table (with its slack) and attribute arrays (not the scan scratch grid)."""
-        arrays = (self._keys, self._logodds, self._attr, self._counts, self._rgb_sum, self._rgb_count,
+        arrays = (self._keys, self._logodds, self._attr, self._counts, self._rgb, self._rgb_count,
                   self._sem_labels, self._sem_probs)
         return int(sum(a.nbytes for a in arrays))
 
@@ -416,7 +433,7 @@ class SemanticOctoMap:
         used = used[order]
         n = self._n_attr
         return CellArrays(self._keys[used].copy(), self._logodds[used].copy(), self._attr[used].copy(),
-                          self._rgb_sum[:n].copy(), self._rgb_count[:n].copy(),
+                          self._rgb[:n].copy(), self._rgb_count[:n].copy(),
                           self._sem_labels[:n].copy(), self._sem_probs[:n].copy())
 
     def voxels(self, *, occupied_only: bool = True) -> VoxelCloud:
@@ -433,13 +450,48 @@ class SemanticOctoMap:
         cnt = c.rgb_count[rows[has]]
         colored = np.flatnonzero(has)[cnt > 0]
         r = rows[colored]
-        colors[colored] = np.round(c.rgb_sum[r] / c.rgb_count[r][:, None]).astype(np.uint8)
+        colors[colored] = c.rgb[r]
         labels[has] = c.sem_labels[rows[has]]
         probs[has] = c.sem_probs[rows[has]]
         return VoxelCloud(keys, keys_to_coords(keys, self.resolution), c.logodds[sel], colors, labels, probs)
 
     def is_occupied(self, logodds_values: np.ndarray) -> np.ndarray:
         return np.asarray(logodds_values) >= self._thr
+
+    def leaf_colors(self, cells: CellArrays, *, color_mode: str = "class") -> np.ndarray:
+        """Colour each cell shows in an OctoMap file: free cells unset (white); occupied cells their top class
+        colour (``class``, when a label set is known and the cell has a class) or mean observed colour."""
+        if color_mode not in ("class", "rgb"):
+            raise ConfigError(f"color mode must be 'class' or 'rgb', got {color_mode!r}")
+        n = cells.packed.shape[0]
+        out = np.full((n, 3), UNSET_COLOR, np.uint8)
+        occ = np.flatnonzero(cells.logodds >= self._thr)
+        out[occ] = 128
+        rows = cells.attr[occ]
+        has = rows >= 0
+        occ, rows = occ[has], rows[has]
+        cnt = cells.rgb_count[rows]
+        colored = cnt > 0
+        mean = cells.rgb[rows[colored]].copy()
+        mean[np.all(mean == UNSET_COLOR, axis=1)] = UNSET_COLOR - 1
+        out[occ[colored]] = mean
+        if color_mode == "class" and self.label_set is not None:
+            top = cells.sem_labels[rows, 0]
+            labelled = top < len(self.label_set)
+            out[occ[labelled]] = self.label_set.colors[top[labelled]]
+        return out
+
+    def tree(self, *, color_mode: str = "class") -> OctreeNodes:
+        """The pruned octree (inner nodes: max occupancy, mean colour) in OctoMap serialisation order.
+        Children are pruned only when they agree in occupancy, written colour, top class and its confidence."""
+        c = self.cells()
+        colors = self.leaf_colors(c, color_mode=color_mode)
+        labels = np.full(c.packed.shape[0], EMPTY_LABEL, np.uint16)
+        confs = np.zeros(c.packed.shape[0], np.float32)
+        occ = np.flatnonzero((c.logodds >= self._thr) & (c.attr >= 0))
+        labels[occ] = c.sem_labels[c.attr[occ], 0]
+        confs[occ] = c.sem_probs[c.attr[occ], 0]
+        return build_tree(unpack_keys(c.packed), c.logodds, colors, labels, confs)
 
     # ------------------------------------------------------------------ multi-resolution
     def coarsen(self, levels: int = 1) -> SemanticOctoMap:
@@ -457,10 +509,10 @@ class SemanticOctoMap:
         keys = unpack_keys(c.packed)
         coarse = pack_keys(((keys - TREE_MAX_VAL) >> levels) + TREE_MAX_VAL)
         order = np.argsort(coarse, kind="stable")
-        packed, lo, attr, rgb_sum, rgb_count, labels, probs = coarsen_cells(
-            coarse[order], c.logodds[order], c.attr[order], c.rgb_sum, c.rgb_count, c.sem_labels, c.sem_probs,
+        packed, lo, attr, rgb, rgb_count, labels, probs = coarsen_cells(
+            coarse[order], c.logodds[order], c.attr[order], c.rgb, c.rgb_count, c.sem_labels, c.sem_probs,
             self.semantics.lam, self.semantics.max_confidence)
-        out._load_cells(CellArrays(packed, lo, attr, rgb_sum, rgb_count, labels, probs))
+        out._load_cells(CellArrays(packed, lo, attr, rgb, rgb_count, labels, probs))
         return out
 
     def _load_cells(self, c: CellArrays) -> None:
@@ -469,7 +521,7 @@ class SemanticOctoMap:
         self._alloc_table(ht.round_capacity(n / ht.N_SHARDS / (ht.MAX_LOAD * 0.9) + 1))
         self._alloc_attributes(max(c.rgb_count.shape[0], 16))
         self._n_attr = int(c.rgb_count.shape[0])
-        self._rgb_sum[: self._n_attr] = c.rgb_sum
+        self._rgb[: self._n_attr] = c.rgb
         self._rgb_count[: self._n_attr] = c.rgb_count
         self._sem_labels[: self._n_attr] = c.sem_labels
         self._sem_probs[: self._n_attr] = c.sem_probs
