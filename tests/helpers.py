@@ -77,3 +77,46 @@ def write_7scenes_sequence(root: Path, frames: Iterable[Frame], *, color_ext: st
     if write_intrinsics and camera is not None:
         np.savetxt(root / "camera-intrinsics.txt", camera.K)
     return root
+
+
+ROOM_CAMERA = CameraIntrinsics(80, 60, 70.0, 70.0, 39.5, 29.5)
+ROOM_LO = np.array([-2.0, -1.5, 0.0])
+ROOM_HI = np.array([2.0, 1.5, 2.5])
+
+
+def make_room_frames(n: int, *, camera: CameraIntrinsics = ROOM_CAMERA, start: float = 0.0) -> list[Frame]:
+    """Frames inside an empty box room, ray-cast analytically: depth, colour and labels (class = face 1..6)."""
+    u, v = np.meshgrid(np.arange(camera.width), np.arange(camera.height))
+    rays = np.stack([(u - camera.cx) / camera.fx, (v - camera.cy) / camera.fy, np.ones(u.shape)], -1)
+    frames = []
+    for i in range(n):
+        a = start + 0.4 * i
+        origin = np.array([0.3 * np.cos(a), 0.3 * np.sin(a), 1.3])
+        fwd = np.array([np.cos(a + 0.8), np.sin(a + 0.8), -0.2])
+        fwd /= np.linalg.norm(fwd)
+        right = np.cross(fwd, [0.0, 0.0, 1.0])
+        right /= np.linalg.norm(right)
+        R = np.stack([right, np.cross(fwd, right), fwd], 1)
+        d = rays @ R.T  # world directions, unit depth along the optical axis
+        with np.errstate(divide="ignore", invalid="ignore"):
+            t_face = np.where(d > 0, (ROOM_HI - origin) / d, np.where(d < 0, (ROOM_LO - origin) / d, np.inf))
+        axis = np.argmin(t_face, axis=-1)
+        depth = np.take_along_axis(t_face, axis[..., None], -1)[..., 0].astype(np.float32)
+        positive = np.take_along_axis(d, axis[..., None], -1)[..., 0] > 0
+        labels = (1 + 2 * axis + positive).astype(np.uint16)
+        hit = origin + d * depth[..., None]
+        stripes = ((np.floor(hit[..., 0] * 5) + np.floor(hit[..., 1] * 5) + np.floor(hit[..., 2] * 5)) % 2)
+        rgb = (40 * labels[..., None] % 200 + 30 + 20 * stripes[..., None]).astype(np.uint8).repeat(3, -1)
+        frames.append(Frame(index=i, timestamp=i / 30, rgb=np.ascontiguousarray(rgb), depth=depth,
+                            intrinsics=camera, T_world_cam=make_pose(R, origin), labels=labels,
+                            name=f"{i / 30:.6f}"))
+    return frames
+
+
+def room_label_set():
+    from semmap.types import LabelSet
+
+    names = ("unknown", "wall_x-", "wall_x+", "wall_y-", "wall_y+", "floor", "ceiling")
+    colors = np.array([[0, 0, 0], [200, 60, 60], [60, 200, 60], [60, 60, 200], [200, 200, 60], [150, 120, 90],
+                       [90, 90, 90]], np.uint8)
+    return LabelSet(names, colors)

@@ -102,7 +102,7 @@ def fuse_sets(map_labels: np.ndarray, map_probs: np.ndarray,
     o1 = max(1.0 - s1, 0.0)
     o2 = max(1.0 - s2, 0.0)
 
-    # Lines 9-13: map labels absent from the measurement, by decreasing map confidence.
+    # Lines 9-13: map labels absent from the measurement, by decreasing map confidence (ties: map order).
     while True:
         best = -1
         for j in range(n1):
@@ -113,7 +113,8 @@ def fuse_sets(map_labels: np.ndarray, map_probs: np.ndarray,
         c2[best] = lam * o2
         o2 = (1.0 - lam) * o2
 
-    # Lines 14-18: measurement labels absent from the map, by decreasing measurement confidence.
+    # Lines 14-18: measurement labels absent from the map, by decreasing measurement confidence
+    # (ties: in the measurement's order, i.e. smaller label id first for sets sorted like ours).
     for j in range(n_extra):
         flag[j] = 0
     for _ in range(n_extra):
@@ -147,7 +148,7 @@ def fuse_sets(map_labels: np.ndarray, map_probs: np.ndarray,
         for j in range(n):
             if c1[j] >= 0.0 and (best < 0 or c1[j] > c1[best] or (c1[j] == c1[best] and lab[j] < lab[best])):
                 best = j
-        if best < 0 or c1[best] <= 0.0:
+        if best < 0 or np.float32(c1[best]) <= 0.0:  # nothing left that float32 can hold
             for r in range(i, k):
                 out_labels[r] = EMPTY
                 out_probs[r] = 0.0

@@ -328,10 +328,14 @@ class SemanticOctoMap:
             self._grow_for(free_off[1:] - progress)
         slots = np.full(hit_packed.shape[0], -1, np.int64)
         progress = hit_off[:-1].copy()
+        grown = False
         while not kern.update_hits(self._keys, self._logodds, self._attr, self._counts, self._shard_cap,
                                    hit_packed, order, progress, hit_off, self._hit, self._max,
                                    self._fill_limit(), slots):
             self._grow_for(hit_off[1:] - progress)
+            grown = True
+        if grown:  # slots recorded before the table moved are stale
+            slots = ht.lookup_many(self._keys, self._shard_cap, hit_packed)
         t5 = time.perf_counter()
         stats.ms["occupancy"] = (t5 - t4) * 1e3
         if col is not None or sem_l is not None:
@@ -517,8 +521,9 @@ class SemanticOctoMap:
 
     def _load_cells(self, c: CellArrays) -> None:
         """Replace the contents with compacted cells (used by coarsen and by file readers)."""
-        n = c.packed.shape[0]
-        self._alloc_table(ht.round_capacity(n / ht.N_SHARDS / (ht.MAX_LOAD * 0.9) + 1))
+        packed = np.ascontiguousarray(c.packed, np.int64)
+        per_shard = np.bincount(_shards_of(packed), minlength=ht.N_SHARDS) if packed.size else np.zeros(1)
+        self._alloc_table(ht.round_capacity(per_shard.max() / (ht.MAX_LOAD * 0.9) + 1))
         self._alloc_attributes(max(c.rgb_count.shape[0], 16))
         self._n_attr = int(c.rgb_count.shape[0])
         self._rgb[: self._n_attr] = c.rgb
@@ -526,8 +531,7 @@ class SemanticOctoMap:
         self._sem_labels[: self._n_attr] = c.sem_labels
         self._sem_probs[: self._n_attr] = c.sem_probs
         _insert_cells(self._keys, self._logodds, self._attr, self._counts, self._shard_cap,
-                      np.ascontiguousarray(c.packed, np.int64), np.ascontiguousarray(c.logodds, np.float32),
-                      np.ascontiguousarray(c.attr, np.int32))
+                      packed, np.ascontiguousarray(c.logodds, np.float32), np.ascontiguousarray(c.attr, np.int32))
 
     @classmethod
     def from_cells(cls, resolution: float, cells: CellArrays, **kwargs) -> SemanticOctoMap:
@@ -538,6 +542,14 @@ class SemanticOctoMap:
     def __repr__(self) -> str:
         return (f"SemanticOctoMap(resolution={self.resolution}, leaves={self.num_leaves}, "
                 f"occupied={self.num_occupied}, bytes={self.memory_bytes})")
+
+
+@nb.njit(cache=True)
+def _shards_of(packed):
+    out = np.empty(packed.shape[0], np.int64)
+    for i in range(packed.shape[0]):
+        out[i] = ht.shard_of(packed[i])
+    return out
 
 
 @nb.njit(cache=True)

@@ -1,0 +1,201 @@
+"""The ``semmap`` command line: each command loads, calls one library function and saves.
+
+Known errors (bad input, bad files) print one clear line and exit with code 1; tracebacks are for bugs.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import sys
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Annotated
+
+import typer
+
+from semmap.errors import SemmapError
+
+app = typer.Typer(add_completion=False, no_args_is_help=True, pretty_exceptions_enable=False,
+                  help="RGB-D sequences to 3D semantic maps (semantic OctoMap, .ot/.bt/native files, reports).")
+
+_INPUT = "Input"
+_MAPPING = "Mapping"
+_SEMANTICS = "Semantics"
+_OUTPUT = "Output"
+
+
+def _console():
+    from rich.console import Console
+
+    return Console(stderr=True)
+
+
+def _setup_logging(verbose: bool) -> None:
+    """Rich log lines on a terminal; plain one-line ``semmap: warning: ...`` messages otherwise (logs, CI)."""
+    if sys.stderr.isatty():
+        from rich.logging import RichHandler
+
+        handler: logging.Handler = RichHandler(console=_console(), show_time=False, show_path=False, markup=False)
+        fmt = "%(message)s"
+    else:
+        handler = logging.StreamHandler(sys.stderr)
+        fmt = "semmap: %(levelname)s: %(message)s"
+    logging.basicConfig(level=logging.DEBUG if verbose else logging.INFO, format=fmt, handlers=[handler],
+                        force=True)
+    logging.getLogger("numba").setLevel(logging.WARNING)
+
+
+def progress_bar(description: str):
+    """A rich progress wrapper ``(iterator, total) -> iterator`` for long loops."""
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
+
+    def wrap(it: Iterator, total: int) -> Iterator:
+        with Progress(TextColumn("[bold]{task.description}"), BarColumn(), MofNCompleteColumn(),
+                      TextColumn("{task.fields[rate]}"), TimeRemainingColumn(), console=_console(),
+                      transient=False) as progress:
+            task = progress.add_task(description, total=total, rate="")
+            import time
+
+            t0 = time.perf_counter()
+            for i, item in enumerate(it, 1):
+                yield item
+                rate = i / max(time.perf_counter() - t0, 1e-9)
+                progress.update(task, advance=1, rate=f"{rate:.1f} frames/s")
+
+    return wrap
+
+
+@app.command()
+def run(
+    dataset: Annotated[Path, typer.Argument(help="RGB-D sequence folder (TUM RGB-D or 7-Scenes layout)")],
+    out: Annotated[Path, typer.Option("--out", "-o", help="output folder", rich_help_panel=_OUTPUT)],
+    format: Annotated[str, typer.Option(help="auto | tum | 7scenes", rich_help_panel=_INPUT)] = "auto",
+    labels: Annotated[Path | None, typer.Option(help="folder of label PNGs (class ids) matched to frames by name",
+                                                 rich_help_panel=_INPUT)] = None,
+    max_frames: Annotated[int | None, typer.Option(help="use at most N frames", rich_help_panel=_INPUT)] = None,
+    stride: Annotated[int, typer.Option(help="use every k-th frame", rich_help_panel=_INPUT)] = 1,
+    resolution: Annotated[float, typer.Option(help="finest voxel size (m)", rich_help_panel=_MAPPING)] = 0.05,
+    min_depth: Annotated[float, typer.Option(help="ignore depth below (m)", rich_help_panel=_MAPPING)] = 0.1,
+    max_depth: Annotated[float, typer.Option(help="ignore depth above (m)", rich_help_panel=_MAPPING)] = 8.0,
+    max_range: Annotated[float, typer.Option(help="OctoMap max range (m), -1 = none",
+                                             rich_help_panel=_MAPPING)] = -1.0,
+    pixel_stride: Annotated[int, typer.Option(help="use every k-th pixel row/column",
+                                              rich_help_panel=_MAPPING)] = 1,
+    semantics: Annotated[str, typer.Option(help="auto | labels | oracle | none",
+                                           rich_help_panel=_SEMANTICS)] = "auto",
+    label_confidence: Annotated[float, typer.Option(help="confidence of hard labels",
+                                                    rich_help_panel=_SEMANTICS)] = 0.9,
+    lam: Annotated[float, typer.Option("--lambda", help="penalty λ of the top-3 fusion",
+                                       rich_help_panel=_SEMANTICS)] = 0.9,
+    color_mode: Annotated[str, typer.Option(help="class | rgb: voxel colour in map.ot",
+                                            rich_help_panel=_OUTPUT)] = "class",
+    verbose: Annotated[bool, typer.Option("--verbose", "-v", help="debug logging")] = False,
+) -> None:
+    """Map an RGB-D sequence: writes map.ot, map.bt, map.semmap, preview.png, report.json, config.json."""
+    _setup_logging(verbose)
+    from semmap.config import InputConfig, MappingConfig, OutputConfig, RunConfig, SemanticsConfig
+    from semmap.pipeline import Pipeline
+    from semmap.pipeline import color_mode as parse_color_mode
+
+    config = _validated(lambda: RunConfig(
+        input=InputConfig(dataset=dataset, format=format, labels=labels, stride=stride, max_frames=max_frames),
+        mapping=MappingConfig(resolution=resolution, min_depth=min_depth, max_depth=max_depth,
+                              max_range=max_range, pixel_stride=pixel_stride),
+        semantics=SemanticsConfig(source=semantics, label_confidence=label_confidence, lam=lam),
+        output=OutputConfig(out=out, color_mode=parse_color_mode(color_mode)),
+    ))
+    segmenter = _segmenter(config)
+    result = Pipeline(config, segmenter=segmenter, progress=progress_bar("mapping")).run()
+    _print_summary(result.report, result.out_dir)
+
+
+def _segmenter(config):
+    from semmap.config import SemanticSource
+
+    if config.semantics.source != SemanticSource.ORACLE:
+        return None
+    from semmap.perception.oracle import OracleSegmenter
+    from semmap.sim.labels import INDOOR_LABELS
+
+    return OracleSegmenter(INDOOR_LABELS, preset=config.semantics.oracle_preset, seed=config.semantics.seed)
+
+
+def _validated(make):
+    from pydantic import ValidationError
+
+    try:
+        return make()
+    except ValidationError as exc:
+        first = exc.errors()[0]
+        where = ".".join(str(p) for p in first["loc"])
+        raise SemmapError(f"invalid option {where}: {first['msg']}") from None
+
+
+def _print_summary(report: dict, out_dir: Path) -> None:
+    from rich.table import Table
+
+    t = Table(title=f"semmap: {out_dir}", show_header=False)
+    for key in ("frames_used", "frames_skipped", "occupied_voxels", "free_voxels", "occupied_leaves",
+                "free_leaves", "bytes_in_memory", "miou_3d", "oracle_miou_2d"):
+        if key in report:
+            t.add_row(key, str(report[key]))
+    for name, size in report.get("bytes_on_disk", {}).items():
+        t.add_row(f"size of {name}", f"{size:,} B")
+    t.add_row("ms per frame", f"{report['ms_per_frame']['total']:.1f}")
+    _console().print(t)
+
+
+@app.command()
+def demo(
+    out: Annotated[Path, typer.Option("--out", "-o", help="output folder")] = Path("outputs/demo"),
+    frames: Annotated[int, typer.Option(help="frames to map")] = 60,
+) -> None:
+    """Map the built-in default scene and write every output (until the simulator lands: 7-Scenes frames)."""
+    _setup_logging(False)
+    from semmap.config import InputConfig, MappingConfig, OutputConfig, RunConfig
+    from semmap.pipeline import Pipeline
+
+    seven = Path(__file__).resolve().parents[2].parent / "shared" / "data" / "7scenes-redkitchen"
+    if not seven.is_dir():
+        raise SemmapError(f"no demo data: {seven} is missing")
+    config = RunConfig(input=InputConfig(dataset=seven, stride=max(1, 600 // frames), max_frames=frames),
+                       mapping=MappingConfig(resolution=0.05), output=OutputConfig(out=out))
+    result = Pipeline(config, progress=progress_bar("mapping")).run()
+    _print_summary(result.report, result.out_dir)
+
+
+@app.command()
+def info(path: Annotated[Path, typer.Argument(help="a .ot, .bt or .semmap file")]) -> None:
+    """Describe a map file: type, resolution, nodes, occupied and free leaves."""
+    _setup_logging(False)
+    if path.suffix == ".semmap":
+        from semmap.io.native import load_map
+
+        m = load_map(path)
+        d = {"kind": "semmap", "resolution": m.resolution, "voxels": m.num_leaves, "occupied": m.num_occupied,
+             "free": m.num_free, "classes": None if m.label_set is None else len(m.label_set)}
+    else:
+        from semmap.io.octomap_files import read_octomap
+
+        leaves = read_octomap(path)
+        occ = leaves.occupied()
+        d = {"kind": leaves.tree_type, "resolution": leaves.resolution, "nodes": leaves.num_nodes,
+             "occupied_leaves": int(occ.sum()), "free_leaves": int((~occ).sum())}
+    typer.echo(json.dumps(d, indent=2))
+
+
+def main() -> None:
+    """Entry point: known errors become one line on stderr and exit code 1."""
+    try:
+        app()
+    except SemmapError as exc:
+        print(f"semmap: error: {exc}", file=sys.stderr)
+        sys.exit(1)
+    except KeyboardInterrupt:
+        print("semmap: interrupted", file=sys.stderr)
+        sys.exit(130)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,90 @@
+"""Run configuration: one pydantic model per section and one root model, written next to every result.
+
+Only the small ``get_*`` factories read it (see ``pipeline.py``); components take plain arguments.
+"""
+
+from __future__ import annotations
+
+from enum import Enum
+from pathlib import Path
+
+from pydantic import BaseModel, ConfigDict, Field, field_validator
+
+from semmap.fusion.topk_bayes import DEFAULT_LAMBDA, DEFAULT_MAX_CONFIDENCE
+from semmap.geometry import DEFAULT_MAX_DEPTH, DEFAULT_MIN_DEPTH
+
+
+class ColorMode(str, Enum):
+    """What colour an occupied voxel shows in the ``.ot`` file."""
+
+    CLASS = "class"  # colour of the voxel's most probable class (falls back to RGB where it has none)
+    RGB = "rgb"  # mean observed colour
+
+
+class SemanticSource(str, Enum):
+    """Where per-pixel class probabilities come from."""
+
+    AUTO = "auto"  # frame labels (label PNGs, simulator ground truth) when present, else none
+    LABELS = "labels"  # hard label images with a fixed confidence
+    ORACLE = "oracle"  # simulated segmentation network made from ground-truth labels
+    NONE = "none"  # geometry and colour only
+
+
+class _Section(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+
+class InputConfig(_Section):
+    dataset: Path
+    format: str = "auto"
+    labels: Path | None = None
+    stride: int = Field(1, ge=1)
+    max_frames: int | None = Field(None, ge=1)
+
+
+class MappingConfig(_Section):
+    resolution: float = Field(0.05, ge=0.001, le=10.0, description="finest voxel size (m)")
+    min_depth: float = Field(DEFAULT_MIN_DEPTH, ge=0.0)
+    max_depth: float = Field(DEFAULT_MAX_DEPTH, gt=0.0)
+    max_range: float = Field(-1.0, description="OctoMap max range (m); readings beyond only clear space; -1 = none")
+    pixel_stride: int = Field(1, ge=1, le=16, description="use every k-th pixel row and column")
+    prob_hit: float = 0.7
+    prob_miss: float = 0.4
+    clamp_min: float = 0.1192
+    clamp_max: float = 0.971
+
+    @field_validator("max_depth")
+    @classmethod
+    def _depth_range(cls, v: float, info) -> float:
+        lo = info.data.get("min_depth", 0.0)
+        if v <= lo:
+            raise ValueError(f"max_depth ({v}) must exceed min_depth ({lo})")
+        return v
+
+
+class SemanticsConfig(_Section):
+    source: SemanticSource = SemanticSource.AUTO
+    k: int = Field(3, ge=1, le=8, description="classes kept per voxel")
+    lam: float = Field(DEFAULT_LAMBDA, ge=0.0, le=1.0, description="penalty λ of Algorithm 1")
+    max_confidence: float = Field(DEFAULT_MAX_CONFIDENCE, gt=0.0, le=1.0)
+    label_confidence: float = Field(0.9, gt=0.0, le=1.0, description="confidence given to hard labels")
+    oracle_preset: str = "cnn-like"
+    seed: int = 0
+
+
+class OutputConfig(_Section):
+    out: Path
+    color_mode: ColorMode = ColorMode.CLASS
+    preview: bool = True
+
+
+class RunConfig(_Section):
+    """Everything one ``semmap run`` needs."""
+
+    input: InputConfig
+    mapping: MappingConfig = MappingConfig()
+    semantics: SemanticsConfig = SemanticsConfig()
+    output: OutputConfig
+
+    def to_json(self) -> str:
+        return self.model_dump_json(indent=2)

@@ -1,0 +1,240 @@
+"""Wiring of one mapping run: dataset -> poses -> semantics -> semantic OctoMap -> files and report.
+
+``Mapper.integrate`` is the per-frame algorithm; ``Pipeline.run`` is the orchestration (open, integrate every
+frame with a progress bar, write outputs).  This module and ``cli.py`` are the only places that wire stages.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import time
+from collections import defaultdict
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from semmap.config import ColorMode, RunConfig, SemanticSource
+from semmap.datasets import Dataset, open_dataset
+from semmap.errors import ConfigError
+from semmap.geometry import backproject_world
+from semmap.io.atomic import write_text_atomic
+from semmap.io.native import save_map
+from semmap.io.octomap_files import write_bt, write_ot
+from semmap.maps.semantic_octomap import InsertStats, OccupancyParams, SemanticOctoMap, SemanticParams
+from semmap.perception.base import Segmenter
+from semmap.types import Frame, LabelSet, TopKProbs
+from semmap.viz.preview import CEILING_MARGIN, side_by_side, top_down, up_vector, write_png
+
+log = logging.getLogger("semmap")
+#: Fallback label set when labels come without a labelset.json (8-bit label images).
+FALLBACK_CLASSES = 256
+#: Bytes per point of a dense coloured point cloud stored as binary PLY (xyz float32 + rgb uint8).
+DENSE_CLOUD_BYTES_PER_POINT = 15
+
+
+class Mapper:
+    """Integrates frames into a semantic OctoMap: back-project, transform, attach colour and class sets, insert."""
+
+    def __init__(self, octomap: SemanticOctoMap, *, min_depth: float, max_depth: float, pixel_stride: int = 1):
+        self.octomap = octomap
+        self.min_depth, self.max_depth, self.pixel_stride = min_depth, max_depth, pixel_stride
+        self.points_integrated = 0
+
+    def integrate(self, frame: Frame, T_world_cam: np.ndarray, semantics: TopKProbs | None) -> InsertStats:
+        """Insert one frame seen from ``T_world_cam`` with optional per-pixel class sets (H, W, k)."""
+        t0 = time.perf_counter()
+        # valid depth pixels to world points (paper eq. 7, then the camera pose)
+        points_world, pixels = backproject_world(frame.depth, frame.intrinsics, T_world_cam,
+                                                 min_depth=self.min_depth, max_depth=self.max_depth,
+                                                 stride=self.pixel_stride)
+        # colour and class set of each point's pixel
+        colors = np.take(frame.rgb.reshape(-1, 3), pixels, axis=0)
+        point_sem = None
+        if semantics is not None:
+            flat = semantics.reshape_flat()
+            point_sem = TopKProbs(np.take(flat.labels, pixels, axis=0), np.take(flat.probs, pixels, axis=0))
+        backproject_ms = (time.perf_counter() - t0) * 1e3
+        # ray-cast free space, update occupancy, colour and semantics (origin = camera centre)
+        stats = self.octomap.insert_points(points_world, T_world_cam[:3, 3], colors=colors, semantics=point_sem)
+        stats.ms = {"backproject": backproject_ms, **stats.ms}
+        self.points_integrated += len(points_world)
+        return stats
+
+
+def semantics_for(frame: Frame, source: SemanticSource, *, segmenter: Segmenter | None,
+                  label_set: LabelSet | None, label_confidence: float, k: int) -> TopKProbs | None:
+    """Per-pixel class sets of a frame according to the configured source."""
+    if frame.semantics is not None:
+        return frame.semantics
+    if source == SemanticSource.NONE or label_set is None:
+        return None
+    if segmenter is not None:
+        return segmenter.segment(frame)
+    if frame.labels is not None:
+        return TopKProbs.from_hard_labels(frame.labels, label_confidence, len(label_set), k)
+    return None
+
+
+@dataclass
+class RunResult:
+    """What a run produced: the map, where files went, the report dict."""
+
+    octomap: SemanticOctoMap
+    out_dir: Path
+    report: dict
+    files: dict[str, Path] = field(default_factory=dict)
+    poses: list[np.ndarray] = field(default_factory=list)
+
+
+class Pipeline:
+    """One mapping run from a dataset folder to ``map.ot``, ``map.bt``, ``map.semmap``, preview and report."""
+
+    def __init__(self, config: RunConfig, *, segmenter: Segmenter | None = None,
+                 progress: Callable[[Iterator, int], Iterator] | None = None, dataset: Dataset | None = None):
+        self.config = config
+        self.segmenter = segmenter
+        self.progress = progress or (lambda it, n: it)
+        self.dataset = dataset
+
+    def run(self) -> RunResult:
+        dataset = self._open()
+        label_set = self._label_set(dataset)
+        octomap = self._make_map(label_set)
+        mapper = Mapper(octomap, min_depth=self.config.mapping.min_depth, max_depth=self.config.mapping.max_depth,
+                        pixel_stride=self.config.mapping.pixel_stride)
+        timings, poses, no_pose = self._integrate_all(dataset, mapper, label_set)
+        files, sizes, tree_counts = self._write_outputs(octomap, poses)
+        report = self._report(dataset, mapper, timings, poses, no_pose, sizes, tree_counts)
+        report_path = self.config.output.out / "report.json"
+        write_text_atomic(report_path, json.dumps(report, indent=2))
+        files["report"] = report_path
+        return RunResult(octomap, self.config.output.out, report, files, poses)
+
+    # ---------------------------------------------------------------- steps
+    def _open(self) -> Dataset:
+        if self.dataset is not None:
+            return self.dataset
+        c = self.config.input
+        return open_dataset(c.dataset, c.format, labels=c.labels, stride=c.stride, max_frames=c.max_frames)
+
+    def _label_set(self, dataset: Dataset) -> LabelSet | None:
+        """The classes of the map: the segmenter's, the dataset's, a generic set when label images come
+        without names, or none (geometry and colour only)."""
+        if self.segmenter is not None:
+            return self.segmenter.label_set
+        if dataset.label_set is not None:
+            return dataset.label_set
+        s = self.config.semantics.source
+        if s == SemanticSource.LABELS or (s == SemanticSource.AUTO and self.config.input.labels is not None):
+            return LabelSet.generic(FALLBACK_CLASSES)
+        return None
+
+    def _make_map(self, label_set: LabelSet | None) -> SemanticOctoMap:
+        m, s = self.config.mapping, self.config.semantics
+        return SemanticOctoMap(
+            m.resolution, label_set=label_set, max_range=m.max_range,
+            occupancy=OccupancyParams(m.prob_hit, m.prob_miss, m.clamp_min, m.clamp_max),
+            semantics=SemanticParams(s.k, s.lam, s.max_confidence))
+
+    def _integrate_all(self, dataset: Dataset, mapper: Mapper, label_set: LabelSet | None):
+        s = self.config.semantics
+        timings: dict[str, float] = defaultdict(float)
+        poses: list[np.ndarray] = []
+        no_pose: list[str] = []
+        it = iter(dataset)
+        frames = self.progress(it, len(dataset))
+        t_load = time.perf_counter()
+        for frame in frames:
+            timings["load"] += (time.perf_counter() - t_load) * 1e3
+            if frame.T_world_cam is None:
+                log.warning("frame %s has no pose; skipped", frame.name)
+                no_pose.append(frame.name)
+                t_load = time.perf_counter()
+                continue
+            t = time.perf_counter()
+            sem = semantics_for(frame, s.source, segmenter=self.segmenter, label_set=label_set,
+                                label_confidence=s.label_confidence, k=s.k)
+            timings["segment"] += (time.perf_counter() - t) * 1e3
+            stats = mapper.integrate(frame, frame.T_world_cam, sem)
+            for name, ms in stats.ms.items():
+                timings[name] += ms
+            poses.append(frame.T_world_cam)
+            t_load = time.perf_counter()
+        if not poses:
+            raise ConfigError(f"{self.config.input.dataset}: no frame could be mapped "
+                              f"({len(dataset.skipped)} unreadable, {len(no_pose)} without pose)")
+        return timings, poses, no_pose
+
+    def _write_outputs(self, octomap: SemanticOctoMap, poses: list[np.ndarray]):
+        out = self.config.output.out
+        out.mkdir(parents=True, exist_ok=True)
+        tree = octomap.tree(color_mode=self.config.output.color_mode.value)
+        files = {"ot": out / "map.ot", "bt": out / "map.bt", "native": out / "map.semmap"}
+        sizes = {
+            "map.ot": write_ot(files["ot"], tree, octomap.resolution, color=True),
+            "map.bt": write_bt(files["bt"], tree, octomap.resolution, float(octomap.occupancy.threshold_log)),
+            "map.semmap": save_map(files["native"], octomap),
+        }
+        leaf = tree.is_leaf
+        occ = octomap.is_occupied(tree.values)
+        tree_counts = {"occupied_leaves": int((leaf & occ).sum()), "free_leaves": int((leaf & ~occ).sum()),
+                       "nodes": len(tree)}
+        if self.config.output.preview:
+            files["preview"] = out / "preview.png"
+            sizes["preview.png"] = write_png(files["preview"], render_preview(octomap, poses))
+        write_text_atomic(out / "config.json", self.config.to_json())
+        files["config"] = out / "config.json"
+        return files, sizes, tree_counts
+
+    def _report(self, dataset: Dataset, mapper: Mapper, timings: dict, poses: list, no_pose: list,
+                sizes: dict, tree_counts: dict) -> dict:
+        n = len(poses)
+        octomap = mapper.octomap
+        ms = {k: round(v / n, 3) for k, v in timings.items()}
+        ms["total"] = round(sum(ms.values()), 3)
+        return {
+            "dataset": str(self.config.input.dataset),
+            "resolution": octomap.resolution,
+            "frames_used": n,
+            "frames_skipped": len(dataset.skipped) + len(no_pose),
+            "skipped": [{"name": s.name, "path": s.path, "reason": s.reason} for s in dataset.skipped]
+            + [{"name": name, "path": "", "reason": "no pose"} for name in no_pose],
+            **tree_counts,
+            "occupied_voxels": octomap.num_occupied,
+            "free_voxels": octomap.num_free,
+            "bytes_in_memory": octomap.memory_bytes,
+            "bytes_per_voxel_in_memory": round(octomap.memory_bytes / max(octomap.num_leaves, 1), 2),
+            "bytes_on_disk": sizes,
+            "dense_point_cloud_bytes": mapper.points_integrated * DENSE_CLOUD_BYTES_PER_POINT,
+            "points_integrated": mapper.points_integrated,
+            "ms_per_frame": ms,
+            "label_set": None if octomap.label_set is None else len(octomap.label_set),
+        }
+
+
+def render_preview(octomap: SemanticOctoMap, poses: list[np.ndarray]) -> np.ndarray:
+    """Top-down views of the occupied voxels: class colours (where classified) and observed RGB."""
+    vox = octomap.voxels()
+    up = up_vector(poses)
+    cam_h = max(float(np.asarray(T)[:3, 3] @ up) for T in poses) if poses else None
+    cut = None if cam_h is None else cam_h + CEILING_MARGIN
+    views = [top_down(vox.centers, vox.colors, octomap.resolution, up=up, max_height=cut)]
+    titles = ["colour (top-down)"]
+    if octomap.label_set is not None:
+        top = vox.labels[:, 0]
+        ok = top < len(octomap.label_set)
+        class_colors = np.full_like(vox.colors, 90)
+        class_colors[ok] = octomap.label_set.colors[top[ok]]
+        views.insert(0, top_down(vox.centers, class_colors, octomap.resolution, up=up, max_height=cut))
+        titles.insert(0, "classes (top-down)")
+    return side_by_side(views, titles)
+
+
+def color_mode(value: str) -> ColorMode:
+    try:
+        return ColorMode(value)
+    except ValueError:
+        raise ConfigError(f"color mode must be one of {[m.value for m in ColorMode]}, got {value!r}") from None

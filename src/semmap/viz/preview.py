@@ -1,0 +1,94 @@
+"""Preview images of a map: a top-down orthographic view (class colours and RGB side by side)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from semmap.errors import SemmapError
+from semmap.io.atomic import write_bytes_atomic
+
+#: Voxels higher than the highest camera by more than this are cut away (ceilings, top cabinets).
+CEILING_MARGIN = 0.6
+
+
+def up_vector(poses: list[np.ndarray] | np.ndarray) -> np.ndarray:
+    """World "up" estimated from camera poses: hand-held cameras are held roughly upright, so the mean of
+    the cameras' -y axes (image up) points against gravity.  Falls back to +z."""
+    poses = np.asarray(poses, float).reshape(-1, 4, 4)
+    if len(poses) == 0:
+        return np.array([0.0, 0.0, 1.0])
+    up = -poses[:, :3, 1].mean(axis=0)
+    n = np.linalg.norm(up)
+    if n < 0.3:
+        return np.array([0.0, 0.0, 1.0])
+    up /= n
+    # snap to a world axis when nearly aligned (simulators and most datasets use z-up or y-up)
+    axis = np.argmax(np.abs(up))
+    if abs(up[axis]) > 0.9:
+        snapped = np.zeros(3)
+        snapped[axis] = np.sign(up[axis])
+        return snapped
+    return up
+
+
+def _horizontal_axes(up: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    ref = np.array([1.0, 0.0, 0.0]) if abs(up[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
+    e1 = ref - up * (ref @ up)
+    e1 /= np.linalg.norm(e1)
+    return e1, np.cross(up, e1)
+
+
+def top_down(centers: np.ndarray, colors: np.ndarray, resolution: float, *, up: np.ndarray,
+             max_height: float | None = None, size: int = 480) -> np.ndarray:
+    """Orthographic view from above: each pixel shows the highest voxel below ``max_height`` (heights along
+    ``up``), shaded by height; returns an RGB uint8 image (dark background where nothing is mapped)."""
+    if len(centers) == 0:
+        return np.full((64, 64, 3), 32, np.uint8)
+    e1, e2 = _horizontal_axes(up)
+    h = centers @ up
+    keep = h <= max_height if max_height is not None else np.ones(len(h), bool)
+    if not keep.any():
+        keep[:] = True
+    c, col, h = centers[keep], colors[keep], h[keep]
+    u, v = c @ e1, c @ e2
+    px = resolution * 0.75  # each voxel is splatted as 2x2 pixels: no gaps when the axes are tilted
+    iu = ((u - u.min()) / px).astype(np.int64)
+    iv = ((v.max() - v) / px).astype(np.int64)
+    H, W = iv.max() + 2, iu.max() + 2
+    order = np.argsort(h, kind="stable")  # later (higher) voxels overwrite lower ones
+    img = np.full((H, W, 3), 32, np.uint8)
+    span = max(h.max() - h.min(), 1e-6)
+    shade = 0.55 + 0.45 * (h - h.min()) / span
+    shaded = np.clip(col[order] * shade[order, None], 0, 255).astype(np.uint8)
+    rows = np.stack([iv[order], iv[order] + 1], 1)
+    cols = np.stack([iu[order], iu[order] + 1], 1)
+    for dy in (0, 1):  # a pixel keeps the highest voxel among those splatted onto it
+        for dx in (0, 1):
+            img[rows[:, dy], cols[:, dx]] = shaded
+    scale = size / max(H, W)  # one voxel -> a block of pixels, longest side ``size``
+    return cv2.resize(img, (max(1, round(W * scale)), max(1, round(H * scale))), interpolation=cv2.INTER_NEAREST)
+
+
+def side_by_side(images: list[np.ndarray], titles: list[str], gap: int = 8) -> np.ndarray:
+    """Images next to each other on one canvas, each with a title line above it."""
+    h = max(im.shape[0] for im in images) + 28
+    w = sum(im.shape[1] for im in images) + gap * (len(images) + 1)
+    canvas = np.full((h, w, 3), 245, np.uint8)
+    x = gap
+    for im, title in zip(images, titles, strict=True):
+        canvas[28 : 28 + im.shape[0], x : x + im.shape[1]] = im
+        cv2.putText(canvas, title, (x, 20), cv2.FONT_HERSHEY_SIMPLEX, 0.55, (20, 20, 20), 1, cv2.LINE_AA)
+        x += im.shape[1] + gap
+    return canvas
+
+
+def write_png(path: str | Path, rgb: np.ndarray) -> int:
+    """Write an RGB image as PNG atomically; returns its size in bytes."""
+    ok, buf = cv2.imencode(".png", cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR))
+    if not ok:
+        raise SemmapError(f"{path}: PNG encoding failed")
+    write_bytes_atomic(path, buf.tobytes())
+    return len(buf)

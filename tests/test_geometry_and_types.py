@@ -1,0 +1,116 @@
+"""Back-projection (eq. 7), voxel filter, SE(3) helpers, label sets and class-probability types."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from semmap.errors import ConfigError, DatasetError
+from semmap.geometry import backproject, backproject_world, voxel_filter
+from semmap.types import (
+    EMPTY_LABEL,
+    CameraIntrinsics,
+    LabelSet,
+    TopKProbs,
+    check_pose,
+    interpolate_pose,
+    invert_pose,
+    make_pose,
+    pose_from_tum,
+    pose_to_tum,
+    quat_xyzw_to_rot,
+    transform_points,
+)
+
+CAM = CameraIntrinsics(8, 6, 5.0, 6.0, 3.5, 2.5)
+
+
+def test_backprojection_follows_the_pinhole_equation():
+    depth = np.zeros((6, 8), np.float32)
+    depth[1, 2] = 2.0
+    depth[4, 7] = 9.0  # beyond max depth
+    pts, pix = backproject(depth, CAM, max_depth=8.0)
+    assert pix.tolist() == [1 * 8 + 2]
+    assert pts[0] == pytest.approx([2.0 * (2 - 3.5) / 5.0, 2.0 * (1 - 2.5) / 6.0, 2.0])
+
+
+def test_world_backprojection_equals_camera_backprojection_then_pose():
+    rng = np.random.default_rng(0)
+    depth = rng.uniform(0.0, 5.0, (6, 8)).astype(np.float32)
+    T = make_pose(quat_xyzw_to_rot([0.1, 0.2, 0.3, 0.9]), [1.0, -2.0, 0.5])
+    pc, pix_c = backproject(depth, CAM, min_depth=0.5, max_depth=4.0, stride=2)
+    pw, pix_w = backproject_world(depth, CAM, T, min_depth=0.5, max_depth=4.0, stride=2)
+    assert np.array_equal(pix_c, pix_w) and pw.dtype == np.float32
+    assert pw == pytest.approx(transform_points(T, pc), abs=1e-5)
+
+
+def test_backprojection_rejects_mismatched_images_and_ranges():
+    with pytest.raises(ConfigError, match="does not match"):
+        backproject(np.zeros((5, 8), np.float32), CAM)
+    with pytest.raises(ConfigError, match="depth range"):
+        backproject(np.zeros((6, 8), np.float32), CAM, min_depth=3.0, max_depth=1.0)
+
+
+@settings(max_examples=50, deadline=None)
+@given(st.integers(1, 400), st.sampled_from([0.02, 0.1, 0.5]))
+def test_voxel_filter_keeps_exactly_one_point_per_cell(n, res):
+    pts = np.random.default_rng(n).uniform(-2, 2, (n, 3))
+    keep = voxel_filter(pts, res)
+    cells = np.floor(pts / res).astype(int)
+    assert len(np.unique(cells[keep], axis=0)) == len(keep) == len(np.unique(cells, axis=0))
+    assert np.all(np.diff(keep) > 0)
+
+
+@settings(max_examples=100, deadline=None)
+@given(st.lists(st.floats(-1, 1), min_size=4, max_size=4).filter(lambda q: np.linalg.norm(q) > 0.1),
+       st.lists(st.floats(-10, 10), min_size=3, max_size=3))
+def test_tum_pose_round_trip_and_inverse(q, t):
+    T = pose_from_tum([*t, *q])
+    assert pose_from_tum(pose_to_tum(T)) == pytest.approx(T, abs=1e-9)
+    assert T @ invert_pose(T) == pytest.approx(np.eye(4), abs=1e-9)
+    check_pose(T)
+
+
+def test_pose_interpolation_hits_the_ends_and_the_middle():
+    A = make_pose(np.eye(3), [0, 0, 0])
+    B = make_pose(quat_xyzw_to_rot([0, 0, np.sin(0.5), np.cos(0.5)]), [2, 0, 0])
+    assert interpolate_pose(A, B, 0.0) == pytest.approx(A)
+    assert interpolate_pose(A, B, 1.0) == pytest.approx(B, abs=1e-9)
+    mid = interpolate_pose(A, B, 0.5)
+    assert mid[:3, 3] == pytest.approx([1, 0, 0])
+    assert mid[:3, :3] == pytest.approx(quat_xyzw_to_rot([0, 0, np.sin(0.25), np.cos(0.25)]), abs=1e-9)
+
+
+def test_non_finite_or_non_rigid_poses_are_errors():
+    T = np.eye(4)
+    T[0, 3] = np.nan
+    with pytest.raises(DatasetError, match="non-finite"):
+        check_pose(T, "frame 3")
+    with pytest.raises(DatasetError, match="rigid"):
+        check_pose(np.diag([2.0, 1, 1, 1]))
+
+
+def test_label_sets_round_trip_and_never_use_white(tmp_path):
+    ls = LabelSet(("unknown", "wall", "chair"), np.array([[0, 0, 0], [255, 255, 255], [10, 200, 30]]))
+    assert tuple(ls.colors[1]) != (255, 255, 255)
+    ls.save(tmp_path / "labels.json")
+    back = LabelSet.load(tmp_path / "labels.json")
+    assert back.names == ls.names and np.array_equal(back.colors, ls.colors)
+    assert ls.id_of("chair") == 2
+    assert ls.colorize(np.array([[2, 0]])).tolist() == [[[10, 200, 30], [0, 0, 0]]]
+    generic = LabelSet.generic(40)
+    assert len({tuple(c) for c in generic.colors.tolist()}) == 40
+
+
+def test_top_k_from_dense_probabilities_and_hard_labels():
+    probs = np.array([[[0.1, 0.6, 0.3]], [[0.5, 0.25, 0.25]]], np.float32)
+    tk = TopKProbs.from_dense(probs, k=3)
+    assert tk.labels[0, 0].tolist() == [1, 2, 0] and tk.labels[1, 0].tolist() == [0, 1, 2]
+    assert tk.others == pytest.approx(np.zeros((2, 1)), abs=1e-6)
+    hard = TopKProbs.from_hard_labels(np.array([[2, 1]]), 0.9, num_classes=3)
+    assert hard.labels[0, 0].tolist() == [2, EMPTY_LABEL, EMPTY_LABEL]
+    assert hard.others == pytest.approx(np.array([[0.1, 0.1]]))
+    with pytest.raises(ConfigError):
+        TopKProbs.from_hard_labels(np.array([[5]]), 0.9, num_classes=3)

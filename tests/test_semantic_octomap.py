@@ -1,0 +1,224 @@
+"""The semantic OctoMap: occupancy identical to OctoMap's, colour, semantics, queries, growth, coarsening."""
+
+from __future__ import annotations
+
+import itertools
+import logging
+
+import numpy as np
+import pyoctomap
+import pytest
+
+from naive import EMPTY, octomap_states
+from semmap.errors import ConfigError
+from semmap.maps._keys import coords_to_keys, pack_keys, unpack_keys
+from semmap.maps.semantic_octomap import FREE, OCCUPIED, UNKNOWN, SemanticOctoMap, logodds
+from semmap.types import LabelSet, TopKProbs
+
+
+def random_scan(rng, n=3000, origin=(0.0, 0.0, 0.0), radius=(0.5, 3.0)):
+    """Points on a few random spheres and planes around ``origin`` (noisy, like a depth frame)."""
+    d = rng.normal(size=(n, 3))
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    r = rng.choice(np.linspace(*radius, 4), n) + rng.normal(0, 0.01, n)
+    return np.asarray(origin) + d * r[:, None]
+
+
+def semmap_states(m: SemanticOctoMap) -> dict:
+    c = m.cells()
+    occ = m.is_occupied(c.logodds)
+    return {tuple(k): bool(o) for k, o in zip(unpack_keys(c.packed).tolist(), occ, strict=True)}
+
+
+@pytest.mark.parametrize("resolution", [0.05, 0.1])
+def test_occupancy_matches_octomap_discretized_insert_cell_for_cell(resolution):
+    rng = np.random.default_rng(0)
+    m = SemanticOctoMap(resolution)
+    tree = pyoctomap.OcTree(resolution)
+    for _i in range(4):
+        origin = rng.uniform(-0.5, 0.5, 3)
+        pts = random_scan(rng, origin=origin)
+        m.insert_points(pts, origin)
+        tree.insertPointCloud(pts.astype(np.float64), origin.astype(np.float64), discretize=True)
+    assert semmap_states(m) == octomap_states(tree, resolution)
+
+
+def test_max_range_readings_only_clear_space_like_octomap():
+    rng = np.random.default_rng(1)
+    m = SemanticOctoMap(0.1, max_range=1.5)
+    tree = pyoctomap.OcTree(0.1)
+    pts = random_scan(rng, n=2000, radius=(0.5, 4.0))
+    m.insert_points(pts, np.zeros(3))
+    tree.insertPointCloud(pts, np.zeros(3), max_range=1.5, discretize=True)
+    assert semmap_states(m) == octomap_states(tree, 0.1)
+    far = np.linalg.norm(pts, axis=1) > 1.7
+    assert (m.state_at(pts[far]) != OCCUPIED).all()
+
+
+def test_wide_scans_are_range_limited_with_a_warning_and_still_match_octomap(caplog):
+    rng = np.random.default_rng(2)
+    m = SemanticOctoMap(0.1, grid_cell_limit=40**3)
+    pts = random_scan(rng, n=1500, radius=(0.5, 6.0))
+    with caplog.at_level(logging.WARNING, logger="semmap"):
+        stats = m.insert_points(pts, np.zeros(3))
+    assert stats.range_limited and "limiting its range" in caplog.text
+    limit = m.max_range if m.max_range > 0 else None
+    assert limit is None  # the map's own setting is untouched
+    tree = pyoctomap.OcTree(0.1)
+    side = int((40**3) ** (1 / 3)) - 6
+    tree.insertPointCloud(pts, np.zeros(3), max_range=side / 2 * 0.1, discretize=True)
+    assert semmap_states(m) == octomap_states(tree, 0.1)
+
+
+def test_free_cells_never_include_this_scans_hits():
+    # a wall of points and, behind it, points whose rays cross the wall's cells
+    wall = np.array([[x, y, 1.0] for x in np.arange(-0.5, 0.5, 0.01) for y in np.arange(-0.5, 0.5, 0.01)])
+    behind = wall * np.array([1.0, 1.0, 2.0])
+    m = SemanticOctoMap(0.05)
+    m.insert_points(np.vstack([behind, wall]), np.zeros(3))
+    assert (m.state_at(wall) == OCCUPIED).all()
+
+
+def test_log_odds_clamp_exactly_at_octomaps_float32_bounds():
+    m = SemanticOctoMap(0.1)
+    p = np.array([[1.0, 0.0, 0.0]])
+    for _ in range(10):
+        m.insert_points(p, np.zeros(3))
+    c = m.cells()
+    hit = c.logodds[c.logodds > 0]
+    free = c.logodds[c.logodds < 0]
+    assert hit.tolist() == [np.float32(3.5110307)] and hit.dtype == np.float32
+    assert np.all(free == np.float32(-2.000028))
+    assert logodds(0.7) == np.float32(0.84729785)
+
+
+def test_state_queries_and_unknown_space():
+    m = SemanticOctoMap(0.1)
+    m.insert_points(np.array([[2.0, 0.0, 0.0]]), np.zeros(3))
+    states = m.state_at(np.array([[2.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 3.0, 0.0], [1e9, 0, 0]]))
+    assert states.tolist() == [OCCUPIED, FREE, UNKNOWN, UNKNOWN]
+    assert m.num_occupied == 1 and m.num_free == m.num_leaves - 1
+
+
+def test_colour_is_the_mean_of_observations():
+    m = SemanticOctoMap(0.1)
+    p = np.array([[1.02, 0.01, 0.01]])
+    for c in ([10, 20, 30], [30, 40, 50], [20, 30, 40], [0, 10, 20]):
+        m.insert_points(p, np.zeros(3), colors=np.array([c], np.uint8))
+    v = m.voxels()
+    assert v.colors.tolist() == [[15, 25, 35]]
+
+
+def test_voxel_filter_keeps_the_first_point_of_each_cell_for_colour_and_semantics():
+    m = SemanticOctoMap(0.1, label_set=LabelSet.generic(5))
+    pts = np.array([[1.01, 0.01, 0.01], [1.05, 0.05, 0.05]])
+    sem = TopKProbs(np.array([[1, EMPTY, EMPTY], [2, EMPTY, EMPTY]], np.uint16),
+                    np.array([[0.8, 0, 0]] * 2, np.float32))
+    m.insert_points(pts, np.zeros(3), colors=np.array([[200, 0, 0], [0, 0, 200]], np.uint8), semantics=sem)
+    v = m.voxels()
+    assert v.colors.tolist() == [[200, 0, 0]] and v.labels[0, 0] == 1
+
+
+def test_semantics_fuse_over_frames_and_are_queryable():
+    m = SemanticOctoMap(0.1, label_set=LabelSet.generic(6))
+    p = np.array([[1.0, 0.0, 0.0]])
+    seq = [(3, 0.7), (3, 0.6), (5, 0.6), (3, 0.7)]
+    for lab, conf in seq:
+        m.insert_points(p, np.zeros(3), semantics=TopKProbs(np.array([[lab, EMPTY, EMPTY]], np.uint16),
+                                                             np.array([[conf, 0, 0]], np.float32)))
+    s = m.semantics_at(p)
+    assert s.labels[0, 0] == 3 and s.labels[0, 1] == 5
+    assert 0.5 < s.probs[0, 0] < 1.0
+    empty = m.semantics_at(np.array([[0.5, 0.0, 0.0]]))  # a free cell has no semantics
+    assert empty.labels[0, 0] == EMPTY
+
+
+def test_class_ids_outside_the_label_set_are_rejected():
+    m = SemanticOctoMap(0.1, label_set=LabelSet.generic(4))
+    sem = TopKProbs(np.array([[9, EMPTY, EMPTY]], np.uint16), np.array([[0.9, 0, 0]], np.float32))
+    with pytest.raises(ConfigError, match="class id 9"):
+        m.insert_points(np.array([[1.0, 0, 0]]), np.zeros(3), semantics=sem)
+
+
+@pytest.mark.parametrize("bad", [np.zeros((3, 2)), np.zeros(3)])
+def test_bad_point_arrays_are_rejected(bad):
+    with pytest.raises(ConfigError):
+        SemanticOctoMap(0.1).insert_points(bad, np.zeros(3))
+    with pytest.raises(ConfigError):
+        SemanticOctoMap(0.1).insert_points(np.zeros((2, 3)), [np.nan, 0, 0])
+
+
+def test_non_finite_points_are_ignored():
+    m = SemanticOctoMap(0.1)
+    m.insert_points(np.array([[np.nan, 0, 0], [1.0, np.inf, 0], [1.0, 0, 0]]), np.zeros(3))
+    assert m.num_occupied == 1
+
+
+def test_hash_table_growth_keeps_every_cell():
+    rng = np.random.default_rng(4)
+    m = SemanticOctoMap(0.02)
+    pts_all = []
+    for _ in range(6):
+        pts = random_scan(rng, n=20000, radius=(0.5, 2.0))
+        m.insert_points(pts, np.zeros(3))
+        pts_all.append(pts)
+    c = m.cells()
+    assert c.packed.size == m.num_leaves == np.unique(c.packed).size
+    assert (m.state_at(np.vstack(pts_all)) != UNKNOWN).all()
+    assert m.memory_bytes / m.num_leaves < 60
+
+
+def test_coarsen_takes_the_max_occupancy_and_halves_resolution_per_level():
+    rng = np.random.default_rng(5)
+    m = SemanticOctoMap(0.02, label_set=LabelSet.generic(5))
+    pts = random_scan(rng, n=5000)
+    lab = rng.integers(1, 5, len(pts)).astype(np.uint16)
+    sem = TopKProbs(np.stack([lab, np.full_like(lab, EMPTY), np.full_like(lab, EMPTY)], 1),
+                    np.tile(np.array([0.8, 0, 0], np.float32), (len(pts), 1)))
+    m.insert_points(pts, np.zeros(3), colors=rng.integers(0, 255, (len(pts), 3), dtype=np.uint8), semantics=sem)
+    maps = [m] + [m.coarsen(level) for level in (1, 2, 3)]
+    assert [mm.resolution for mm in maps] == pytest.approx([0.02, 0.04, 0.08, 0.16])
+    assert all(a.num_leaves > b.num_leaves for a, b in itertools.pairwise(maps))
+    # a coarse cell is occupied exactly when one of its fine cells is
+    coarse = maps[2]
+    fine_occ = m.voxels().keys
+    parents = np.unique(pack_keys(((fine_occ - 32768) >> 2) + 32768))
+    assert np.array_equal(np.sort(pack_keys(coarse.voxels().keys)), parents)
+    # coarsening twice by one level equals coarsening by two levels (occupancy)
+    twice = m.coarsen(1).coarsen(1)
+    assert np.array_equal(twice.cells().packed, coarse.cells().packed)
+    assert np.array_equal(twice.cells().logodds, coarse.cells().logodds)
+    # every occupied coarse cell carries a class from its children
+    assert (coarse.voxels().labels[:, 0] < 5).all()
+
+
+def test_coarse_keys_agree_with_octomap_at_the_coarse_resolution():
+    rng = np.random.default_rng(6)
+    pts = rng.uniform(-3, 3, (2000, 3))
+    fine = coords_to_keys(pts, 0.02)
+    coarse = ((fine - 32768) >> 3) + 32768
+    assert np.array_equal(coarse, coords_to_keys(pts, 0.16)) or np.mean(
+        (coarse == coords_to_keys(pts, 0.16)).all(1)) > 0.999
+
+
+def test_resolution_is_validated():
+    with pytest.raises(ConfigError):
+        SemanticOctoMap(0.0)
+    with pytest.raises(ConfigError):
+        SemanticOctoMap(0.05).coarsen(20)
+
+
+def test_attributes_stay_with_their_cells_when_the_table_grows_during_hits():
+    # an origin outside the key range casts no rays, so every new cell arrives as a hit and the
+    # table grows while hits are being inserted
+    rng = np.random.default_rng(7)
+    pts = rng.uniform(-5, 5, (30000, 3))
+    colors = rng.integers(0, 250, (len(pts), 3), dtype=np.uint8)
+    m = SemanticOctoMap(0.05)
+    m.insert_points(pts, [1e6, 0.0, 0.0], colors=colors)
+    keys = coords_to_keys(pts, 0.05)
+    _, first = np.unique(pack_keys(keys), return_index=True)
+    expected = {tuple(k): tuple(c) for k, c in zip(keys[first].tolist(), colors[first].tolist(), strict=True)}
+    v = m.voxels()
+    got = {tuple(k): tuple(c) for k, c in zip(v.keys.tolist(), v.colors.tolist(), strict=True)}
+    assert got == expected
