@@ -26,7 +26,7 @@ from semmap.io.octomap_files import write_bt, write_ot
 from semmap.maps.semantic_octomap import InsertStats, OccupancyParams, SemanticOctoMap, SemanticParams
 from semmap.perception.base import Segmenter
 from semmap.types import Frame, LabelSet, TopKProbs
-from semmap.viz.preview import CEILING_MARGIN, side_by_side, top_down, up_vector, write_png
+from semmap.viz.preview import CEILING_MARGIN, perspective, side_by_side, top_down, up_vector, write_png
 
 log = logging.getLogger("semmap")
 #: Fallback label set when labels come without a labelset.json (8-bit label images).
@@ -230,6 +230,13 @@ def render_preview(octomap: SemanticOctoMap, poses: list[np.ndarray]) -> np.ndar
         class_colors[ok] = octomap.label_set.colors[top[ok]]
         views.insert(0, top_down(vox.centers, class_colors, octomap.resolution, up=up, max_height=cut))
         titles.insert(0, "classes (top-down)")
+        views.append(perspective(vox.centers, class_colors, octomap.resolution, up=up, max_height=cut,
+                                 width=views[0].shape[1], height=views[0].shape[0]))
+        titles.append("classes (perspective)")
+    else:
+        views.append(perspective(vox.centers, vox.colors, octomap.resolution, up=up, max_height=cut,
+                                 width=views[0].shape[1], height=views[0].shape[0]))
+        titles.append("colour (perspective)")
     return side_by_side(views, titles)
 
 

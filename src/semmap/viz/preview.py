@@ -5,6 +5,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import cv2
+import numba as nb
 import numpy as np
 
 from semmap.errors import SemmapError
@@ -70,6 +71,59 @@ def top_down(centers: np.ndarray, colors: np.ndarray, resolution: float, *, up: 
             img[rows[:, dy], cols[:, dx]] = shaded
     scale = size / max(H, W)  # one voxel -> a block of pixels, longest side ``size``
     return cv2.resize(img, (max(1, round(W * scale)), max(1, round(H * scale))), interpolation=cv2.INTER_NEAREST)
+
+
+@nb.njit(cache=True)
+def _splat(img, zbuf, u, v, z, size, colors):
+    H, W = zbuf.shape
+    for i in range(u.shape[0]):
+        h = size[i] // 2
+        for y in range(max(0, v[i] - h), min(H, v[i] - h + size[i])):
+            for x in range(max(0, u[i] - h), min(W, u[i] - h + size[i])):
+                if z[i] < zbuf[y, x]:
+                    zbuf[y, x] = z[i]
+                    img[y, x, 0] = colors[i, 0]
+                    img[y, x, 1] = colors[i, 1]
+                    img[y, x, 2] = colors[i, 2]
+
+
+def perspective(centers: np.ndarray, colors: np.ndarray, resolution: float, *, up: np.ndarray,
+                width: int = 640, height: int = 480, max_height: float | None = None) -> np.ndarray:
+    """Voxels seen from above one corner of the map (a pinhole camera looking down at 40 degrees), drawn as
+    z-buffered squares with simple depth shading; returns an RGB uint8 image."""
+    img = np.full((height, width, 3), 32, np.uint8)
+    if len(centers) == 0:
+        return img
+    h = centers @ up
+    keep = h <= max_height if max_height is not None else np.ones(len(h), bool)
+    c, col = centers[keep], colors[keep]
+    if len(c) == 0:
+        return img
+    e1, e2 = _horizontal_axes(up)
+    mid = (c.min(axis=0) + c.max(axis=0)) / 2
+    radius = max(float(np.linalg.norm(c.max(axis=0) - c.min(axis=0))) / 2, resolution * 4)
+    tilt = np.deg2rad(40.0)
+    back = -(0.8 * e1 + 0.6 * e2)
+    fwd = np.cos(tilt) * -back - np.sin(tilt) * up
+    fwd /= np.linalg.norm(fwd)
+    eye = mid - fwd * radius * 2.2
+    right = np.cross(fwd, up)
+    right /= np.linalg.norm(right)
+    down = np.cross(fwd, right)
+    rel = c - eye
+    x, y, z = rel @ right, rel @ down, rel @ fwd
+    f = 0.9 * width
+    front = z > 1e-3
+    u = np.round(f * x[front] / z[front] + width / 2).astype(np.int64)
+    v = np.round(f * y[front] / z[front] + height / 2).astype(np.int64)
+    zf = z[front]
+    size = np.clip(np.ceil(1.2 * f * resolution / zf), 1, 64).astype(np.int64)
+    near, far = zf.min(), zf.max()
+    shade = 1.0 - 0.45 * (zf - near) / max(far - near, 1e-6)
+    shaded = np.clip(col[front] * shade[:, None], 0, 255).astype(np.uint8)
+    zbuf = np.full((height, width), np.inf)
+    _splat(img, zbuf, u, v, zf, size, shaded)
+    return img
 
 
 def side_by_side(images: list[np.ndarray], titles: list[str], gap: int = 8) -> np.ndarray:

@@ -1,0 +1,121 @@
+"""Semantic accuracy: confusion matrices, per-class IoU / mIoU and MPA (paper eqs. 11-12), in 2D and in 3D.
+
+3D evaluation matches each occupied map voxel to the ground-truth surface voxels: the same key, or else the
+nearest ground-truth voxel within ``tolerance`` cells (depth noise moves surfaces by a voxel).  Voxels with
+no ground truth nearby count against geometric precision, not against the class scores; ground-truth voxels
+never observed by the camera are reported as coverage, not as misses of a class.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from semmap.maps._keys import pack_keys
+from semmap.types import EMPTY_LABEL, LabelSet
+
+
+def confusion(pred: np.ndarray, gt: np.ndarray, num_classes: int, *, ignore: int | None = 0) -> np.ndarray:
+    """(K, K) counts, rows = ground truth, columns = prediction; ``gt == ignore`` is skipped and predictions
+    outside 0..K-1 (e.g. no class) are counted as class 0 (unknown)."""
+    gt = np.asarray(gt).ravel().astype(np.int64)
+    pred = np.asarray(pred).ravel().astype(np.int64)
+    keep = (gt >= 0) & (gt < num_classes)
+    if ignore is not None:
+        keep &= gt != ignore
+    gt, pred = gt[keep], pred[keep]
+    pred = np.where((pred >= 0) & (pred < num_classes), pred, 0)
+    return np.bincount(gt * num_classes + pred, minlength=num_classes * num_classes).reshape(num_classes, num_classes)
+
+
+@dataclass(frozen=True)
+class SegmentationScores:
+    """Per-class IoU (NaN for classes absent from the ground truth), mIoU, pixel/voxel accuracy and MPA."""
+
+    iou: np.ndarray
+    miou: float
+    accuracy: float
+    mpa: float
+    support: np.ndarray  # ground-truth count per class
+
+    def per_class(self, labels: LabelSet | None = None) -> dict[str, float]:
+        names = labels.names if labels is not None else [str(i) for i in range(len(self.iou))]
+        return {names[i]: round(float(v), 4) for i, v in enumerate(self.iou) if not np.isnan(v)}
+
+
+def scores(conf: np.ndarray, *, ignore: int | None = 0) -> SegmentationScores:
+    """IoU_c = TP / (TP + FP + FN) per class present in the ground truth (eq. 12), MPA = mean per-class
+    accuracy (eq. 11 as usually implemented), accuracy = trace / total."""
+    conf = conf.astype(np.float64)
+    tp = np.diag(conf)
+    gt_count = conf.sum(axis=1)
+    pred_count = conf.sum(axis=0)
+    present = gt_count > 0
+    if ignore is not None and ignore < len(present):
+        present[ignore] = False
+    with np.errstate(divide="ignore", invalid="ignore"):
+        iou = np.where(present, tp / (gt_count + pred_count - tp), np.nan)
+        per_class_acc = np.where(present, tp / gt_count, np.nan)
+    total = conf.sum()
+    return SegmentationScores(iou, float(np.nanmean(iou)) if present.any() else float("nan"),
+                              float(tp.sum() / total) if total else float("nan"),
+                              float(np.nanmean(per_class_acc)) if present.any() else float("nan"),
+                              gt_count.astype(np.int64))
+
+
+@dataclass(frozen=True)
+class VoxelMatch:
+    """Occupied map voxels paired with ground-truth classes, plus geometric precision and coverage."""
+
+    pred: np.ndarray  # (M,) predicted class of each matched map voxel (EMPTY_LABEL -> 0)
+    gt: np.ndarray  # (M,) ground-truth class
+    precision: float  # matched / occupied map voxels
+    coverage: float  # ground-truth voxels with a map voxel within tolerance / all ground-truth voxels
+    map_voxels: int
+    gt_voxels: int
+
+
+_NEIGHBOURS = np.array([(dx, dy, dz) for dx in (-1, 0, 1) for dy in (-1, 0, 1) for dz in (-1, 0, 1)
+                        if (dx, dy, dz) != (0, 0, 0)], np.int64)
+
+
+def match_voxels(map_keys: np.ndarray, map_labels: np.ndarray, gt_keys: np.ndarray, gt_labels: np.ndarray,
+                 *, tolerance: int = 1) -> VoxelMatch:
+    """Pair each occupied map voxel (keys (M, 3), top class (M,)) with a ground-truth voxel: the same key,
+    else (``tolerance`` = 1) a face/edge/corner neighbour, nearest first."""
+    map_keys = np.asarray(map_keys, np.int64)
+    gt_keys = np.asarray(gt_keys, np.int64)
+    gt_packed = pack_keys(gt_keys)
+    order = np.argsort(gt_packed)
+    gt_sorted, gt_lab_sorted = gt_packed[order], np.asarray(gt_labels)[order]
+
+    def lookup(keys: np.ndarray) -> np.ndarray:
+        packed = pack_keys(np.clip(keys, 0, 65535))
+        pos = np.clip(np.searchsorted(gt_sorted, packed), 0, max(len(gt_sorted) - 1, 0))
+        found = (gt_sorted[pos] == packed) if len(gt_sorted) else np.zeros(len(packed), bool)
+        return np.where(found, pos, -1)
+
+    idx = lookup(map_keys)
+    if tolerance >= 1:
+        offsets = _NEIGHBOURS[np.argsort(np.abs(_NEIGHBOURS).sum(axis=1), kind="stable")]
+        for off in offsets:
+            missing = idx < 0
+            if not missing.any():
+                break
+            idx[missing] = lookup(map_keys[missing] + off)
+    matched = idx >= 0
+    pred = np.asarray(map_labels)[matched].astype(np.int64)
+    pred[pred == int(EMPTY_LABEL)] = 0
+    covered = np.zeros(len(gt_sorted), bool)
+    covered[idx[matched]] = True
+    if tolerance >= 1 and len(gt_sorted):
+        map_set = np.sort(pack_keys(map_keys))
+        for off in _NEIGHBOURS:  # ground truth next to a map voxel is covered too
+            probe = pack_keys(np.clip(gt_keys[order] + off, 0, 65535))
+            pos = np.clip(np.searchsorted(map_set, probe), 0, max(len(map_set) - 1, 0))
+            covered |= (map_set[pos] == probe) if len(map_set) else False
+    return VoxelMatch(pred, gt_lab_sorted[idx[matched]].astype(np.int64),
+                      float(matched.mean()) if len(matched) else float("nan"),
+                      float(covered.mean()) if len(covered) else float("nan"),
+                      len(map_keys), len(gt_keys))
