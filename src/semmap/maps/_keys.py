@@ -111,6 +111,8 @@ def trace_ray(ox: np.float32, oy: np.float32, oz: np.float32, ex: np.float32, ey
     dy = ey - oy
     dz = ez - oz
     length = np.float32(math.sqrt(np.float64(dx * dx + dy * dy + dz * dz)))
+    if length == 0.0:  # ends in different cells but closer than float32 can measure (denormals)
+        return n
     dx = dx / length
     dy = dy / length
     dz = dz / length
