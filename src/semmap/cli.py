@@ -106,8 +106,27 @@ def run(
         output=OutputConfig(out=out, color_mode=parse_color_mode(color_mode)),
     ))
     segmenter = _segmenter(config)
-    result = Pipeline(config, segmenter=segmenter, progress=progress_bar("mapping")).run()
+    result = Pipeline(config, segmenter=segmenter, progress=progress_bar("mapping"),
+                      ground_truth=_simulated_ground_truth(dataset)).run()
     _print_summary(result.report, result.out_dir)
+
+
+def _simulated_ground_truth(dataset: Path):
+    """3D ground truth for a folder written by ``semmap simulate`` (None for other datasets)."""
+    if not (dataset / "scene.json").is_file():
+        return None
+    from semmap.datasets.simulated import scene_of_folder
+    from semmap.sim.ground_truth import gt_voxels
+
+    scene = scene_of_folder(dataset)
+    if scene is None:
+        return None
+
+    def ground_truth(res: float):
+        gt = gt_voxels(scene, res)
+        return gt.keys, gt.class_ids
+
+    return ground_truth
 
 
 def _segmenter(config):
@@ -137,7 +156,7 @@ def _print_summary(report: dict, out_dir: Path) -> None:
 
     t = Table(title=f"semmap: {out_dir}", show_header=False)
     for key in ("frames_used", "frames_skipped", "occupied_voxels", "free_voxels", "occupied_leaves",
-                "free_leaves", "bytes_in_memory", "miou_3d", "oracle_miou_2d"):
+                "free_leaves", "bytes_in_memory", "miou_3d", "oracle_miou_2d", "segmentation_miou_2d"):
         if key in report:
             t.add_row(key, str(report[key]))
     for name, size in report.get("bytes_on_disk", {}).items():
@@ -147,21 +166,72 @@ def _print_summary(report: dict, out_dir: Path) -> None:
 
 
 @app.command()
+def simulate(
+    out: Annotated[Path, typer.Option("--out", "-o", help="output folder (TUM RGB-D layout + ground truth)")],
+    scene_seed: Annotated[int, typer.Option(help="scene generator seed")] = 0,
+    kind: Annotated[str, typer.Option(help="office | kitchen | living_room | bedroom")] = "office",
+    size: Annotated[str, typer.Option(help="small | medium | large")] = "medium",
+    trajectory: Annotated[str, typer.Option(help="desk | loop | orbit | walk")] = "loop",
+    frames: Annotated[int, typer.Option(help="frames to render (30 per second)")] = 300,
+    noise: Annotated[bool, typer.Option("--noise/--no-noise", help="Kinect-like depth noise")] = True,
+) -> None:
+    """Render a procedural indoor scene to a TUM RGB-D folder with labels, instances, objects and scene.json."""
+    _setup_logging(False)
+    from semmap.sim.export import simulate_sequence
+
+    with _ProgressCallback("rendering", frames) as callback:
+        root = simulate_sequence(out, scene_seed=scene_seed, kind=kind, size=size, trajectory=trajectory,
+                                 frames=frames, noise=noise, progress=callback)
+    _console().print(f"wrote {frames} frames to {root} (map it with: semmap run {root} --out OUT)")
+
+
+class _ProgressCallback:
+    """A rich progress bar driven by ``callback(i, n)`` calls (for library functions that report progress)."""
+
+    def __init__(self, description: str, total: int) -> None:
+        self.description, self.total = description, total
+
+    def __enter__(self):
+        from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
+
+        self._progress = Progress(TextColumn("[bold]{task.description}"), BarColumn(), MofNCompleteColumn(),
+                                  TimeRemainingColumn(), console=_console())
+        self._progress.__enter__()
+        task = self._progress.add_task(self.description, total=self.total)
+        return lambda i, n: self._progress.update(task, completed=i, total=n)
+
+    def __exit__(self, *exc):
+        return self._progress.__exit__(*exc)
+
+
+@app.command()
 def demo(
     out: Annotated[Path, typer.Option("--out", "-o", help="output folder")] = Path("outputs/demo"),
-    frames: Annotated[int, typer.Option(help="frames to map")] = 60,
+    frames: Annotated[int, typer.Option(help="frames of the default trajectory")] = 300,
+    resolution: Annotated[float, typer.Option(help="finest voxel size (m)")] = 0.05,
+    scene_seed: Annotated[int, typer.Option(help="scene generator seed")] = 0,
 ) -> None:
-    """Map the built-in default scene and write every output (until the simulator lands: 7-Scenes frames)."""
+    """Simulate the default scene, map it with ground-truth poses and the cnn-like oracle segmenter, and write
+    the outputs of `semmap run` plus report.md with 3D accuracy against ground truth."""
     _setup_logging(False)
-    from semmap.config import InputConfig, MappingConfig, OutputConfig, RunConfig
+    from semmap.config import InputConfig, MappingConfig, OutputConfig, RunConfig, SemanticsConfig
+    from semmap.datasets.simulated import SimulatedDataset
+    from semmap.perception.oracle import OracleSegmenter
     from semmap.pipeline import Pipeline
+    from semmap.sim.ground_truth import gt_voxels
 
-    seven = Path(__file__).resolve().parents[2].parent / "shared" / "data" / "7scenes-redkitchen"
-    if not seven.is_dir():
-        raise SemmapError(f"no demo data: {seven} is missing")
-    config = RunConfig(input=InputConfig(dataset=seven, stride=max(1, 600 // frames), max_frames=frames),
-                       mapping=MappingConfig(resolution=0.05), output=OutputConfig(out=out))
-    result = Pipeline(config, progress=progress_bar("mapping")).run()
+    dataset = SimulatedDataset.default(scene_seed=scene_seed, frames=frames)
+    config = _validated(lambda: RunConfig(
+        input=InputConfig(dataset=Path(dataset.name)), mapping=MappingConfig(resolution=resolution),
+        semantics=SemanticsConfig(source="oracle"), output=OutputConfig(out=out)))
+    segmenter = OracleSegmenter(dataset.label_set, preset=config.semantics.oracle_preset, seed=scene_seed)
+
+    def ground_truth(res: float):
+        gt = gt_voxels(dataset.scene, res)
+        return gt.keys, gt.class_ids
+
+    result = Pipeline(config, segmenter=segmenter, dataset=dataset, ground_truth=ground_truth,
+                      progress=progress_bar("simulate + map"), title=f"semmap demo: {dataset.name}").run()
     _print_summary(result.report, result.out_dir)
 
 

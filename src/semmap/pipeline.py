@@ -19,6 +19,8 @@ import numpy as np
 from semmap.config import ColorMode, RunConfig, SemanticSource
 from semmap.datasets import Dataset, open_dataset
 from semmap.errors import ConfigError
+from semmap.eval.report_md import write_report_md
+from semmap.eval.semantic import confusion, evaluate_2d, evaluate_map_3d
 from semmap.geometry import backproject_world
 from semmap.io.atomic import write_text_atomic
 from semmap.io.native import save_map
@@ -31,6 +33,8 @@ from semmap.viz.preview import CEILING_MARGIN, perspective, side_by_side, top_do
 log = logging.getLogger("semmap")
 #: Fallback label set when labels come without a labelset.json (8-bit label images).
 FALLBACK_CLASSES = 256
+#: Ground truth for 3D evaluation: resolution -> (keys (M, 3), class ids (M,)) of the true surface voxels.
+GroundTruthFn = Callable[[float], tuple[np.ndarray, np.ndarray]]
 #: Bytes per point of a dense coloured point cloud stored as binary PLY (xyz float32 + rgb uint8).
 DENSE_CLOUD_BYTES_PER_POINT = 15
 
@@ -93,11 +97,15 @@ class Pipeline:
     """One mapping run from a dataset folder to ``map.ot``, ``map.bt``, ``map.semmap``, preview and report."""
 
     def __init__(self, config: RunConfig, *, segmenter: Segmenter | None = None,
-                 progress: Callable[[Iterator, int], Iterator] | None = None, dataset: Dataset | None = None):
+                 progress: Callable[[Iterator, int], Iterator] | None = None, dataset: Dataset | None = None,
+                 ground_truth: GroundTruthFn | None = None, title: str = "semmap run"):
         self.config = config
         self.segmenter = segmenter
         self.progress = progress or (lambda it, n: it)
         self.dataset = dataset
+        self.ground_truth = ground_truth
+        self.title = title
+        self._conf2d: np.ndarray | None = None
 
     def run(self) -> RunResult:
         dataset = self._open()
@@ -108,10 +116,12 @@ class Pipeline:
         timings, poses, no_pose = self._integrate_all(dataset, mapper, label_set)
         files, sizes, tree_counts = self._write_outputs(octomap, poses)
         report = self._report(dataset, mapper, timings, poses, no_pose, sizes, tree_counts)
-        report_path = self.config.output.out / "report.json"
-        write_text_atomic(report_path, json.dumps(report, indent=2))
-        files["report"] = report_path
-        return RunResult(octomap, self.config.output.out, report, files, poses)
+        report.update(self._evaluate(octomap))
+        out = self.config.output.out
+        write_text_atomic(out / "report.json", json.dumps(report, indent=2))
+        write_report_md(out / "report.md", report, title=self.title)
+        files["report"], files["report_md"] = out / "report.json", out / "report.md"
+        return RunResult(octomap, out, report, files, poses)
 
     # ---------------------------------------------------------------- steps
     def _open(self) -> Dataset:
@@ -158,6 +168,8 @@ class Pipeline:
             sem = semantics_for(frame, s.source, segmenter=self.segmenter, label_set=label_set,
                                 label_confidence=s.label_confidence, k=s.k)
             timings["segment"] += (time.perf_counter() - t) * 1e3
+            if self.segmenter is not None and sem is not None and frame.labels is not None:
+                self._score_segmentation(sem, frame.labels, len(label_set))
             stats = mapper.integrate(frame, frame.T_world_cam, sem)
             for name, ms in stats.ms.items():
                 timings[name] += ms
@@ -167,6 +179,25 @@ class Pipeline:
             raise ConfigError(f"{self.config.input.dataset}: no frame could be mapped "
                               f"({len(dataset.skipped)} unreadable, {len(no_pose)} without pose)")
         return timings, poses, no_pose
+
+    def _score_segmentation(self, sem: TopKProbs, gt_labels: np.ndarray, num_classes: int) -> None:
+        """Accumulate the per-pixel confusion of the segmenter against ground-truth labels."""
+        conf = confusion(sem.labels[..., 0], gt_labels, num_classes)
+        self._conf2d = conf if self._conf2d is None else self._conf2d + conf
+
+    def _evaluate(self, octomap: SemanticOctoMap) -> dict:
+        """Accuracy against ground truth when there is any: 3D voxels, and the segmenter per pixel."""
+        out: dict = {}
+        if octomap.label_set is None:
+            return out
+        if self._conf2d is not None:
+            prefix = "oracle" if type(self.segmenter).__name__ == "OracleSegmenter" else "segmentation"
+            out.update(evaluate_2d(self._conf2d, octomap.label_set, prefix))
+        if self.ground_truth is not None:
+            gt_keys, gt_labels = self.ground_truth(octomap.resolution)
+            vox = octomap.voxels()
+            out.update(evaluate_map_3d(vox.keys, vox.labels[:, 0], gt_keys, gt_labels, octomap.label_set))
+        return out
 
     def _write_outputs(self, octomap: SemanticOctoMap, poses: list[np.ndarray]):
         out = self.config.output.out

@@ -104,6 +104,14 @@ class LabelSet:
     def __len__(self) -> int:
         return len(self.names)
 
+    def __eq__(self, other: object) -> bool:
+        if not isinstance(other, LabelSet):
+            return NotImplemented
+        return self.names == other.names and np.array_equal(self.colors, other.colors)
+
+    def __hash__(self) -> int:
+        return hash((self.names, self.colors.tobytes()))
+
     @property
     def ids(self) -> np.ndarray:
         return np.arange(len(self.names), dtype=np.uint16)

@@ -119,3 +119,27 @@ def match_voxels(map_keys: np.ndarray, map_labels: np.ndarray, gt_keys: np.ndarr
                       float(matched.mean()) if len(matched) else float("nan"),
                       float(covered.mean()) if len(covered) else float("nan"),
                       len(map_keys), len(gt_keys))
+
+
+def evaluate_map_3d(map_keys: np.ndarray, map_labels: np.ndarray, gt_keys: np.ndarray, gt_labels: np.ndarray,
+                    label_set: LabelSet, *, tolerance: int = 1) -> dict:
+    """Report entries for the semantic accuracy of occupied map voxels against ground-truth surface voxels."""
+    match = match_voxels(map_keys, map_labels, gt_keys, gt_labels, tolerance=tolerance)
+    s = scores(confusion(match.pred, match.gt, len(label_set)))
+    return {
+        "miou_3d": round(s.miou, 4),
+        "voxel_accuracy_3d": round(s.accuracy, 4),
+        "mpa_3d": round(s.mpa, 4),
+        "per_class_iou_3d": s.per_class(label_set),
+        "geometric_precision_3d": round(match.precision, 4),
+        "gt_coverage_3d": round(match.coverage, 4),
+        "gt_voxels": match.gt_voxels,
+        "matched_voxels": len(match.gt),
+    }
+
+
+def evaluate_2d(conf: np.ndarray, label_set: LabelSet, prefix: str) -> dict:
+    """Report entries for per-pixel segmentation scores accumulated over a run."""
+    s = scores(conf)
+    return {f"{prefix}_miou_2d": round(s.miou, 4), f"{prefix}_pixel_accuracy_2d": round(s.accuracy, 4),
+            f"{prefix}_mpa_2d": round(s.mpa, 4), f"{prefix}_per_class_iou_2d": s.per_class(label_set)}

@@ -1,0 +1,85 @@
+"""The built-in simulator as a dataset: frames rendered on the fly from a procedural scene, no files."""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+
+import numpy as np
+
+from semmap.datasets.base import SkippedFrame
+from semmap.sim.export import simulate_frames
+from semmap.sim.labels import INDOOR_LABELS
+from semmap.sim.scene import Scene, generate_scene
+from semmap.sim.trajectory import make_trajectory
+from semmap.types import CameraIntrinsics, Frame, LabelSet
+
+DEFAULT_INTRINSICS = CameraIntrinsics(640, 480, 525.0, 525.0, 319.5, 239.5)
+
+
+class SimulatedDataset:
+    """Frames (rgb, depth, labels, instances, ground-truth pose) of ``poses`` through ``scene``, rendered lazily."""
+
+    def __init__(self, scene: Scene, poses: np.ndarray, *, noise: bool = True, seed: int = 0,
+                 intrinsics: CameraIntrinsics | None = None, name: str = "simulated") -> None:
+        self.scene = scene
+        self.poses = np.asarray(poses, np.float64)
+        self.noise = noise
+        self.seed = seed
+        self._intrinsics = intrinsics or DEFAULT_INTRINSICS
+        self._name = name
+
+    @classmethod
+    def default(cls, *, scene_seed: int = 0, kind: str = "office", size: str = "medium", trajectory: str = "loop",
+                frames: int = 300, noise: bool = True) -> SimulatedDataset:
+        """The default scene and trajectory (what ``semmap demo`` maps)."""
+        scene = generate_scene(scene_seed, kind, size)
+        poses = make_trajectory(scene, trajectory, frames, seed=scene_seed)
+        return cls(scene, poses, noise=noise, seed=scene_seed, name=f"sim-{kind}-{size}-seed{scene_seed}-{trajectory}")
+
+    @property
+    def name(self) -> str:
+        return self._name
+
+    @property
+    def intrinsics(self) -> CameraIntrinsics:
+        return self._intrinsics
+
+    @property
+    def label_set(self) -> LabelSet:
+        return INDOOR_LABELS
+
+    @property
+    def skipped(self) -> list[SkippedFrame]:
+        return []
+
+    def __len__(self) -> int:
+        return len(self.poses)
+
+    def __iter__(self) -> Iterator[Frame]:
+        yield from simulate_frames(self.scene, self.poses, noise=self.noise, seed=self.seed,
+                                   intrinsics=self._intrinsics)
+
+
+def scene_of_folder(root) -> Scene | None:
+    """The scene a folder written by ``semmap simulate`` was rendered from (regenerated from its
+    ``scene.json``), or None when the folder is not a simulator export or the generator has changed since."""
+    import json
+    import logging
+    from pathlib import Path
+
+    path = Path(root) / "scene.json"
+    if not path.is_file():
+        return None
+    log = logging.getLogger("semmap")
+    try:
+        info = json.loads(path.read_text())
+        scene = generate_scene(int(info["seed"]), str(info["kind"]), str(info["size"]),
+                               second_room=bool(info["second_room"]))
+    except (OSError, ValueError, KeyError, TypeError) as exc:
+        log.warning("%s: cannot regenerate the simulated scene (%s); no 3D ground truth", path, exc)
+        return None
+    if scene.params.get("generator_version") != info.get("generator_version") or \
+            scene.n_triangles != info.get("n_triangles"):
+        log.warning("%s: written by another scene generator version; no 3D ground truth", path)
+        return None
+    return scene

@@ -1,0 +1,56 @@
+"""``report.md``: a human-readable summary of a run's report (accuracy, storage, timings)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from semmap.io.atomic import write_text_atomic
+
+
+def _kb(n: float) -> str:
+    return f"{n / 1024:,.1f} KiB" if n < 1024**2 else f"{n / 1024**2:,.2f} MiB"
+
+
+def render_report_md(report: dict, *, title: str = "semmap run") -> str:
+    """Markdown for a report dict as written by the pipeline."""
+    lines = [f"# {title}", "", f"Dataset: `{report.get('dataset', '?')}`  ", f"Resolution: {report['resolution']} m  ",
+             f"Frames used: {report['frames_used']} (skipped: {report['frames_skipped']})", ""]
+    if "miou_3d" in report:
+        seg = next((k[: -len("_miou_2d")] for k in report if k.endswith("_miou_2d")), None)
+        lines += ["## Semantic accuracy", "",
+                  "| measure | fused 3D map | single-frame segmentation |", "|---|---|---|",
+                  f"| mIoU | **{report['miou_3d']:.3f}** | {report.get(f'{seg}_miou_2d', float('nan')):.3f} |",
+                  f"| accuracy (voxels / pixels) | {report['voxel_accuracy_3d']:.3f} | "
+                  f"{report.get(f'{seg}_pixel_accuracy_2d', float('nan')):.3f} |",
+                  f"| MPA | {report['mpa_3d']:.3f} | {report.get(f'{seg}_mpa_2d', float('nan')):.3f} |", "",
+                  f"3D: occupied voxels matched to ground-truth surface voxels within one voxel; "
+                  f"geometric precision {report['geometric_precision_3d']:.3f} (occupied voxels on a true surface), "
+                  f"coverage {report['gt_coverage_3d']:.3f} of the {report['gt_voxels']:,} ground-truth surface "
+                  f"voxels.", ""]
+        per3 = report.get("per_class_iou_3d", {})
+        per2 = report.get(f"{seg}_per_class_iou_2d", {}) if seg else {}
+        lines += ["| class | IoU 3D | IoU 2D |", "|---|---|---|"]
+        for name in sorted(set(per3) | set(per2), key=lambda n: -per3.get(n, 0.0)):
+            a = f"{per3[name]:.3f}" if name in per3 else "–"
+            b = f"{per2[name]:.3f}" if name in per2 else "–"
+            lines.append(f"| {name} | {a} | {b} |")
+        lines.append("")
+    sizes = report["bytes_on_disk"]
+    lines += ["## Storage", "", "| representation | size |", "|---|---|",
+              f"| dense coloured point cloud (binary PLY, every integrated point) | "
+              f"{_kb(report['dense_point_cloud_bytes'])} |"]
+    for name, what in (("map.bt", "OctoMap .bt (occupancy only)"), ("map.ot", "semantic OctoMap .ot (ColorOcTree)"),
+                       ("map.semmap", "native map (log-odds, colour, top-3 distribution)")):
+        if name in sizes:
+            lines.append(f"| {what} | {_kb(sizes[name])} |")
+    lines += [f"| in memory ({report['bytes_per_voxel_in_memory']} B per voxel) | {_kb(report['bytes_in_memory'])} |",
+              "", f"Occupied voxels: {report['occupied_voxels']:,}, free voxels: {report['free_voxels']:,}; "
+              f"after pruning: {report['occupied_leaves']:,} occupied and {report['free_leaves']:,} free leaves.", "",
+              "## Timings (ms per frame)", "", "| stage | ms |", "|---|---|"]
+    lines += [f"| {k} | {v:.2f} |" for k, v in report["ms_per_frame"].items()]
+    lines += ["", "![preview](preview.png)", ""]
+    return "\n".join(lines)
+
+
+def write_report_md(path: str | Path, report: dict, *, title: str = "semmap run") -> Path:
+    return write_text_atomic(path, render_report_md(report, title=title))

@@ -1,0 +1,54 @@
+"""The simulator's class list: NYUv2-40-like indoor classes with fixed, distinct display colours."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from semmap.types import LabelSet
+
+#: (name, RGB colour) in class-id order; id 0 is "unknown / void". Colours are hand-picked, never white.
+_CLASSES: tuple[tuple[str, tuple[int, int, int]], ...] = (
+    ("unknown", (0, 0, 0)),
+    ("wall", (174, 199, 232)),
+    ("floor", (152, 223, 138)),
+    ("ceiling", (78, 71, 183)),
+    ("door", (214, 39, 40)),
+    ("window", (197, 176, 213)),
+    ("table", (255, 152, 150)),
+    ("chair", (188, 189, 34)),
+    ("sofa", (140, 86, 75)),
+    ("bed", (255, 187, 120)),
+    ("cabinet", (31, 119, 180)),
+    ("shelf", (148, 103, 189)),
+    ("desk", (247, 182, 210)),
+    ("monitor", (23, 190, 207)),
+    ("keyboard", (82, 84, 163)),
+    ("book", (196, 156, 148)),
+    ("cup", (227, 119, 194)),
+    ("bottle", (44, 160, 44)),
+    ("plant", (0, 100, 0)),
+    ("lamp", (255, 127, 14)),
+    ("picture", (219, 219, 141)),
+    ("pillow", (158, 218, 229)),
+    ("box", (178, 127, 35)),
+    ("person", (220, 20, 60)),
+    ("counter", (96, 207, 209)),
+    ("curtain", (100, 85, 144)),
+    ("refrigerator", (90, 90, 90)),
+    ("sink", (112, 128, 144)),
+    ("nightstand", (227, 207, 87)),
+    ("whiteboard", (240, 240, 200)),
+)
+
+INDOOR_LABELS: LabelSet = LabelSet(
+    tuple(name for name, _ in _CLASSES),
+    np.array([color for _, color in _CLASSES], dtype=np.uint8),
+)
+
+#: Classes that are part of the room shell ("stuff"): they get instance id 0 in instance images.
+STUFF_CLASSES: frozenset[str] = frozenset({"wall", "floor", "ceiling"})
+
+
+def class_id(name: str) -> int:
+    """Id of ``name`` in :data:`INDOOR_LABELS` (raises ConfigError for unknown names)."""
+    return INDOOR_LABELS.id_of(name)
