@@ -21,7 +21,7 @@ import numpy as np
 
 from semmap.geometry import backproject
 from semmap.io.octomap_files import decode_octomap
-from semmap.maps._keys import pack_keys
+from semmap.keys import pack_keys
 from semmap.maps.semantic_octomap import SemanticOctoMap
 from semmap.types import CameraIntrinsics, TopKProbs, transform_points
 

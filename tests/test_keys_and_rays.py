@@ -8,7 +8,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from semmap.maps._keys import coords_to_keys, keys_to_coords, pack_keys, ray_keys, unpack_keys
+from semmap.keys import coords_to_keys, keys_to_coords, pack_keys, unpack_keys
+from semmap.maps._keys import ray_keys
 
 
 @pytest.mark.parametrize("resolution", [0.02, 0.05, 0.1, 0.16])

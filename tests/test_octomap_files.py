@@ -15,7 +15,7 @@ from naive import EMPTY
 from semmap.errors import FormatError
 from semmap.io.native import load_map, save_map
 from semmap.io.octomap_files import decode_octomap, read_octomap, write_bt, write_ot
-from semmap.maps._keys import coords_to_keys
+from semmap.keys import coords_to_keys
 from semmap.maps.octree_tree import build_tree
 from semmap.maps.semantic_octomap import SemanticOctoMap
 from semmap.types import LabelSet, TopKProbs

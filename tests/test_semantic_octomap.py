@@ -11,7 +11,7 @@ import pytest
 
 from naive import EMPTY, octomap_states
 from semmap.errors import ConfigError
-from semmap.maps._keys import coords_to_keys, pack_keys, unpack_keys
+from semmap.keys import coords_to_keys, pack_keys, unpack_keys
 from semmap.maps.semantic_octomap import FREE, OCCUPIED, UNKNOWN, SemanticOctoMap, logodds
 from semmap.types import LabelSet, TopKProbs
 

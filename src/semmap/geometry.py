@@ -36,13 +36,8 @@ def pixel_rays(intrinsics: CameraIntrinsics) -> PixelRays:
     return rays
 
 
-def backproject(depth: np.ndarray, intrinsics: CameraIntrinsics, *, min_depth: float = DEFAULT_MIN_DEPTH,
-                max_depth: float = DEFAULT_MAX_DEPTH, stride: int = 1) -> tuple[np.ndarray, np.ndarray]:
-    """Camera-frame points of the valid depth pixels (eq. 7: X = Z(u-cx)/fx, Y = Z(v-cy)/fy, Z = d).
-
-    Returns ``points_cam`` (N, 3) float64 and ``pixel_index`` (N,) int64 (flat index v*W + u into the image),
-    keeping pixels with ``min_depth <= d <= max_depth``; ``stride`` > 1 subsamples rows and columns.
-    """
+def _check_backprojection(depth: np.ndarray, intrinsics: CameraIntrinsics, min_depth: float, max_depth: float,
+                          stride: int) -> None:
     if depth.shape != (intrinsics.height, intrinsics.width):
         raise ConfigError(f"depth image {depth.shape} does not match the camera "
                           f"({intrinsics.height}, {intrinsics.width})")
@@ -50,6 +45,16 @@ def backproject(depth: np.ndarray, intrinsics: CameraIntrinsics, *, min_depth: f
         raise ConfigError(f"depth range must satisfy 0 <= min < max, got [{min_depth}, {max_depth}]")
     if stride < 1:
         raise ConfigError(f"pixel stride must be >= 1, got {stride}")
+
+
+def backproject(depth: np.ndarray, intrinsics: CameraIntrinsics, *, min_depth: float = DEFAULT_MIN_DEPTH,
+                max_depth: float = DEFAULT_MAX_DEPTH, stride: int = 1) -> tuple[np.ndarray, np.ndarray]:
+    """Camera-frame points of the valid depth pixels (eq. 7: X = Z(u-cx)/fx, Y = Z(v-cy)/fy, Z = d).
+
+    Returns ``points_cam`` (N, 3) float64 and ``pixel_index`` (N,) int64 (flat index v*W + u into the image),
+    keeping pixels with ``min_depth <= d <= max_depth``; ``stride`` > 1 subsamples rows and columns.
+    """
+    _check_backprojection(depth, intrinsics, min_depth, max_depth, stride)
     rays = pixel_rays(intrinsics)
     d = depth[::stride, ::stride]
     valid = (d >= min_depth) & (d <= max_depth) & np.isfinite(d)
@@ -104,13 +109,7 @@ def backproject_world(depth: np.ndarray, intrinsics: CameraIntrinsics, T_world_c
                       stride: int = 1) -> tuple[np.ndarray, np.ndarray]:
     """World-frame points (N, 3) float32 of the valid depth pixels (eq. 7, then ``T_world_cam``), computed
     in double and rounded once, plus their flat pixel indices; one parallel pass, no temporaries."""
-    if depth.shape != (intrinsics.height, intrinsics.width):
-        raise ConfigError(f"depth image {depth.shape} does not match the camera "
-                          f"({intrinsics.height}, {intrinsics.width})")
-    if not 0 <= min_depth < max_depth:
-        raise ConfigError(f"depth range must satisfy 0 <= min < max, got [{min_depth}, {max_depth}]")
-    if stride < 1:
-        raise ConfigError(f"pixel stride must be >= 1, got {stride}")
+    _check_backprojection(depth, intrinsics, min_depth, max_depth, stride)
     rays = pixel_rays(intrinsics)
     return _backproject_world(np.ascontiguousarray(depth, np.float32), rays.x, rays.y,
                               np.ascontiguousarray(T_world_cam, np.float64), float(min_depth), float(max_depth),

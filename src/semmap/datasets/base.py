@@ -186,10 +186,13 @@ class SequenceReader(ABC, Generic[R]):
     Subclasses build one record per candidate frame and implement :meth:`_load` for one record.
     """
 
-    def __init__(self, root: Path, refs: Sequence[R], *, stride: int, max_frames: int | None) -> None:
+    def __init__(self, root: Path, refs: Sequence[R], *, stride: int, max_frames: int | None,
+                 intrinsics: CameraIntrinsics, label_set: LabelSet | None) -> None:
         self._root = root
         self._refs = select_frames(refs, stride, max_frames)
         self._skipped: list[SkippedFrame] = []
+        self._intrinsics = intrinsics
+        self._label_set = label_set
 
     @property
     def name(self) -> str:
@@ -205,12 +208,12 @@ class SequenceReader(ABC, Generic[R]):
         return self._skipped
 
     @property
-    @abstractmethod
-    def intrinsics(self) -> CameraIntrinsics: ...
+    def intrinsics(self) -> CameraIntrinsics:
+        return self._intrinsics
 
     @property
-    @abstractmethod
-    def label_set(self) -> LabelSet | None: ...
+    def label_set(self) -> LabelSet | None:
+        return self._label_set
 
     def __len__(self) -> int:
         return len(self._refs)

@@ -22,7 +22,7 @@ from semmap.datasets.base import (
 )
 from semmap.datasets.label_folder import LabelFolder, as_label_folder, choose_label_set
 from semmap.errors import ConfigError, DatasetError
-from semmap.types import CameraIntrinsics, Frame, LabelSet, check_pose
+from semmap.types import CameraIntrinsics, Frame, check_pose
 
 #: Colour file names; png is preferred when a frame has both.
 COLOR_PATTERN = re.compile(r"^(frame-(\d+))\.color\.(png|jpg)$")
@@ -64,18 +64,9 @@ class SevenScenesDataset(SequenceReader[_SevenScenesRef]):
         refs = find_frames(root)
         if intrinsics is None:
             intrinsics = _find_intrinsics(root, [r.color for r in refs])
-        self._intrinsics = intrinsics
         self._labels = as_label_folder(labels_dir)
-        self._label_set = choose_label_set(self._labels, root)
-        super().__init__(root, refs, stride=stride, max_frames=max_frames)
-
-    @property
-    def intrinsics(self) -> CameraIntrinsics:
-        return self._intrinsics
-
-    @property
-    def label_set(self) -> LabelSet | None:
-        return self._label_set
+        super().__init__(root, refs, stride=stride, max_frames=max_frames, intrinsics=intrinsics,
+                         label_set=choose_label_set(self._labels, root))
 
     def _load(self, ref: _SevenScenesRef) -> Frame:
         cam = self._intrinsics

@@ -24,7 +24,7 @@ from semmap.datasets.base import (
 )
 from semmap.datasets.label_folder import LabelFolder, as_label_folder, choose_label_set
 from semmap.errors import ConfigError, DatasetError
-from semmap.types import CameraIntrinsics, Frame, LabelSet, check_pose, interpolate_pose, pose_from_tum
+from semmap.types import CameraIntrinsics, Frame, check_pose, interpolate_pose, pose_from_tum
 
 #: Factory calibrations of the three Kinects (fx, fy, cx, cy), picked by the sequence folder name.
 FREIBURG_INTRINSICS = {
@@ -95,22 +95,13 @@ class TumDataset(SequenceReader[_TumRef]):
 
         if intrinsics is None:
             intrinsics = _find_intrinsics(root, [r.rgb for r in refs])
-        self._intrinsics = intrinsics
         self._labels = as_label_folder(labels_dir)
         if self._labels is None and (root / "labels").is_dir():
             self._labels = LabelFolder(root / "labels")
         self._instances = (LabelFolder(root / "instances", kind="instance")
                            if (root / "instances").is_dir() else None)
-        self._label_set = choose_label_set(self._labels, root)
-        super().__init__(root, refs, stride=stride, max_frames=max_frames)
-
-    @property
-    def intrinsics(self) -> CameraIntrinsics:
-        return self._intrinsics
-
-    @property
-    def label_set(self) -> LabelSet | None:
-        return self._label_set
+        super().__init__(root, refs, stride=stride, max_frames=max_frames, intrinsics=intrinsics,
+                         label_set=choose_label_set(self._labels, root))
 
     def _load(self, ref: _TumRef) -> Frame:
         cam = self._intrinsics

@@ -12,7 +12,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from semmap.maps._keys import pack_keys
+from semmap.keys import pack_keys
 from semmap.types import EMPTY_LABEL, LabelSet
 
 

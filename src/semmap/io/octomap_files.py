@@ -23,7 +23,7 @@ import numpy as np
 
 from semmap.errors import FormatError
 from semmap.io.atomic import write_atomic
-from semmap.maps._keys import TREE_DEPTH
+from semmap.keys import TREE_DEPTH
 from semmap.maps.octree_tree import OctreeNodes, morton_decode
 
 OT_MAGIC = "# Octomap OcTree file"

@@ -15,9 +15,8 @@ import math
 import numba as nb
 import numpy as np
 
-TREE_DEPTH = 16
-TREE_MAX_VAL = 32768
-KEY_LIMIT = 2 * TREE_MAX_VAL  # keys are valid in [0, KEY_LIMIT)
+from semmap.keys import KEY_LIMIT, TREE_DEPTH, TREE_MAX_VAL  # noqa: F401  (TREE_DEPTH re-exported)
+
 EMPTY_KEY = np.int64(-1)
 
 
@@ -172,24 +171,3 @@ def ray_keys(origin: np.ndarray, end: np.ndarray, resolution: float) -> np.ndarr
     if n < 0:
         raise RuntimeError("internal error: ray key buffer too small")
     return out[:n]
-
-
-def coords_to_keys(points: np.ndarray, resolution: float) -> np.ndarray:
-    """OctoMap keys (N, 3) int64 of (N, 3) points taken as float32 (unchecked)."""
-    p = np.asarray(points, np.float32).astype(np.float64)
-    return np.floor(p * (1.0 / resolution)).astype(np.int64) + TREE_MAX_VAL
-
-
-def keys_to_coords(keys: np.ndarray, resolution: float) -> np.ndarray:
-    """Cell centres (N, 3) float64 of (N, 3) keys."""
-    return (np.asarray(keys, np.float64) - TREE_MAX_VAL + 0.5) * resolution
-
-
-def pack_keys(keys: np.ndarray) -> np.ndarray:
-    k = np.asarray(keys, np.int64)
-    return k[:, 0] | (k[:, 1] << 16) | (k[:, 2] << 32)
-
-
-def unpack_keys(packed: np.ndarray) -> np.ndarray:
-    p = np.asarray(packed, np.int64)
-    return np.stack([p & 0xFFFF, (p >> 16) & 0xFFFF, (p >> 32) & 0xFFFF], axis=1)

@@ -222,11 +222,11 @@ def bucket_by_shard(packed: np.ndarray):
 @nb.njit(cache=True, parallel=True)
 def update_free(keys: np.ndarray, logodds: np.ndarray, attr: np.ndarray, counts: np.ndarray, shard_cap: int,
                 free: np.ndarray, progress: np.ndarray, offsets: np.ndarray, miss: np.float32,
-                clamp_min: np.float32, fill_limit: int) -> bool:
+                clamp_min: np.float32, fill_limit: int) -> None:
     """Add the miss log-odds to every free cell (creating it at 0 first), clamped below; per shard in parallel.
 
     ``progress[s]`` is where shard s resumes; a shard stops before a new key would take it past ``fill_limit``
-    entries.  Returns True when every shard finished (otherwise grow the table and call again).
+    entries; when some shard stopped short of ``offsets[s + 1]``, grow the table and call again.
     """
     for sh in nb.prange(N_SHARDS):
         i = progress[sh]
@@ -239,19 +239,14 @@ def update_free(keys: np.ndarray, logodds: np.ndarray, attr: np.ndarray, counts:
             logodds[s] = clamp_min if v < clamp_min else v
             i += 1
         progress[sh] = i
-    done = True
-    for sh in range(N_SHARDS):
-        if progress[sh] < offsets[sh + 1]:
-            done = False
-    return done
 
 
 @nb.njit(cache=True, parallel=True)
 def update_hits(keys: np.ndarray, logodds: np.ndarray, attr: np.ndarray, counts: np.ndarray, shard_cap: int,
                 hit_keys: np.ndarray, order: np.ndarray, progress: np.ndarray, offsets: np.ndarray,
-                hit: np.float32, clamp_max: np.float32, fill_limit: int, slots: np.ndarray) -> bool:
+                hit: np.float32, clamp_max: np.float32, fill_limit: int, slots: np.ndarray) -> None:
     """Add the hit log-odds to every hit cell, clamped above, recording its slot; resumable like
-    :func:`update_free`.  Returns True when every shard finished."""
+    :func:`update_free`."""
     for sh in nb.prange(N_SHARDS):
         j = progress[sh]
         end = offsets[sh + 1]
@@ -265,11 +260,6 @@ def update_hits(keys: np.ndarray, logodds: np.ndarray, attr: np.ndarray, counts:
             logodds[s] = clamp_max if v > clamp_max else v
             j += 1
         progress[sh] = j
-    done = True
-    for sh in range(N_SHARDS):
-        if progress[sh] < offsets[sh + 1]:
-            done = False
-    return done
 
 
 @nb.njit(cache=True)

@@ -13,7 +13,7 @@ from dataclasses import dataclass
 import numba as nb
 import numpy as np
 
-from semmap.maps._keys import TREE_DEPTH
+from semmap.keys import TREE_DEPTH
 from semmap.types import EMPTY_LABEL
 
 UNSET_COLOR = 255  # OctoMap's ColorOcTree: (255, 255, 255) means "no colour"

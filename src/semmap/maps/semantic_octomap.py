@@ -19,18 +19,11 @@ import numpy as np
 
 from semmap.errors import ConfigError
 from semmap.fusion.topk_bayes import DEFAULT_LAMBDA, DEFAULT_MAX_CONFIDENCE
+from semmap.keys import KEY_LIMIT, TREE_MAX_VAL, coords_to_keys, keys_to_coords, pack_keys, unpack_keys
 from semmap.maps import _hashtable as ht
 from semmap.maps import _octree_kernels as kern
 from semmap.maps._coarsen import coarsen_cells
-from semmap.maps._keys import (
-    EMPTY_KEY,
-    KEY_LIMIT,
-    TREE_MAX_VAL,
-    coords_to_keys,
-    keys_to_coords,
-    pack_keys,
-    unpack_keys,
-)
+from semmap.maps._keys import EMPTY_KEY
 from semmap.maps.octree_tree import UNSET_COLOR, OctreeNodes, build_tree
 from semmap.types import EMPTY_LABEL, LabelSet, TopKProbs
 
@@ -323,15 +316,20 @@ class SemanticOctoMap:
 
         # 5. occupancy, colour and semantics updates (a shard that fills up pauses; grow and resume)
         progress = free_off[:-1].copy()
-        while not kern.update_free(self._keys, self._logodds, self._attr, self._counts, self._shard_cap,
-                                   free, progress, free_off, self._miss, self._min, self._fill_limit()):
+        while True:
+            kern.update_free(self._keys, self._logodds, self._attr, self._counts, self._shard_cap,
+                             free, progress, free_off, self._miss, self._min, self._fill_limit())
+            if (progress >= free_off[1:]).all():
+                break
             self._grow_for(free_off[1:] - progress)
         slots = np.full(hit_packed.shape[0], -1, np.int64)
         progress = hit_off[:-1].copy()
         grown = False
-        while not kern.update_hits(self._keys, self._logodds, self._attr, self._counts, self._shard_cap,
-                                   hit_packed, order, progress, hit_off, self._hit, self._max,
-                                   self._fill_limit(), slots):
+        while True:
+            kern.update_hits(self._keys, self._logodds, self._attr, self._counts, self._shard_cap,
+                             hit_packed, order, progress, hit_off, self._hit, self._max, self._fill_limit(), slots)
+            if (progress >= hit_off[1:]).all():
+                break
             self._grow_for(hit_off[1:] - progress)
             grown = True
         if grown:  # slots recorded before the table moved are stale

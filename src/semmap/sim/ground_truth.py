@@ -18,9 +18,10 @@ from dataclasses import dataclass
 import numpy as np
 
 from semmap.errors import SimulationError
+from semmap.keys import coords_to_keys as octomap_keys
+from semmap.keys import pack_keys, unpack_keys
 from semmap.sim.scene import Scene, SceneObject
 
-KEY_OFFSET = 32768
 #: Lattice spacing = resolution / SAMPLES_PER_VOXEL.
 SAMPLES_PER_VOXEL = 3
 #: Offset (metres) of each sample in front of and behind its surface (see the module docstring).
@@ -63,18 +64,7 @@ def coords_to_keys(points: np.ndarray, resolution: float) -> np.ndarray:
     """OctoMap keys (N, 3) int32 of (N, 3) points: ``floor(double(float32(p)) * (1 / res)) + 32768``."""
     if not resolution > 0:
         raise SimulationError(f"voxel resolution must be positive, got {resolution}")
-    p = np.asarray(points).astype(np.float32).astype(np.float64)
-    return (np.floor(p * (1.0 / resolution)).astype(np.int64) + KEY_OFFSET).astype(np.int32)
-
-
-def pack_keys(keys: np.ndarray) -> np.ndarray:
-    k = np.asarray(keys).astype(np.int64)
-    return k[..., 0] | (k[..., 1] << 16) | (k[..., 2] << 32)
-
-
-def unpack_keys(packed: np.ndarray) -> np.ndarray:
-    p = np.asarray(packed, np.int64)
-    return np.stack([p & 0xFFFF, (p >> 16) & 0xFFFF, (p >> 32) & 0xFFFF], -1).astype(np.int32)
+    return octomap_keys(points, resolution).astype(np.int32)
 
 
 def gt_objects(scene: Scene) -> list[SceneObject]:
@@ -156,4 +146,5 @@ def _majority(packed: np.ndarray, weight: np.ndarray, seg_pairs: np.ndarray, res
     first = np.ones(len(order), bool)
     first[1:] = k2[order][1:] != k2[order][:-1]
     win_inst = i2[order][first]
-    return GroundTruthVoxels(resolution, unpack_keys(win_key), win_cls.astype(np.uint16), win_inst.astype(np.int32))
+    return GroundTruthVoxels(resolution, unpack_keys(win_key).astype(np.int32), win_cls.astype(np.uint16),
+                             win_inst.astype(np.int32))
