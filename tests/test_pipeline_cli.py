@@ -122,3 +122,16 @@ def test_seven_scenes_frames_map_end_to_end(seven_scenes, tmp_path):
     assert result.report["frames_used"] == 3
     assert result.report["occupied_voxels"] > 5000
     assert result.report["points_integrated"] > 3 * 250_000
+
+
+def test_simulate_then_run_evaluates_against_the_scenes_ground_truth(tmp_path):
+    seq, out = tmp_path / "seq", tmp_path / "out"
+    r = run_cli("simulate", "--out", str(seq), "--frames", "12", "--kind", "kitchen", "--size", "small")
+    assert r.returncode == 0, r.stderr
+    assert {"rgb.txt", "depth.txt", "groundtruth.txt", "labelset.json", "objects.json", "scene.json"} <= {
+        p.name for p in seq.iterdir()}
+    r = run_cli("run", str(seq), "--out", str(out), "--resolution", "0.1")
+    assert r.returncode == 0, r.stderr
+    report = json.loads((out / "report.json").read_text())
+    assert report["frames_used"] == 12 and report["label_set"] == 30
+    assert report["miou_3d"] > 0.6, "ground-truth labels from the folder give an accurate map"

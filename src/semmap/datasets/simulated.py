@@ -73,13 +73,12 @@ def scene_of_folder(root) -> Scene | None:
     log = logging.getLogger("semmap")
     try:
         info = json.loads(path.read_text())
-        scene = generate_scene(int(info["seed"]), str(info["kind"]), str(info["size"]),
-                               second_room=bool(info["second_room"]))
+        scene = generate_scene(int(info["seed"]), str(info["kind"]), str(info["size"]))
     except (OSError, ValueError, KeyError, TypeError) as exc:
         log.warning("%s: cannot regenerate the simulated scene (%s); no 3D ground truth", path, exc)
         return None
-    if scene.params.get("generator_version") != info.get("generator_version") or \
-            scene.n_triangles != info.get("n_triangles"):
+    same = all(scene.params.get(k) == info.get(k) for k in ("generator_version", "second_room", "rooms"))
+    if not same or scene.n_triangles != info.get("n_triangles"):
         log.warning("%s: written by another scene generator version; no 3D ground truth", path)
         return None
     return scene
