@@ -27,48 +27,46 @@ from semmap.maps._keys import KEY_LIMIT, coord_to_key, key_to_coord, pack_key, t
 
 
 @nb.njit(cache=True, parallel=True)
-def point_keys(points: np.ndarray, res_factor: float, n_chunks: int):
-    """Keys (N, 3) int32 of float32 points, a validity mask (finite and inside the key range) and per-chunk
-    bounding boxes (n_chunks, 6) = (min xyz, max xyz) of the valid keys."""
+def point_keys(points: np.ndarray, res_factor: float, n_chunks: int, keys: np.ndarray, valid: np.ndarray):
+    """Fill ``keys`` (N, 3) int32 with the keys of points (float32 or float64, taken as float32) and ``valid``
+    (N,) with "finite and inside the key range"; returns per-chunk bounding boxes (n_chunks, 6) = (min xyz,
+    max xyz) of the valid keys.  The output arrays are the caller's, reused between scans (no page faults)."""
     n = points.shape[0]
-    keys = np.empty((n, 3), np.int32)
-    valid = np.empty(n, np.bool_)
     boxes = np.empty((n_chunks, 6), np.int64)
     chunk = (n + n_chunks - 1) // n_chunks
     for c in nb.prange(n_chunks):
-        lo = np.full(3, KEY_LIMIT, np.int64)
-        hi = np.full(3, -1, np.int64)
+        # scalar bounds (registers, not arrays) for the tight loop
+        lox = loy = loz = np.int64(KEY_LIMIT)
+        hix = hiy = hiz = np.int64(-1)
         for i in range(c * chunk, min(n, (c + 1) * chunk)):
-            ok = True
-            for a in range(3):
-                v = points[i, a]
-                if not math.isfinite(v):
-                    ok = False
-                    keys[i, a] = 0
-                    continue
-                k = coord_to_key(v, res_factor)
-                if k < 0 or k >= KEY_LIMIT:
-                    ok = False
-                    k = 0
-                keys[i, a] = k
+            x = np.float32(points[i, 0])  # OctoMap's point3d is float32 whatever the input
+            y = np.float32(points[i, 1])
+            z = np.float32(points[i, 2])
+            ok = math.isfinite(x) and math.isfinite(y) and math.isfinite(z)
+            kx = coord_to_key(x, res_factor) if ok else np.int64(0)
+            ky = coord_to_key(y, res_factor) if ok else np.int64(0)
+            kz = coord_to_key(z, res_factor) if ok else np.int64(0)
+            ok = ok and 0 <= kx < KEY_LIMIT and 0 <= ky < KEY_LIMIT and 0 <= kz < KEY_LIMIT
+            keys[i, 0] = kx
+            keys[i, 1] = ky
+            keys[i, 2] = kz
             valid[i] = ok
             if ok:
-                for a in range(3):
-                    lo[a] = min(lo[a], keys[i, a])
-                    hi[a] = max(hi[a], keys[i, a])
-        for a in range(3):
-            boxes[c, a] = lo[a]
-            boxes[c, 3 + a] = hi[a]
-    return keys, valid, boxes
+                lox, hix = min(lox, kx), max(hix, kx)
+                loy, hiy = min(loy, ky), max(hiy, ky)
+                loz, hiz = min(loz, kz), max(hiz, kz)
+        boxes[c, 0], boxes[c, 1], boxes[c, 2] = lox, loy, loz
+        boxes[c, 3], boxes[c, 4], boxes[c, 5] = hix, hiy, hiz
+    return boxes
 
 
 @nb.njit(cache=True)
 def dedupe_endpoints(keys: np.ndarray, valid: np.ndarray, grid: np.ndarray,
-                     g0x: int, g0y: int, g0z: int, gnx: int, gny: int, gnz: int) -> np.ndarray:
-    """Index of the first point in each endpoint cell inside the grid, in input order; marks those cells 2."""
-    out = np.empty(keys.shape[0], np.int64)
+                     g0x: int, g0y: int, g0z: int, gnx: int, gny: int, gnz: int, out: np.ndarray) -> np.ndarray:
+    """Index of the first point in each endpoint cell inside the grid, in input order (a view of ``out``, which
+    must hold N entries); marks those cells 2."""
     m = 0
-    for i in range(keys.shape[0]):
+    for i in range(valid.shape[0]):
         if not valid[i]:
             continue
         x = keys[i, 0] - g0x

@@ -160,6 +160,9 @@ class SemanticOctoMap:
         self._alloc_attributes(256)
         self._n_attr = 0
         self._grid = np.zeros(0, np.uint8)
+        self._keys_buf = np.zeros((0, 3), np.int32)
+        self._valid_buf = np.zeros(0, np.bool_)
+        self._first_buf = np.zeros(0, np.int64)
         self._warned_range = False
 
     # ------------------------------------------------------------------ storage
@@ -208,6 +211,15 @@ class SemanticOctoMap:
         self._rgb[:n], self._rgb_count[:n] = old[0][:n], old[1][:n]
         self._sem_labels[:n], self._sem_probs[:n] = old[2][:n], old[3][:n]
 
+    def _point_buffers(self, n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Per-point scratch (keys, valid flags, endpoint indices) reused between scans."""
+        if self._keys_buf.shape[0] < n:
+            m = int(n * 1.25) + 16
+            self._keys_buf = np.empty((m, 3), np.int32)
+            self._valid_buf = np.empty(m, np.bool_)
+            self._first_buf = np.empty(m, np.int64)
+        return self._keys_buf[:n], self._valid_buf[:n], self._first_buf[:n]
+
     def _grid_buffer(self, cells: int) -> np.ndarray:
         if self._grid.shape[0] < cells:
             self._grid = np.zeros(int(cells * 1.25) + 64, np.uint8)
@@ -219,7 +231,8 @@ class SemanticOctoMap:
         """Insert one scan: world points (N, 3) seen from sensor ``origin`` (3,), optional colours (N, 3)
         uint8 and per-point top-k class distributions (N, k).  Points are used as float32, like OctoMap."""
         t0 = time.perf_counter()
-        pts = np.ascontiguousarray(points, dtype=np.float32)
+        pts = np.asarray(points)
+        pts = np.ascontiguousarray(pts, dtype=pts.dtype if pts.dtype in (np.float32, np.float64) else np.float32)
         if pts.ndim != 2 or pts.shape[1] != 3:
             raise ConfigError(f"points must be (N, 3), got {pts.shape}")
         org = np.asarray(origin, dtype=np.float32).reshape(-1)
@@ -249,7 +262,8 @@ class SemanticOctoMap:
         threads = nb.get_num_threads()
 
         # 1. keys and bounding box
-        keys, valid, boxes = kern.point_keys(pts, rf, threads)
+        keys, valid, first_buf = self._point_buffers(n)
+        boxes = kern.point_keys(pts, rf, threads, keys, valid)
         lo, hi = boxes[:, :3].min(axis=0), boxes[:, 3:].max(axis=0)
         t1 = time.perf_counter()
         stats.ms["keys"] = (t1 - t0) * 1e3
@@ -288,7 +302,7 @@ class SemanticOctoMap:
         grid = self._grid_buffer(gnx * gny * gnz)
 
         # 2. voxel filter: first point per endpoint cell
-        first = kern.dedupe_endpoints(keys, valid, grid, g0x, g0y, g0z, gnx, gny, gnz)
+        first = kern.dedupe_endpoints(keys, valid, grid, g0x, g0y, g0z, gnx, gny, gnz, first_buf)
         outside = self._far_endpoints(keys, valid, lo, hi) if max_range >= 0 else None
         t2 = time.perf_counter()
         stats.ms["voxel_filter"] = (t2 - t1) * 1e3
