@@ -5,7 +5,9 @@ the attribute arrays (int32, -1 = never hit, so free space carries no colour or 
 The table is split into ``n_shards`` equal contiguous shards chosen by the top bits of the key hash, so
 threads update disjoint shards without atomics, and a shard never changes when the table grows.
 Within a shard the slot of a key is a hashed group of 8 slots indexed by the low 3 bits of z: cells of
-a z-run sit side by side (locality for rays and scans); collisions probe linearly.
+a z-run sit side by side (locality for rays and scans).  A collision moves on to the same lane (z & 7) of the
+next group, so the 8 cells of a z-run never push each other out of their places: each lane is an ordinary
+linear-probing table.
 """
 
 from __future__ import annotations
@@ -57,25 +59,26 @@ def find_slot(keys: np.ndarray, shard_cap: int, k: np.int64) -> np.int64:
     """Slot of ``k`` or -1 when absent."""
     base = shard_of(k) * shard_cap
     s = home_slot(k, shard_cap)
-    for _ in range(shard_cap):
+    for _ in range(shard_cap // GROUP):
         v = keys[base + s]
         if v == k:
             return base + s
         if v == EMPTY_KEY:
             return -1
-        s += 1
-        if s == shard_cap:
-            s = 0
+        s += GROUP
+        if s >= shard_cap:
+            s -= shard_cap
     return -1
 
 
 @nb.njit(cache=True, inline="always")
 def find_or_insert(keys: np.ndarray, logodds: np.ndarray, attr: np.ndarray, counts: np.ndarray,
                    shard: int, shard_cap: int, k: np.int64) -> np.int64:
-    """Slot of ``k`` in its shard, inserting it (log-odds 0, no attributes) when absent; -1 if full."""
+    """Slot of ``k`` in its shard, inserting it (log-odds 0, no attributes) when absent; -1 if its lane is full
+    (the caller grows the table and tries again)."""
     base = shard * shard_cap
     s = home_slot(k, shard_cap)
-    for _ in range(shard_cap):
+    for _ in range(shard_cap // GROUP):
         v = keys[base + s]
         if v == k:
             return base + s
@@ -85,25 +88,31 @@ def find_or_insert(keys: np.ndarray, logodds: np.ndarray, attr: np.ndarray, coun
             attr[base + s] = -1
             counts[shard] += 1
             return base + s
-        s += 1
-        if s == shard_cap:
-            s = 0
+        s += GROUP
+        if s >= shard_cap:
+            s -= shard_cap
     return -1
 
 
 @nb.njit(cache=True, parallel=True)
 def rehash(keys: np.ndarray, logodds: np.ndarray, attr: np.ndarray, shard_cap: int,
            new_keys: np.ndarray, new_logodds: np.ndarray, new_attr: np.ndarray, new_cap: int,
-           counts: np.ndarray) -> None:
-    """Move every entry into a table with ``new_cap`` slots per shard (each shard in parallel)."""
+           counts: np.ndarray) -> bool:
+    """Move every entry into a table with ``new_cap`` slots per shard (each shard in parallel); False if a
+    lane of the new table overflowed (then try a bigger one)."""
+    failed = np.zeros(N_SHARDS, np.bool_)
     for sh in nb.prange(N_SHARDS):
         counts[sh] = 0
         for i in range(sh * shard_cap, (sh + 1) * shard_cap):
             k = keys[i]
             if k != EMPTY_KEY:
                 s = find_or_insert(new_keys, new_logodds, new_attr, counts, sh, new_cap, k)
+                if s < 0:
+                    failed[sh] = True
+                    break
                 new_logodds[s] = logodds[i]
                 new_attr[s] = attr[i]
+    return not failed.any()
 
 
 @nb.njit(cache=True, parallel=True)

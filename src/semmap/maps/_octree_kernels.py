@@ -233,6 +233,8 @@ def update_free(keys: np.ndarray, logodds: np.ndarray, attr: np.ndarray, counts:
             if counts[sh] >= fill_limit and find_slot(keys, shard_cap, free[i]) < 0:
                 break
             s = find_or_insert(keys, logodds, attr, counts, sh, shard_cap, free[i])
+            if s < 0:  # lane full: grow and resume here
+                break
             v = logodds[s] + miss
             logodds[s] = clamp_min if v < clamp_min else v
             i += 1
@@ -253,6 +255,8 @@ def update_hits(keys: np.ndarray, logodds: np.ndarray, attr: np.ndarray, counts:
             if counts[sh] >= fill_limit and find_slot(keys, shard_cap, hit_keys[i]) < 0:
                 break
             s = find_or_insert(keys, logodds, attr, counts, sh, shard_cap, hit_keys[i])
+            if s < 0:  # lane full: grow and resume here
+                break
             slots[i] = s
             v = logodds[s] + hit
             logodds[s] = clamp_max if v > clamp_max else v

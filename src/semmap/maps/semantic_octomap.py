@@ -186,14 +186,16 @@ class SemanticOctoMap:
         while cap < min_cap:
             cap = ht.round_capacity(cap * ht.GROWTH)
         old = (self._keys, self._logodds, self._attr, self._shard_cap)
-        self._alloc_table(cap)
-        ht.rehash(old[0], old[1], old[2], old[3], self._keys, self._logodds, self._attr, cap, self._counts)
+        while True:
+            self._alloc_table(cap)
+            if ht.rehash(old[0], old[1], old[2], old[3], self._keys, self._logodds, self._attr, cap, self._counts):
+                return
+            cap = ht.round_capacity(cap * ht.GROWTH)  # a lane overflowed (very uneven keys): bigger still
 
     def _grow_for(self, pending: np.ndarray) -> None:
-        """Grow by the usual factor, or at once to fit a frame much bigger than the map (its first frames)."""
-        need = self._shard_cap * ht.GROWTH
-        if pending.sum() > self._counts.sum():
-            need = max(need, ((self._counts + pending) / ht.MAX_LOAD).max())
+        """Grow mid-frame by the usual factor, or at once far enough for the stalled shards' remaining cells
+        (all counted as new) at the normal load, so that a frame rarely grows the table twice."""
+        need = max(self._shard_cap * ht.GROWTH, ((self._counts + pending) / ht.MAX_LOAD).max())
         self._grow_table(ht.round_capacity(need))
 
     def _fill_limit(self) -> int:
@@ -346,6 +348,9 @@ class SemanticOctoMap:
                 break
             self._grow_for(hit_off[1:] - progress)
             grown = True
+        if self._counts.max() > ht.MAX_LOAD * self._shard_cap:
+            self._grow_table(ht.round_capacity(self._shard_cap * ht.GROWTH))
+            grown = True
         if grown:  # slots recorded before the table moved are stale
             slots = ht.lookup_many(self._keys, self._shard_cap, hit_packed)
         t5 = time.perf_counter()
@@ -362,8 +367,6 @@ class SemanticOctoMap:
                                    sem_p if sem_p is not None else dummy_p, sem_l is not None,
                                    self._rgb, self._rgb_count, self._sem_labels, self._sem_probs,
                                    self.semantics.lam, self.semantics.max_confidence, threads)
-        if self._counts.max() > ht.MAX_LOAD * self._shard_cap:
-            self._grow_table(ht.round_capacity(self._shard_cap * ht.GROWTH))
         stats.ms["attributes"] = (time.perf_counter() - t5) * 1e3
         return stats
 
@@ -535,15 +538,19 @@ class SemanticOctoMap:
         """Replace the contents with compacted cells (used by coarsen and by file readers)."""
         packed = np.ascontiguousarray(c.packed, np.int64)
         per_shard = np.bincount(_shards_of(packed), minlength=ht.N_SHARDS) if packed.size else np.zeros(1)
-        self._alloc_table(ht.round_capacity(per_shard.max() / (ht.MAX_LOAD * 0.9) + 1))
+        cap = ht.round_capacity(per_shard.max() / (ht.MAX_LOAD * 0.9) + 1)
         self._alloc_attributes(max(c.rgb_count.shape[0], 16))
         self._n_attr = int(c.rgb_count.shape[0])
         self._rgb[: self._n_attr] = c.rgb
         self._rgb_count[: self._n_attr] = c.rgb_count
         self._sem_labels[: self._n_attr] = c.sem_labels
         self._sem_probs[: self._n_attr] = c.sem_probs
-        _insert_cells(self._keys, self._logodds, self._attr, self._counts, self._shard_cap,
-                      packed, np.ascontiguousarray(c.logodds, np.float32), np.ascontiguousarray(c.attr, np.int32))
+        values, rows = np.ascontiguousarray(c.logodds, np.float32), np.ascontiguousarray(c.attr, np.int32)
+        while True:
+            self._alloc_table(cap)
+            if _insert_cells(self._keys, self._logodds, self._attr, self._counts, cap, packed, values, rows):
+                break
+            cap = ht.round_capacity(cap * ht.GROWTH)
 
     @classmethod
     def from_cells(cls, resolution: float, cells: CellArrays, **kwargs) -> SemanticOctoMap:
@@ -565,8 +572,12 @@ def _shards_of(packed):
 
 
 @nb.njit(cache=True)
-def _insert_cells(keys, logodds, attr, counts, shard_cap, packed, values, rows):
+def _insert_cells(keys, logodds, attr, counts, shard_cap, packed, values, rows) -> bool:
+    """Insert compacted cells into an empty table; False if a lane overflowed."""
     for i in range(packed.shape[0]):
         s = ht.find_or_insert(keys, logodds, attr, counts, ht.shard_of(packed[i]), shard_cap, packed[i])
+        if s < 0:
+            return False
         logodds[s] = values[i]
         attr[s] = rows[i]
+    return True
