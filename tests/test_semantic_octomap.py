@@ -222,3 +222,15 @@ def test_attributes_stay_with_their_cells_when_the_table_grows_during_hits():
     v = m.voxels()
     got = {tuple(k): tuple(c) for k, c in zip(v.keys.tolist(), v.colors.tolist(), strict=True)}
     assert got == expected
+
+
+def test_keys_crowding_one_hash_lane_still_all_fit():
+    # every key has z % 8 == 0, so all of them compete for one of the eight slot lanes of each group
+    rng = np.random.default_rng(8)
+    res = 0.05
+    kz = 32768 + 8 * rng.integers(-200, 200, 40000)
+    pts = np.stack([rng.uniform(-5, 5, 40000), rng.uniform(-5, 5, 40000), (kz - 32768 + 0.5) * res], 1)
+    m = SemanticOctoMap(res)
+    m.insert_points(pts, [1e6, 0.0, 0.0])  # origin outside the key range: hits only
+    assert m.num_occupied == np.unique(pack_keys(coords_to_keys(pts, res))).size
+    assert (m.state_at(pts) == OCCUPIED).all()
