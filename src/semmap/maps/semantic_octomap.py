@@ -233,6 +233,65 @@ class SemanticOctoMap:
         """Insert one scan: world points (N, 3) seen from sensor ``origin`` (3,), optional colours (N, 3)
         uint8 and per-point top-k class distributions (N, k).  Points are used as float32, like OctoMap."""
         t0 = time.perf_counter()
+        pts, org, col, sem_l, sem_p = self._validated(points, origin, colors, semantics)
+        stats = InsertStats(points=len(pts))
+        if len(pts) == 0:
+            return stats
+        res, rf = self.resolution, 1.0 / self.resolution
+        threads = nb.get_num_threads()
+
+        # 1. keys and bounding box; the scan grid around them
+        keys, valid, first_buf = self._point_buffers(len(pts))
+        boxes = kern.point_keys(pts, rf, threads, keys, valid)
+        lo, hi = boxes[:, :3].min(axis=0), boxes[:, 3:].max(axis=0)
+        if (hi < lo).any():
+            return stats
+        okey = coords_to_keys(org[None], res)[0]
+        origin_ok = bool(((okey >= 0) & (okey < KEY_LIMIT)).all())
+        lo, hi, max_range = self._scan_box(lo, hi, okey, origin_ok, org, stats)
+        (gnx, gny, gnz), (g0x, g0y, g0z) = (int(v) for v in hi - lo + 1), (int(v) for v in lo)
+        grid = self._grid_buffer(gnx * gny * gnz)
+        t1 = time.perf_counter()
+        stats.ms["keys"] = (t1 - t0) * 1e3
+
+        # 2. voxel filter: the first point of each endpoint cell represents it (marked "hit" in the grid)
+        first = kern.dedupe_endpoints(keys, valid, grid, g0x, g0y, g0z, gnx, gny, gnz, first_buf)
+        outside = self._far_endpoints(keys, valid, lo, hi) if max_range >= 0 else None
+        t2 = time.perf_counter()
+        stats.ms["voxel_filter"] = (t2 - t1) * 1e3
+
+        # 3. rays to every endpoint cell centre (or to the max-range point) mark free cells
+        targets, hit = kern.endpoint_targets(keys, first, org, res, max_range, grid,
+                                             g0x, g0y, g0z, gnx, gny, gnz)
+        if outside is not None and outside.size:
+            far_t, _ = kern.endpoint_targets(keys, outside, org, res, max_range, grid,
+                                             g0x, g0y, g0z, gnx, gny, gnz)
+            targets = np.concatenate([targets, far_t])
+        if origin_ok:
+            stats.ray_steps = int(kern.cast_rays(org, targets, res, rf, grid, g0x, g0y, g0z, gny, gnz, threads))
+        t3 = time.perf_counter()
+        stats.ms["raycast"] = (t3 - t2) * 1e3
+
+        # 4. gather free cells and hit cells by shard (resets the grid)
+        free, free_off = kern.collect_free(grid, g0x, g0y, g0z, gnx, gny, gnz)
+        hit_first = first[hit]
+        hit_packed = pack_keys(keys[hit_first])
+        order, hit_off = kern.bucket_by_shard(hit_packed)
+        t4 = time.perf_counter()
+        stats.ms["collect"] = (t4 - t3) * 1e3
+        stats.endpoints, stats.hits, stats.free_cells = int(first.size), int(hit_first.size), int(free.size)
+
+        # 5. occupancy log-odds, then colour and semantics of the hit cells
+        slots = self._update_occupancy(free, free_off, hit_packed, order, hit_off)
+        t5 = time.perf_counter()
+        stats.ms["occupancy"] = (t5 - t4) * 1e3
+        if col is not None or sem_l is not None:
+            self._update_attributes(slots, hit_first, col, sem_l, sem_p, threads)
+        stats.ms["attributes"] = (time.perf_counter() - t5) * 1e3
+        return stats
+
+    def _validated(self, points, origin, colors, semantics):
+        """Inputs as contiguous arrays of the kernels' dtypes, or a ConfigError saying what is wrong."""
         pts = np.asarray(points)
         pts = np.ascontiguousarray(pts, dtype=pts.dtype if pts.dtype in (np.float32, np.float64) else np.float32)
         if pts.ndim != 2 or pts.shape[1] != 3:
@@ -257,80 +316,39 @@ class SemanticOctoMap:
                 if bad.any():
                     raise ConfigError(f"class id {int(sem_l[bad].max())} is outside the map's label set "
                                       f"({len(self.label_set)} classes)")
-        stats = InsertStats(points=n)
-        if n == 0:
-            return stats
-        res, rf = self.resolution, 1.0 / self.resolution
-        threads = nb.get_num_threads()
+        return pts, org, col, sem_l, sem_p
 
-        # 1. keys and bounding box
-        keys, valid, first_buf = self._point_buffers(n)
-        boxes = kern.point_keys(pts, rf, threads, keys, valid)
-        lo, hi = boxes[:, :3].min(axis=0), boxes[:, 3:].max(axis=0)
-        t1 = time.perf_counter()
-        stats.ms["keys"] = (t1 - t0) * 1e3
-        if (hi < lo).any():
-            return stats
-        okey = coords_to_keys(org[None], res)[0]
-        origin_ok = bool(((okey >= 0) & (okey < KEY_LIMIT)).all())
+    def _scan_box(self, lo: np.ndarray, hi: np.ndarray, okey: np.ndarray, origin_ok: bool, org: np.ndarray,
+                  stats: InsertStats) -> tuple[np.ndarray, np.ndarray, float]:
+        """Key box of the temporary scan grid (endpoints, origin, one-cell margin, z padded to 8) and the
+        max range in force: the map's own, or a tighter one when the scan would need too big a grid."""
         if origin_ok:
             lo, hi = np.minimum(lo, okey), np.maximum(hi, okey)
         max_range = self.max_range
         lo, hi = self._clip_box(lo, hi, okey, max_range, origin_ok)
-        dims = hi - lo + 1
-        if int(np.prod(dims)) > self.grid_cell_limit and origin_ok:
-            side = int(self.grid_cell_limit ** (1.0 / 3.0)) - 6
-            limit = side / 2 * res
+        if int(np.prod(hi - lo + 1)) > self.grid_cell_limit and origin_ok:
+            limit = (int(self.grid_cell_limit ** (1.0 / 3.0)) - 6) / 2 * self.resolution
             max_range = limit if max_range < 0 else min(max_range, limit)
             stats.range_limited = True
             if not self._warned_range:
                 log.warning("a scan spans more than %d voxels at %.3f m; limiting its range to %.2f m "
-                            "(set max_range to choose)", self.grid_cell_limit, res, max_range)
+                            "(set max_range to choose)", self.grid_cell_limit, self.resolution, max_range)
                 self._warned_range = True
             lo, hi = self._clip_box(lo, hi, okey, max_range, origin_ok)
-            dims = hi - lo + 1
-        if int(np.prod(dims)) > self.grid_cell_limit:
-            raise ConfigError(f"scan spans {dims.tolist()} voxels and its sensor origin {org.tolist()} is "
-                              "outside the map's key range")
-        pad = (-int(dims[2])) % 8  # the free-cell scan reads the grid 8 bytes at a time
-        if pad:
-            if hi[2] + pad < KEY_LIMIT:
-                hi[2] += pad
-            else:
-                lo[2] -= pad
-            dims = hi - lo + 1
-        gnx, gny, gnz = (int(v) for v in dims)
-        g0x, g0y, g0z = (int(v) for v in lo)
-        grid = self._grid_buffer(gnx * gny * gnz)
+        if int(np.prod(hi - lo + 1)) > self.grid_cell_limit:
+            raise ConfigError(f"scan spans {(hi - lo + 1).tolist()} voxels and its sensor origin {org.tolist()} "
+                              "is outside the map's key range")
+        pad = (-int(hi[2] - lo[2] + 1)) % 8  # the free-cell scan reads the grid 8 bytes at a time
+        if hi[2] + pad < KEY_LIMIT:
+            hi[2] += pad
+        else:
+            lo[2] -= pad
+        return lo, hi, max_range
 
-        # 2. voxel filter: first point per endpoint cell
-        first = kern.dedupe_endpoints(keys, valid, grid, g0x, g0y, g0z, gnx, gny, gnz, first_buf)
-        outside = self._far_endpoints(keys, valid, lo, hi) if max_range >= 0 else None
-        t2 = time.perf_counter()
-        stats.ms["voxel_filter"] = (t2 - t1) * 1e3
-
-        # 3. rays to every endpoint cell (or to the max-range point)
-        targets, hit = kern.endpoint_targets(keys, first, org, res, max_range, grid,
-                                             g0x, g0y, g0z, gnx, gny, gnz)
-        if outside is not None and outside.size:
-            far_t, _ = kern.endpoint_targets(keys, outside, org, res, max_range, grid,
-                                             g0x, g0y, g0z, gnx, gny, gnz)
-            targets = np.concatenate([targets, far_t])
-        if origin_ok:
-            stats.ray_steps = int(kern.cast_rays(org, targets, res, rf, grid, g0x, g0y, g0z, gny, gnz, threads))
-        t3 = time.perf_counter()
-        stats.ms["raycast"] = (t3 - t2) * 1e3
-
-        # 4. gather free cells by shard (resets the grid)
-        free, free_off = kern.collect_free(grid, g0x, g0y, g0z, gnx, gny, gnz)
-        hit_first = first[hit]
-        hit_packed = pack_keys(keys[hit_first])
-        order, hit_off = kern.bucket_by_shard(hit_packed)
-        t4 = time.perf_counter()
-        stats.ms["collect"] = (t4 - t3) * 1e3
-        stats.endpoints, stats.hits, stats.free_cells = int(first.size), int(hit_first.size), int(free.size)
-
-        # 5. occupancy, colour and semantics updates (a shard that fills up pauses; grow and resume)
+    def _update_occupancy(self, free: np.ndarray, free_off: np.ndarray, hit_packed: np.ndarray,
+                          order: np.ndarray, hit_off: np.ndarray) -> np.ndarray:
+        """Miss / hit log-odds updates per shard (a shard that fills up pauses, the table grows, it resumes);
+        returns the slot of every hit cell."""
         progress = free_off[:-1].copy()
         while True:
             kern.update_free(self._keys, self._logodds, self._attr, self._counts, self._shard_cap,
@@ -353,22 +371,20 @@ class SemanticOctoMap:
             grown = True
         if grown:  # slots recorded before the table moved are stale
             slots = ht.lookup_many(self._keys, self._shard_cap, hit_packed)
-        t5 = time.perf_counter()
-        stats.ms["occupancy"] = (t5 - t4) * 1e3
-        if col is not None or sem_l is not None:
-            self._ensure_attributes(self._n_attr + int((self._attr[slots] < 0).sum()))
-            self._n_attr = kern.assign_attributes(self._attr, slots, self._n_attr)
-            dummy_c = np.zeros((1, 3), np.uint8)
-            dummy_l = np.zeros((1, self.semantics.k), np.uint16)
-            dummy_p = np.zeros((1, self.semantics.k), np.float32)
-            kern.update_attributes(self._attr, slots, hit_first,
-                                   col if col is not None else dummy_c, col is not None,
-                                   sem_l if sem_l is not None else dummy_l,
-                                   sem_p if sem_p is not None else dummy_p, sem_l is not None,
-                                   self._rgb, self._rgb_count, self._sem_labels, self._sem_probs,
-                                   self.semantics.lam, self.semantics.max_confidence, threads)
-        stats.ms["attributes"] = (time.perf_counter() - t5) * 1e3
-        return stats
+        return slots
+
+    def _update_attributes(self, slots: np.ndarray, hit_first: np.ndarray, col: np.ndarray | None,
+                           sem_l: np.ndarray | None, sem_p: np.ndarray | None, threads: int) -> None:
+        """Attribute rows for first-time hits, then colour running means and top-k fusion (in parallel)."""
+        self._ensure_attributes(self._n_attr + int((self._attr[slots] < 0).sum()))
+        self._n_attr = kern.assign_attributes(self._attr, slots, self._n_attr)
+        k = self.semantics.k
+        kern.update_attributes(self._attr, slots, hit_first,
+                               col if col is not None else np.zeros((1, 3), np.uint8), col is not None,
+                               sem_l if sem_l is not None else np.zeros((1, k), np.uint16),
+                               sem_p if sem_p is not None else np.zeros((1, k), np.float32), sem_l is not None,
+                               self._rgb, self._rgb_count, self._sem_labels, self._sem_probs,
+                               self.semantics.lam, self.semantics.max_confidence, threads)
 
     def _clip_box(self, lo: np.ndarray, hi: np.ndarray, okey: np.ndarray, max_range: float,
                   origin_ok: bool) -> tuple[np.ndarray, np.ndarray]:
