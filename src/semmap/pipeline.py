@@ -176,8 +176,9 @@ class Pipeline:
             poses.append(frame.T_world_cam)
             t_load = time.perf_counter()
         if not poses:
+            hint = " (poses come from the dataset's ground truth, e.g. TUM groundtruth.txt)" if no_pose else ""
             raise ConfigError(f"{self.config.input.dataset}: no frame could be mapped "
-                              f"({len(dataset.skipped)} unreadable, {len(no_pose)} without pose)")
+                              f"({len(dataset.skipped)} unreadable, {len(no_pose)} without pose){hint}")
         return timings, poses, no_pose
 
     def _score_segmentation(self, sem: TopKProbs, gt_labels: np.ndarray, num_classes: int) -> None:

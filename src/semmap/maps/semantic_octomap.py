@@ -254,31 +254,35 @@ class SemanticOctoMap:
         t1 = time.perf_counter()
         stats.ms["keys"] = (t1 - t0) * 1e3
 
-        # 2. voxel filter: the first point of each endpoint cell represents it (marked "hit" in the grid)
-        first = kern.dedupe_endpoints(keys, valid, grid, g0x, g0y, g0z, gnx, gny, gnz, first_buf)
-        outside = self._far_endpoints(keys, valid, lo, hi) if max_range >= 0 else None
-        t2 = time.perf_counter()
-        stats.ms["voxel_filter"] = (t2 - t1) * 1e3
+        try:  # the scratch grid must come back all-zero even if something below fails
+            # 2. voxel filter: the first point of each endpoint cell represents it (marked "hit" in the grid)
+            first = kern.dedupe_endpoints(keys, valid, grid, g0x, g0y, g0z, gnx, gny, gnz, first_buf)
+            outside = self._far_endpoints(keys, valid, lo, hi) if max_range >= 0 else None
+            t2 = time.perf_counter()
+            stats.ms["voxel_filter"] = (t2 - t1) * 1e3
 
-        # 3. rays to every endpoint cell centre (or to the max-range point) mark free cells
-        targets, hit = kern.endpoint_targets(keys, first, org, res, max_range, grid,
-                                             g0x, g0y, g0z, gnx, gny, gnz)
-        if outside is not None and outside.size:
-            far_t, _ = kern.endpoint_targets(keys, outside, org, res, max_range, grid,
-                                             g0x, g0y, g0z, gnx, gny, gnz)
-            targets = np.concatenate([targets, far_t])
-        if origin_ok:
-            stats.ray_steps = int(kern.cast_rays(org, targets, res, rf, grid, g0x, g0y, g0z, gny, gnz, threads))
-        t3 = time.perf_counter()
-        stats.ms["raycast"] = (t3 - t2) * 1e3
+            # 3. rays to every endpoint cell centre (or to the max-range point) mark free cells
+            targets, hit = kern.endpoint_targets(keys, first, org, res, max_range, grid,
+                                                 g0x, g0y, g0z, gnx, gny, gnz)
+            if outside is not None and outside.size:
+                far_t, _ = kern.endpoint_targets(keys, outside, org, res, max_range, grid,
+                                                 g0x, g0y, g0z, gnx, gny, gnz)
+                targets = np.concatenate([targets, far_t])
+            if origin_ok:
+                stats.ray_steps = int(kern.cast_rays(org, targets, res, rf, grid, g0x, g0y, g0z, gny, gnz, threads))
+            t3 = time.perf_counter()
+            stats.ms["raycast"] = (t3 - t2) * 1e3
 
-        # 4. gather free cells and hit cells by shard (resets the grid)
-        free, free_off = kern.collect_free(grid, g0x, g0y, g0z, gnx, gny, gnz)
-        hit_first = first[hit]
-        hit_packed = pack_keys(keys[hit_first])
-        order, hit_off = kern.bucket_by_shard(hit_packed)
-        t4 = time.perf_counter()
-        stats.ms["collect"] = (t4 - t3) * 1e3
+            # 4. gather free cells and hit cells by shard (resets the grid)
+            free, free_off = kern.collect_free(grid, g0x, g0y, g0z, gnx, gny, gnz)
+            hit_first = first[hit]
+            hit_packed = pack_keys(keys[hit_first])
+            order, hit_off = kern.bucket_by_shard(hit_packed)
+            t4 = time.perf_counter()
+            stats.ms["collect"] = (t4 - t3) * 1e3
+        except BaseException:
+            grid[: gnx * gny * gnz] = 0
+            raise
         stats.endpoints, stats.hits, stats.free_cells = int(first.size), int(hit_first.size), int(free.size)
 
         # 5. occupancy log-odds, then colour and semantics of the hit cells
