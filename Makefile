@@ -25,6 +25,7 @@ test: $(STAMP)
 
 bench: $(STAMP)
 	$(BIN)/python benchmarks/bench_octree_vs_octomap.py
+	$(BIN)/python benchmarks/bench_sim.py
 
 lint: $(STAMP)
 	$(BIN)/ruff check src tests benchmarks

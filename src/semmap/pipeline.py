@@ -108,6 +108,7 @@ class Pipeline:
         self._conf2d: np.ndarray | None = None
 
     def run(self) -> RunResult:
+        self._conf2d = None
         dataset = self._open()
         label_set = self._label_set(dataset)
         octomap = self._make_map(label_set)
@@ -192,8 +193,7 @@ class Pipeline:
         if octomap.label_set is None:
             return out
         if self._conf2d is not None:
-            prefix = "oracle" if type(self.segmenter).__name__ == "OracleSegmenter" else "segmentation"
-            out.update(evaluate_2d(self._conf2d, octomap.label_set, prefix))
+            out.update(evaluate_2d(self._conf2d, octomap.label_set, self.segmenter.name))
         if self.ground_truth is not None:
             gt_keys, gt_labels = self.ground_truth(octomap.resolution)
             vox = octomap.voxels()

@@ -11,6 +11,9 @@ from semmap.types import Frame, LabelSet, TopKProbs
 class Segmenter(Protocol):
     """Anything that turns a frame into per-pixel class probabilities over its ``label_set``."""
 
+    #: Short name used in reports (e.g. ``oracle`` gives ``oracle_miou_2d``).
+    name: str
+
     @property
     def label_set(self) -> LabelSet: ...
 

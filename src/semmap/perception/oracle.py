@@ -86,6 +86,8 @@ class OracleSegmenter:
     ``overrides`` replace fields of the preset's :class:`OracleSettings` (e.g. ``pixel_accuracy=0.8``).
     """
 
+    name = "oracle"
+
     def __init__(self, label_set: LabelSet, *, preset: str = "cnn-like", seed: int = 0, k: int = 3,
                  **overrides) -> None:
         if preset not in PRESETS:
