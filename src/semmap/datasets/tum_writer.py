@@ -7,6 +7,7 @@ frames are streamed, never held together.
 from __future__ import annotations
 
 import json
+import os
 from collections.abc import Iterable
 from contextlib import ExitStack
 from pathlib import Path
@@ -15,6 +16,7 @@ import cv2
 import numpy as np
 
 from semmap.errors import ConfigError, DatasetError
+from semmap.io.atomic import write_bytes_atomic, write_text_atomic
 from semmap.types import CameraIntrinsics, Frame, LabelSet, pose_to_tum
 
 _HEADERS = {
@@ -47,12 +49,12 @@ def write_tum_sequence(
     for folder in ("rgb", "depth"):
         (root / folder).mkdir(parents=True, exist_ok=True)
     if label_set is not None:
-        (root / "labelset.json").write_text(json.dumps(label_set.to_dict(), indent=1) + "\n")
+        write_text_atomic(root / "labelset.json", json.dumps(label_set.to_dict(), indent=1) + "\n")
 
     camera: CameraIntrinsics | None = None
     stamps: set[str] = set()
     with ExitStack() as stack:
-        lists = {name: stack.enter_context(open(root / name, "w", encoding="utf-8", newline="\n"))
+        lists = {name: stack.enter_context(open(root / f".{name}.partial", "w", encoding="utf-8", newline="\n"))
                  for name in _HEADERS}
         for name, header in _HEADERS.items():
             lists[name].write(header)
@@ -64,7 +66,7 @@ def write_tum_sequence(
             stamps.add(stamp)
             if camera is None:
                 camera = frame.intrinsics
-                (root / "camera.json").write_text(json.dumps(camera.to_dict(), indent=1) + "\n")
+                write_text_atomic(root / "camera.json", json.dumps(camera.to_dict(), indent=1) + "\n")
             elif frame.intrinsics != camera:
                 raise DatasetError(f"{root}: frame {stamp} has intrinsics {frame.intrinsics}, "
                                    f"the sequence started with {camera}")
@@ -80,6 +82,8 @@ def write_tum_sequence(
                 for folder, ids in (("labels", frame.labels), ("instances", frame.instances)):
                     if ids is not None:
                         _write_png(root / folder / f"{stamp}.png", _as_uint16(ids, f"frame {stamp} {folder}"))
+    for name in _HEADERS:  # complete: publish the lists
+        os.replace(root / f".{name}.partial", root / name)
     return len(stamps)
 
 
@@ -104,5 +108,4 @@ def _write_png(path: Path, image: np.ndarray) -> None:
     ok, data = cv2.imencode(".png", image)
     if not ok:
         raise DatasetError(f"{path}: cannot encode image of shape {image.shape} {image.dtype} as PNG")
-    path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_bytes(data.tobytes())
+    write_bytes_atomic(path, data.tobytes())
