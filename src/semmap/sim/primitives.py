@@ -149,33 +149,32 @@ def ellipsoid(radii, center, material: int, *, R: np.ndarray | None = None, n_la
 
 def oriented_box(start, end, width: float, height: float, material: int) -> Part:
     """Box of cross-section ``width`` x ``height`` running from ``start`` to ``end`` (spokes, rods, slats)."""
-    start = np.asarray(start, float)
-    end = np.asarray(end, float)
-    axis = end - start
-    L = float(np.linalg.norm(axis))
-    x = axis / L
-    ref = np.array([0.0, 0.0, 1.0]) if abs(x[2]) < 0.9 else np.array([1.0, 0.0, 0.0])
-    y = np.cross(ref, x)
-    y /= np.linalg.norm(y)
-    z = np.cross(x, y)
-    R = np.stack([x, y, z], 1)
+    start, d, L = _segment(start, end)
+    y, z = _perpendiculars(d, np.array([0.0, 0.0, 1.0]) if abs(d[2]) < 0.9 else np.array([1.0, 0.0, 0.0]))
     part = box((0.0, -width / 2, -height / 2), (L, width / 2, height / 2), material)
-    return part.transformed(R, start)
+    return part.transformed(np.stack([d, y, z], 1), start)
 
 
 def limb(start, end, r0: float, r1: float, material: int, segments: int = 10) -> Part:
     """Tapered cylinder between two points (arms, legs, poles)."""
+    start, d, L = _segment(start, end)
+    x, y = _perpendiculars(d, np.array([1.0, 0.0, 0.0]) if abs(d[0]) < 0.9 else np.array([0.0, 1.0, 0.0]))
+    return frustum(r0, r1, 0.0, L, material, segments=segments).transformed(np.stack([x, y, d], 1), start)
+
+
+def _segment(start, end) -> tuple[np.ndarray, np.ndarray, float]:
+    """(start, unit direction, length) of the segment start -> end."""
     start = np.asarray(start, float)
-    end = np.asarray(end, float)
-    axis = end - start
+    axis = np.asarray(end, float) - start
     L = float(np.linalg.norm(axis))
-    z = axis / L
-    ref = np.array([1.0, 0.0, 0.0]) if abs(z[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
-    x = np.cross(ref, z)
-    x /= np.linalg.norm(x)
-    y = np.cross(z, x)
-    R = np.stack([x, y, z], 1)
-    return frustum(r0, r1, 0.0, L, material, segments=segments).transformed(R, start)
+    return start, axis / L, L
+
+
+def _perpendiculars(d: np.ndarray, ref: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Two unit vectors completing the unit direction ``d`` to a right-handed frame, the first ⟂ ``ref``."""
+    a = np.cross(ref, d)
+    a /= np.linalg.norm(a)
+    return a, np.cross(d, a)
 
 
 def face_uvs(corners: np.ndarray, n: np.ndarray, origin: np.ndarray, fit: bool) -> np.ndarray:
