@@ -22,7 +22,7 @@ import numpy as np
 from semmap.geometry import backproject
 from semmap.io.octomap_files import decode_octomap
 from semmap.keys import pack_keys
-from semmap.maps.semantic_octomap import SemanticOctoMap
+from semmap.maps.semantic_octomap import SemanticOctoMap, compile_kernels
 from semmap.types import CameraIntrinsics, TopKProbs, transform_points
 
 SHARED = Path(__file__).resolve().parents[2] / "shared" / "data" / "7scenes-redkitchen"
@@ -100,10 +100,7 @@ def agreement(a_keys, a_occ, b_keys, b_occ) -> float:
 def bench_resolution(frames, resolution: float, run_octomap_raw: bool) -> dict:
     import pyoctomap
 
-    # compile the numba kernels outside the timed loop
-    warm = SemanticOctoMap(resolution)
-    p, c, o = frames[0]
-    warm.insert_points(p[:5000], o, colors=c[:5000], semantics=fake_semantics(c[:5000]))
+    compile_kernels()  # numba compiles (or loads) every kernel before anything is timed
 
     m = SemanticOctoMap(resolution)
     sem_times, stage_ms = [], {}

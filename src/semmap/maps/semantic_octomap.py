@@ -601,3 +601,25 @@ def _insert_cells(keys, logodds, attr, counts, shard_cap, packed, values, rows) 
         logodds[s] = values[i]
         attr[s] = rows[i]
     return True
+
+
+def compile_kernels() -> float:
+    """Run every insertion, growth and query path once on a tiny scan so numba compiles (or loads from its
+    cache) all map kernels now rather than during the first frames; returns the seconds it took."""
+    t = time.perf_counter()
+    rng = np.random.default_rng(0)
+    pts = rng.uniform(-1.0, 1.0, (4000, 3)) + np.array([0.0, 0.0, 2.0])
+    labels = np.full((len(pts), 3), EMPTY_LABEL, np.uint16)
+    labels[:, 0] = rng.integers(1, 4, len(pts))
+    probs = np.zeros((len(pts), 3), np.float32)
+    probs[:, 0] = 0.7
+    colors = rng.integers(0, 255, (len(pts), 3), dtype=np.uint8)
+    for max_range in (-1.0, 1.5):
+        m = SemanticOctoMap(0.05, label_set=LabelSet.generic(4), max_range=max_range)
+        m.insert_points(pts, np.zeros(3), colors=colors, semantics=TopKProbs(labels, probs))  # grows the table
+        m.insert_points(pts, np.array([1e6, 0.0, 0.0]), colors=colors)  # hits only
+    m.state_at(pts[:8])
+    m.semantics_at(pts[:8])
+    m.coarsen(1)
+    m.tree()
+    return time.perf_counter() - t
