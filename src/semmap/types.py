@@ -396,7 +396,3 @@ def interpolate_pose(T0: np.ndarray, T1: np.ndarray, alpha: float) -> np.ndarray
     t = (1 - alpha) * T0[:3, 3] + alpha * T1[:3, 3]
     return make_pose(quat_xyzw_to_rot(q), t)
 
-
-def rotation_angle(R: np.ndarray) -> float:
-    """Angle (radians) of a rotation matrix."""
-    return float(np.arccos(np.clip((np.trace(R) - 1) / 2, -1.0, 1.0)))

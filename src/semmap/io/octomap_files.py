@@ -13,7 +13,6 @@ Layouts, as the OctoMap library reads and writes them:
 
 from __future__ import annotations
 
-import io
 import re
 from dataclasses import dataclass
 from pathlib import Path
@@ -341,7 +340,3 @@ def read_octomap(path: str | Path) -> OctreeLeaves:
         raise FormatError(f"{path}: cannot read: {exc.strerror or exc}") from exc
     return decode_octomap(data, str(path))
 
-
-def header_text(data: bytes) -> str:
-    """The text header of OctoMap bytes, for messages and debugging."""
-    return io.BytesIO(data).read(data.find(b"data\n") + 5).decode("ascii", "replace")

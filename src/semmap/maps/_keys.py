@@ -15,7 +15,7 @@ import math
 import numba as nb
 import numpy as np
 
-from semmap.keys import KEY_LIMIT, TREE_DEPTH, TREE_MAX_VAL  # noqa: F401  (TREE_DEPTH re-exported)
+from semmap.keys import KEY_LIMIT, TREE_MAX_VAL
 
 EMPTY_KEY = np.int64(-1)
 
