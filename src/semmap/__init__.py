@@ -22,8 +22,10 @@ def _configure_numba() -> None:
     here = Path(__file__).parent
     digest = hashlib.sha1()
     for path in sorted(here.rglob("*.py")):
-        digest.update(path.relative_to(here).as_posix().encode())
-        digest.update(path.read_bytes())
+        source = path.read_bytes()
+        if b"import numba" in source or b"from numba" in source:
+            digest.update(path.relative_to(here).as_posix().encode())
+            digest.update(source)
     root = Path(_os.environ.get("SEMMAP_CACHE_DIR", Path.home() / ".cache" / "semmap"))
     cache = root / f"numba-{__version__}-{digest.hexdigest()[:12]}"
     try:

@@ -396,3 +396,39 @@ def interpolate_pose(T0: np.ndarray, T1: np.ndarray, alpha: float) -> np.ndarray
     t = (1 - alpha) * T0[:3, 3] + alpha * T1[:3, 3]
     return make_pose(quat_xyzw_to_rot(q), t)
 
+
+
+# --------------------------------------------------------------------------------------------------
+# Trajectories
+# --------------------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class Trajectory:
+    """Timestamped camera poses ``T_world_cam``, as a pose source produces and ``trajectory.txt`` stores.
+
+    ``names`` (optional, one per pose) ties poses to dataset frames; timestamps are strictly increasing.
+    """
+
+    timestamps: np.ndarray  # (N,) float64 seconds
+    poses: np.ndarray  # (N, 4, 4) float64
+    names: tuple[str, ...] = ()
+
+    def __post_init__(self) -> None:
+        t = np.asarray(self.timestamps, dtype=np.float64).reshape(-1)
+        p = np.asarray(self.poses, dtype=np.float64).reshape(-1, 4, 4)
+        if len(t) != len(p):
+            raise ConfigError(f"trajectory has {len(t)} timestamps but {len(p)} poses")
+        if self.names and len(self.names) != len(t):
+            raise ConfigError(f"trajectory has {len(t)} poses but {len(self.names)} names")
+        if len(t) > 1 and not (np.diff(t) > 0).all():
+            raise ConfigError("trajectory timestamps must be strictly increasing")
+        object.__setattr__(self, "timestamps", t)
+        object.__setattr__(self, "poses", p)
+        object.__setattr__(self, "names", tuple(self.names))
+
+    def __len__(self) -> int:
+        return len(self.timestamps)
+
+    @property
+    def positions(self) -> np.ndarray:
+        """(N, 3) camera centres in the world frame."""
+        return self.poses[:, :3, 3]

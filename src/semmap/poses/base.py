@@ -1,0 +1,46 @@
+"""The pose-source interface: frames in, camera poses ``T_world_cam`` out.
+
+A :class:`PoseTracker` sees frames one at a time (``track``), may revise earlier poses later (bundle
+adjustment, loop closure), and hands back its final, optimised trajectory (``trajectory``).  Sources that
+know every pose up front (ground truth, a trajectory file) are plain :class:`~semmap.types.Trajectory` lookups.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Iterable, Iterator
+from typing import Protocol, runtime_checkable
+
+import numpy as np
+
+from semmap.types import Frame, Trajectory
+
+#: A progress wrapper ``(iterator, total) -> iterator`` (the CLI passes a progress bar).
+Progress = Callable[[Iterator, int], Iterator]
+
+
+@runtime_checkable
+class PoseTracker(Protocol):
+    """Estimates camera poses from the images themselves (visual odometry or SLAM)."""
+
+    #: Short name used in reports and benchmarks (``slam``, ``odometry``, ...).
+    name: str
+
+    def track(self, frame: Frame) -> np.ndarray | None:
+        """Current estimate of ``T_world_cam`` for ``frame`` (the first frame defines the world), or None
+        when tracking is lost for this frame."""
+        ...
+
+    def trajectory(self) -> Trajectory:
+        """Final poses of every frame that was tracked, after any global optimisation, with frame names."""
+        ...
+
+
+def estimate_trajectory(tracker: PoseTracker, frames: Iterable[Frame], total: int = 0,
+                        progress: Progress | None = None) -> Trajectory:
+    """Run ``tracker`` over ``frames`` (with an optional progress wrapper) and return its final trajectory."""
+    it: Iterator[Frame] = iter(frames)
+    if progress is not None:
+        it = progress(it, total)
+    for frame in it:
+        tracker.track(frame)
+    return tracker.trajectory()
