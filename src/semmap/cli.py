@@ -88,6 +88,19 @@ def run(
                                                     rich_help_panel=_SEMANTICS)] = 0.9,
     lam: Annotated[float, typer.Option("--lambda", help="penalty λ of the top-3 fusion",
                                        rich_help_panel=_SEMANTICS)] = 0.9,
+    segmenter: Annotated[str | None, typer.Option(help="oracle | precomputed | espnetv2 (default: from --semantics)",
+                                                  rich_help_panel=_SEMANTICS)] = None,
+    weights: Annotated[Path | None, typer.Option(help="network weights (espnetv2), or the predictions folder "
+                                                 "(precomputed)", rich_help_panel=_SEMANTICS)] = None,
+    segment_every: Annotated[int, typer.Option(help="segment every k-th frame (others add geometry and colour)",
+                                               rich_help_panel=_SEMANTICS)] = 1,
+    keyframes: Annotated[bool, typer.Option("--keyframes", help="segment only frames where the camera moved "
+                                            "10 cm or turned 10° since the last segmented one",
+                                            rich_help_panel=_SEMANTICS)] = False,
+    batch_size: Annotated[int, typer.Option(help="frames per network batch", rich_help_panel=_SEMANTICS)] = 1,
+    backend: Annotated[str, typer.Option(help="torch | onnx: network runtime", rich_help_panel=_SEMANTICS)] = "torch",
+    input_size: Annotated[str | None, typer.Option(help="network input WIDTHxHEIGHT (default 384x384)",
+                                                   rich_help_panel=_SEMANTICS)] = None,
     color_mode: Annotated[str, typer.Option(help="class | rgb: voxel colour in map.ot",
                                             rich_help_panel=_OUTPUT)] = "class",
     verbose: Annotated[bool, typer.Option("--verbose", "-v", help="debug logging")] = False,
@@ -102,11 +115,12 @@ def run(
         input=InputConfig(dataset=dataset, format=format, labels=labels, stride=stride, max_frames=max_frames),
         mapping=MappingConfig(resolution=resolution, min_depth=min_depth, max_depth=max_depth,
                               max_range=max_range, pixel_stride=pixel_stride),
-        semantics=SemanticsConfig(source=semantics, label_confidence=label_confidence, lam=lam),
+        semantics=SemanticsConfig(source=semantics, label_confidence=label_confidence, lam=lam, segmenter=segmenter,
+                                  weights=weights, segment_every=segment_every, keyframes=keyframes,
+                                  batch_size=batch_size, backend=backend, input_size=_size(input_size)),
         output=OutputConfig(out=out, color_mode=parse_color_mode(color_mode)),
     ))
-    segmenter = _segmenter(config)
-    result = Pipeline(config, segmenter=segmenter, progress=progress_bar("mapping"),
+    result = Pipeline(config, segmenter=_segmenter(config), progress=progress_bar("mapping"),
                       ground_truth=_simulated_ground_truth(dataset)).run()
     _print_summary(result.report, result.out_dir)
 
@@ -130,14 +144,33 @@ def _simulated_ground_truth(dataset: Path):
 
 
 def _segmenter(config):
+    """The segmenter the configuration names (``--segmenter``, or ``--semantics oracle``), or None."""
     from semmap.config import SemanticSource
+    from semmap.perception.registry import make_segmenter
 
-    if config.semantics.source != SemanticSource.ORACLE:
+    s = config.semantics
+    name = s.segmenter or ("oracle" if s.source == SemanticSource.ORACLE else None)
+    if name is None:
         return None
-    from semmap.perception.oracle import OracleSegmenter
-    from semmap.sim.labels import INDOOR_LABELS
+    label_set = None
+    if name == "oracle":
+        from semmap.datasets import open_dataset
 
-    return OracleSegmenter(INDOOR_LABELS, preset=config.semantics.oracle_preset, seed=config.semantics.seed)
+        label_set = open_dataset(config.input.dataset, config.input.format, max_frames=1).label_set
+    return make_segmenter(name, weights=s.weights, label_set=label_set, k=s.k, label_confidence=s.label_confidence,
+                          oracle_preset=s.oracle_preset, seed=s.seed, backend=s.backend, batch_size=s.batch_size,
+                          input_size=s.input_size)
+
+
+def _size(text: str | None) -> tuple[int, int] | None:
+    """``"512x384"`` -> (512, 384)."""
+    if text is None:
+        return None
+    try:
+        w, h = (int(v) for v in text.lower().split("x"))
+    except ValueError:
+        raise SemmapError(f"--input-size must look like 512x384, got {text!r}") from None
+    return w, h
 
 
 def _validated(make):
@@ -233,6 +266,28 @@ def demo(
     result = Pipeline(config, segmenter=segmenter, dataset=dataset, ground_truth=ground_truth,
                       progress=progress_bar("simulate + map"), title=f"semmap demo: {dataset.name}").run()
     _print_summary(result.report, result.out_dir)
+
+
+@app.command("eval-seg")
+def eval_seg(
+    pred_dir: Annotated[Path, typer.Argument(help="folder of predicted label PNGs (class ids)")],
+    gt_dir: Annotated[Path, typer.Argument(help="folder of ground-truth label PNGs with the same names")],
+    num_classes: Annotated[int, typer.Option(help="number of classes K (ids 0..K-1)")] = 21,
+    ignore: Annotated[int, typer.Option(help="ground-truth id left out (255: VOC boundaries; -1: none)")] = 255,
+    out: Annotated[Path | None, typer.Option(help="also write the scores as JSON here")] = None,
+) -> None:
+    """Segmentation accuracy of predicted label images: MIoU and MPA (eqs. 11-12), per-class IoU and accuracy,
+    confusion matrix."""
+    _setup_logging(False)
+    from semmap.eval.segmentation import evaluate_label_folders
+    from semmap.io.atomic import write_text_atomic
+
+    result = evaluate_label_folders(pred_dir, gt_dir, num_classes, ignore=None if ignore < 0 else ignore)
+    d = result.to_dict()
+    if out is not None:
+        write_text_atomic(out, json.dumps(d, indent=2))
+    summary = {k: v for k, v in d.items() if k != "confusion"}
+    typer.echo(json.dumps(summary, indent=2))
 
 
 @app.command()

@@ -70,6 +70,18 @@ class SemanticsConfig(_Section):
     label_confidence: float = Field(0.9, gt=0.0, le=1.0, description="confidence given to hard labels")
     oracle_preset: str = "cnn-like"
     seed: int = 0
+    segmenter: str | None = Field(None, description="oracle | precomputed | espnetv2 (None: from source)")
+    weights: Path | None = Field(None, description="network weights, or the folder of precomputed predictions")
+    segment_every: int = Field(1, ge=1, description="segment every k-th frame")
+    keyframes: bool = Field(False, description="segment only frames where the camera moved enough")
+    batch_size: int = Field(1, ge=1, le=64, description="frames per network batch")
+    backend: str = Field("torch", pattern="^(torch|onnx)$", description="network runtime")
+    input_size: tuple[int, int] | None = Field(None, description="network input (width, height); None = default")
+
+
+class PosesConfig(_Section):
+    source: str = Field("gt", description="gt | slam | odometry | path of a TUM trajectory file")
+    max_time_diff: float = Field(0.02, gt=0.0, description="largest timestamp gap when reading a trajectory file")
 
 
 class OutputConfig(_Section):
@@ -84,6 +96,7 @@ class RunConfig(_Section):
     input: InputConfig
     mapping: MappingConfig = MappingConfig()
     semantics: SemanticsConfig = SemanticsConfig()
+    poses: PosesConfig = PosesConfig()
     output: OutputConfig
 
     def to_json(self) -> str:

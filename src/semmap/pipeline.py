@@ -33,6 +33,7 @@ from semmap.maps.semantic_octomap import (
     compile_kernels,
 )
 from semmap.perception.base import Segmenter
+from semmap.perception.schedule import Scheduler, SegmentationSchedule, with_semantics
 from semmap.types import Frame, LabelSet, TopKProbs
 from semmap.viz.preview import CEILING_MARGIN, perspective, side_by_side, top_down, up_vector, write_png
 
@@ -112,6 +113,7 @@ class Pipeline:
         self.ground_truth = ground_truth
         self.title = title
         self._conf2d: np.ndarray | None = None
+        self._segmented = 0
 
     def run(self) -> RunResult:
         self._conf2d = None
@@ -163,32 +165,44 @@ class Pipeline:
         timings: dict[str, float] = defaultdict(float)
         poses: list[np.ndarray] = []
         no_pose: list[str] = []
-        it = iter(dataset)
-        frames = self.progress(it, len(dataset))
-        t_load = time.perf_counter()
-        for frame in frames:
-            timings["load"] += (time.perf_counter() - t_load) * 1e3
-            if frame.T_world_cam is None:
-                log.warning("frame %s has no pose; skipped", frame.name)
-                no_pose.append(frame.name)
-                t_load = time.perf_counter()
-                continue
-            t = time.perf_counter()
-            sem = semantics_for(frame, s.source, segmenter=self.segmenter, label_set=label_set,
-                                label_confidence=s.label_confidence, k=s.k)
-            timings["segment"] += (time.perf_counter() - t) * 1e3
-            if self.segmenter is not None and sem is not None and frame.labels is not None:
-                self._score_segmentation(sem, frame.labels, len(label_set))
-            stats = mapper.integrate(frame, frame.T_world_cam, sem)
+        self._segmented = 0
+        posed = self._posed_frames(dataset, timings, no_pose)
+        if self.segmenter is not None:
+            schedule = SegmentationSchedule(every=s.segment_every, keyframes=s.keyframes)
+            stream = with_semantics(posed, self.segmenter, Scheduler(schedule), batch_size=s.batch_size,
+                                    timings=timings)
+        else:
+            stream = ((f, T, semantics_for(f, s.source, segmenter=None, label_set=label_set,
+                                           label_confidence=s.label_confidence, k=s.k)) for f, T in posed)
+        for frame, T, sem in stream:
+            if self.segmenter is not None and sem is not None:
+                self._segmented += 1
+                if frame.labels is not None:
+                    self._score_segmentation(sem, frame.labels, len(label_set))
+            stats = mapper.integrate(frame, T, sem)
             for name, ms in stats.ms.items():
                 timings[name] += ms
-            poses.append(frame.T_world_cam)
-            t_load = time.perf_counter()
+            poses.append(T)
         if not poses:
             hint = " (poses come from the dataset's ground truth, e.g. TUM groundtruth.txt)" if no_pose else ""
             raise ConfigError(f"{self.config.input.dataset}: no frame could be mapped "
                               f"({len(dataset.skipped)} unreadable, {len(no_pose)} without pose){hint}")
         return timings, poses, no_pose
+
+    def _posed_frames(self, dataset: Dataset, timings: dict[str, float], no_pose: list[str]):
+        """``(frame, T_world_cam)`` for every readable frame with a pose, behind the progress bar; frames
+        without a pose are warned about and listed in ``no_pose``."""
+        frames = self.progress(iter(dataset), len(dataset))
+        t_load = time.perf_counter()
+        for frame in frames:
+            timings["load"] += (time.perf_counter() - t_load) * 1e3
+            T = frame.T_world_cam
+            if T is None:
+                log.warning("frame %s has no pose; skipped", frame.name)
+                no_pose.append(frame.name)
+            else:
+                yield frame, T
+            t_load = time.perf_counter()
 
     def _score_segmentation(self, sem: TopKProbs, gt_labels: np.ndarray, num_classes: int) -> None:
         """Accumulate the per-pixel confusion of the segmenter against ground-truth labels."""
@@ -252,7 +266,23 @@ class Pipeline:
             "points_integrated": mapper.points_integrated,
             "ms_per_frame": ms,
             "label_set": None if octomap.label_set is None else len(octomap.label_set),
+            **self._semantics_summary(octomap),
         }
+
+    def _semantics_summary(self, octomap: SemanticOctoMap) -> dict:
+        """Segmenter, frames segmented and occupied voxels per most probable class (classes with voxels)."""
+        out: dict = {}
+        if self.segmenter is not None:
+            out["segmenter"] = self.segmenter.name
+            out["frames_segmented"] = self._segmented
+        if octomap.label_set is not None:
+            top = octomap.voxels().labels[:, 0]
+            names = octomap.label_set.names
+            counts = np.bincount(top[top < len(names)].astype(np.int64), minlength=len(names))
+            order = np.argsort(-counts, kind="stable")
+            out["voxels_per_class"] = {names[i]: int(counts[i]) for i in order if counts[i] > 0}
+            out["voxels_without_class"] = int((top >= len(names)).sum())
+        return out
 
 
 def render_preview(octomap: SemanticOctoMap, poses: list[np.ndarray]) -> np.ndarray:

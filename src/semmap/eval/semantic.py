@@ -38,6 +38,7 @@ class SegmentationScores:
     accuracy: float
     mpa: float
     support: np.ndarray  # ground-truth count per class
+    class_accuracy: np.ndarray  # p_ii / sum_j p_ij per class (NaN for classes absent from the ground truth)
 
     def per_class(self, labels: LabelSet | None = None) -> dict[str, float]:
         names = labels.names if labels is not None else [str(i) for i in range(len(self.iou))]
@@ -61,7 +62,7 @@ def scores(conf: np.ndarray, *, ignore: int | None = 0) -> SegmentationScores:
     return SegmentationScores(iou, float(np.nanmean(iou)) if present.any() else float("nan"),
                               float(tp.sum() / total) if total else float("nan"),
                               float(np.nanmean(per_class_acc)) if present.any() else float("nan"),
-                              gt_count.astype(np.int64))
+                              gt_count.astype(np.int64), per_class_acc)
 
 
 @dataclass(frozen=True)

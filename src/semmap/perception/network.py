@@ -1,0 +1,171 @@
+"""Runs a dense-prediction network as a segmenter: resize, normalise, batch, infer, resize back, top-k.
+
+The network itself is any ``torch.nn.Module`` mapping (N, 3, h, w) normalised RGB to (N, K, h', w') logits;
+:class:`NetworkSegmenter` does everything around it, so new architectures (CBAM-PSPNet, the RGB-D fusion net)
+slot in by providing a module.  Inference runs in PyTorch or, when faster, in ONNX Runtime from an ONNX file
+exported once and cached.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import logging
+import warnings
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from semmap.errors import ConfigError
+from semmap.types import EMPTY_LABEL, Frame, LabelSet, TopKProbs
+
+log = logging.getLogger("semmap")
+
+IMAGENET_MEAN = (0.485, 0.456, 0.406)
+IMAGENET_STD = (0.229, 0.224, 0.225)
+BACKENDS = ("torch", "onnx")
+
+
+@dataclass(frozen=True)
+class NetworkInput:
+    """How images are fed to a network: size (width, height) and per-channel normalisation of RGB in [0, 1]."""
+
+    size: tuple[int, int] = (384, 384)
+    mean: tuple[float, float, float] = IMAGENET_MEAN
+    std: tuple[float, float, float] = IMAGENET_STD
+
+    def __post_init__(self) -> None:
+        w, h = self.size
+        if w < 16 or h < 16:
+            raise ConfigError(f"network input size must be at least 16x16, got {w}x{h}")
+
+    def batch(self, rgbs: Sequence[np.ndarray]) -> np.ndarray:
+        """(N, 3, h, w) float32 network input from (H, W, 3) uint8 RGB images."""
+        w, h = self.size
+        out = np.empty((len(rgbs), 3, h, w), np.float32)
+        scale = np.float32(1.0 / 255.0)
+        mean = np.asarray(self.mean, np.float32)
+        inv_std = 1.0 / np.asarray(self.std, np.float32)
+        for i, rgb in enumerate(rgbs):
+            img = cv2.resize(rgb, (w, h), interpolation=cv2.INTER_LINEAR) if rgb.shape[:2] != (h, w) else rgb
+            out[i] = ((img.astype(np.float32) * scale - mean) * inv_std).transpose(2, 0, 1)
+        return out
+
+
+class NetworkSegmenter:
+    """:class:`~semmap.perception.base.Segmenter` around a network predicting logits over ``label_set``."""
+
+    def __init__(self, model, label_set: LabelSet, *, name: str, net_input: NetworkInput = NetworkInput(),
+                 k: int = 3, batch_size: int = 4, backend: str = "torch", threads: int | None = None,
+                 cache_dir: Path | None = None, cache_key: str = ""):
+        if backend not in BACKENDS:
+            raise ConfigError(f"segmenter backend must be one of {BACKENDS}, got {backend!r}")
+        if k < 1:
+            raise ConfigError(f"k must be at least 1, got {k}")
+        import torch
+
+        self.name = name
+        self._label_set = label_set
+        self.net_input = net_input
+        self.k = k
+        self.batch_size = max(1, int(batch_size))
+        self.backend = backend
+        self._torch = torch
+        if threads is not None:
+            torch.set_num_threads(int(threads))
+        self._model = model.eval()
+        self._session = None
+        if backend == "onnx":
+            self._session = _onnx_session(model, net_input, cache_dir, cache_key, threads)
+
+    @property
+    def label_set(self) -> LabelSet:
+        return self._label_set
+
+    # ------------------------------------------------------------------ inference
+    def logits(self, rgbs: Sequence[np.ndarray]) -> np.ndarray:
+        """(N, K, h', w') float32 network output for a batch of RGB images (at network resolution)."""
+        x = self.net_input.batch(rgbs)
+        if self._session is not None:
+            return self._session.run(None, {"image": x})[0]
+        with self._torch.inference_mode():
+            return self._model(self._torch.from_numpy(x)).numpy()
+
+    def _probabilities(self, rgbs: Sequence[np.ndarray]):
+        """(N, K, H, W) torch softmax probabilities at the images' own resolution."""
+        torch = self._torch
+        h, w = rgbs[0].shape[:2]
+        if any(r.shape[:2] != (h, w) for r in rgbs):
+            raise ConfigError("all images of a batch must have the same size")
+        logits = torch.from_numpy(self.logits(rgbs))
+        if logits.shape[1] != len(self._label_set):
+            raise ConfigError(f"{self.name}: network predicts {logits.shape[1]} classes but its label set has "
+                              f"{len(self._label_set)}")
+        with torch.inference_mode():
+            if logits.shape[2:] != (h, w):
+                logits = torch.nn.functional.interpolate(logits, size=(h, w), mode="bilinear", align_corners=False)
+            return torch.softmax(logits, dim=1)
+
+    def probabilities(self, rgb: np.ndarray, depth: np.ndarray | None = None) -> np.ndarray:
+        """(H, W, K) float16 class probabilities of one image (``depth`` is unused by RGB-only networks)."""
+        return self.probabilities_batch([rgb])[0]
+
+    def probabilities_batch(self, rgbs: Sequence[np.ndarray]) -> np.ndarray:
+        """(N, H, W, K) float16 class probabilities of a batch of equally sized images."""
+        return self._probabilities(rgbs).permute(0, 2, 3, 1).to(self._torch.float16).numpy()
+
+    def predict(self, rgb: np.ndarray, depth: np.ndarray | None = None) -> TopKProbs:
+        """(H, W, k) top-k class distribution of one image."""
+        return self.predict_batch([rgb])[0]
+
+    def predict_batch(self, rgbs: Sequence[np.ndarray]) -> list[TopKProbs]:
+        """Top-k class distributions of images, run through the network ``batch_size`` at a time."""
+        out: list[TopKProbs] = []
+        k_eff = min(self.k, len(self._label_set))
+        for start in range(0, len(rgbs), self.batch_size):
+            probs = self._probabilities(rgbs[start:start + self.batch_size])
+            with self._torch.inference_mode():
+                top_p, top_i = self._torch.topk(probs, k_eff, dim=1)  # sorted, descending
+            top_p = top_p.permute(0, 2, 3, 1).numpy().astype(np.float32)
+            top_i = top_i.permute(0, 2, 3, 1).numpy().astype(np.uint16)
+            for p, i in zip(top_p, top_i, strict=True):
+                if k_eff < self.k:
+                    pad = (*i.shape[:2], self.k - k_eff)
+                    i = np.concatenate([i, np.full(pad, EMPTY_LABEL, np.uint16)], axis=-1)
+                    p = np.concatenate([p, np.zeros(pad, np.float32)], axis=-1)
+                out.append(TopKProbs(i, p))
+        return out
+
+    def segment(self, frame: Frame) -> TopKProbs:
+        return self.predict(frame.rgb, frame.depth)
+
+    def segment_batch(self, frames: Sequence[Frame]) -> list[TopKProbs]:
+        return self.predict_batch([f.rgb for f in frames])
+
+
+def _onnx_session(model, net_input: NetworkInput, cache_dir: Path | None, cache_key: str, threads: int | None):
+    """An ONNX Runtime session for ``model``, exported once to ``cache_dir`` (keyed by weights and input size)."""
+    import onnxruntime as ort
+    import torch
+
+    w, h = net_input.size
+    root = cache_dir or Path.home() / ".cache" / "semmap" / "onnx"
+    key = hashlib.sha1(f"{cache_key}|{w}x{h}|{torch.__version__}".encode()).hexdigest()[:16]
+    path = root / f"{type(model).__name__.lower()}-{key}.onnx"
+    if not path.is_file():
+        root.mkdir(parents=True, exist_ok=True)
+        tmp = path.with_suffix(".onnx.tmp")
+        log.info("exporting %s to ONNX (%s), once", type(model).__name__, path)
+        with torch.inference_mode(), warnings.catch_warnings():
+            warnings.simplefilter("ignore", DeprecationWarning)  # the TorchScript exporter needs no onnxscript
+            torch.onnx.export(model, (torch.zeros(1, 3, h, w),), str(tmp), input_names=["image"],
+                              output_names=["logits"], dynamic_axes={"image": {0: "n"}, "logits": {0: "n"}},
+                              opset_version=17, dynamo=False)
+        tmp.replace(path)
+    options = ort.SessionOptions()
+    if threads is not None:
+        options.intra_op_num_threads = int(threads)
+    options.graph_optimization_level = ort.GraphOptimizationLevel.ORT_ENABLE_ALL
+    return ort.InferenceSession(str(path), options, providers=["CPUExecutionProvider"])

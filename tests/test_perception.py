@@ -1,0 +1,241 @@
+"""The segmenter interface: network wrapper contracts, precomputed predictions, scheduling, and eqs. 11-12."""
+
+from __future__ import annotations
+
+import json
+import logging
+
+import numpy as np
+import pytest
+import torch
+
+from helpers import make_room_frames, room_label_set, write_png
+from semmap.errors import ConfigError, DatasetError, FormatError
+from semmap.eval.segmentation import evaluate_label_folders, segmentation_scores
+from semmap.perception.network import NetworkInput, NetworkSegmenter
+from semmap.perception.precomputed import PrecomputedSegmenter
+from semmap.perception.schedule import Scheduler, SegmentationSchedule, with_semantics
+from semmap.types import EMPTY_LABEL, LabelSet, TopKProbs, make_pose
+
+LABELS = LabelSet.generic(5)
+
+
+class TinyNet(torch.nn.Module):
+    """Logits at half the input resolution from a fixed 1x1 convolution (deterministic)."""
+
+    def __init__(self, classes: int = 5):
+        super().__init__()
+        torch.manual_seed(0)
+        self.conv = torch.nn.Conv2d(3, classes, 1)
+
+    def forward(self, x):
+        return self.conv(torch.nn.functional.avg_pool2d(x, 2))
+
+
+@pytest.fixture(scope="module")
+def rgb():
+    return np.random.default_rng(0).integers(0, 256, (60, 80, 3), dtype=np.uint8)
+
+
+def test_network_segmenter_contract(rgb):
+    seg = NetworkSegmenter(TinyNet(), LABELS, name="tiny", net_input=NetworkInput(size=(48, 32)), k=3)
+    probs = seg.probabilities(rgb)
+    assert probs.shape == (60, 80, 5) and probs.dtype == np.float16
+    np.testing.assert_allclose(probs.astype(np.float32).sum(-1), 1.0, atol=5e-3)
+    top = seg.predict(rgb)
+    assert top.labels.shape == (60, 80, 3) and top.labels.dtype == np.uint16 and top.probs.dtype == np.float32
+    assert (np.diff(top.probs, axis=-1) <= 1e-7).all()  # sorted by decreasing probability
+    dense = probs.astype(np.float32)
+    top_dense = np.take_along_axis(dense, top.labels[..., :1].astype(np.int64), -1)[..., 0]
+    np.testing.assert_allclose(top_dense, dense.max(-1), atol=1e-3)  # the top class is the most probable one
+    assert seg.label_set is LABELS and seg.name == "tiny"
+
+
+def test_network_batches_equal_single_frames_and_k_beyond_classes_is_padded(rgb):
+    seg = NetworkSegmenter(TinyNet(2), LabelSet.generic(2), name="tiny", net_input=NetworkInput(size=(40, 30)),
+                           k=3, batch_size=2)
+    other = rgb[::-1].copy()
+    batch = seg.predict_batch([rgb, other, rgb])
+    single = seg.predict(other)
+    np.testing.assert_allclose(batch[1].probs, single.probs, atol=1e-5)
+    assert (batch[0].labels[..., 2] == EMPTY_LABEL).all() and (batch[0].probs[..., 2] == 0).all()
+
+
+def test_onnx_backend_matches_torch(rgb, tmp_path):
+    kw = dict(name="tiny", net_input=NetworkInput(size=(48, 32)), k=3)
+    a = NetworkSegmenter(TinyNet(), LABELS, **kw).probabilities(rgb).astype(np.float32)
+    b = NetworkSegmenter(TinyNet(), LABELS, backend="onnx", cache_dir=tmp_path, cache_key="tiny", **kw)
+    np.testing.assert_allclose(b.probabilities(rgb).astype(np.float32), a, atol=2e-3)
+    assert len(list(tmp_path.glob("*.onnx"))) == 1
+
+
+def test_wrong_class_count_and_backend_are_clear_errors(rgb):
+    with pytest.raises(ConfigError, match="backend"):
+        NetworkSegmenter(TinyNet(), LABELS, name="tiny", backend="tensorrt")
+    seg = NetworkSegmenter(TinyNet(4), LABELS, name="tiny", net_input=NetworkInput(size=(32, 32)))
+    with pytest.raises(ConfigError, match="predicts 4 classes"):
+        seg.predict(rgb)
+
+
+# ------------------------------------------------------------------ precomputed
+@pytest.fixture()
+def frames():
+    return make_room_frames(4)
+
+
+def test_precomputed_matches_by_name_and_by_timestamp(frames, tmp_path):
+    h, w = frames[0].depth.shape
+    ids = np.full((h, w), 3, np.uint16)
+    write_png(tmp_path / f"{frames[0].name}.png", ids)  # exact name
+    probs = np.zeros((h // 2, w // 2, 7), np.float32)
+    probs[..., 5] = 0.7
+    probs[..., 2] = 0.3
+    np.save(tmp_path / f"{frames[1].timestamp + 0.004:.6f}.npy", probs)  # timestamp, other size
+    (tmp_path / "labelset.json").write_text(json.dumps(room_label_set().to_dict()))
+    seg = PrecomputedSegmenter(tmp_path, label_confidence=0.8)
+    assert len(seg.label_set) == 7
+    a = seg.segment(frames[0])
+    assert (a.labels[..., 0] == 3).all() and np.allclose(a.probs[..., 0], 0.8)
+    b = seg.segment(frames[1])
+    assert b.labels.shape == (h, w, 3) and (b.labels[..., 0] == 5).all() and (b.labels[..., 1] == 2).all()
+    np.testing.assert_allclose(b.probs[..., 0], 0.7, atol=1e-6)
+
+
+def test_precomputed_missing_frame_warns_and_gives_no_semantics(frames, tmp_path, caplog):
+    write_png(tmp_path / f"{frames[0].name}.label.png", np.ones(frames[0].depth.shape, np.uint16))
+    seg = PrecomputedSegmenter(tmp_path, label_set=room_label_set())
+    with caplog.at_level(logging.WARNING, logger="semmap"):
+        assert seg.segment(frames[2]) is None
+    assert seg.missing == [frames[2].name] and frames[2].name in caplog.text
+
+
+def test_precomputed_bad_input_is_named(frames, tmp_path):
+    with pytest.raises(ConfigError, match="does not exist"):
+        PrecomputedSegmenter(tmp_path / "nope")
+    with pytest.raises(ConfigError, match="no predictions"):
+        PrecomputedSegmenter(tmp_path)
+    np.save(tmp_path / f"{frames[0].name}.npy", np.full((*frames[0].depth.shape, 7), 0.5, np.float32))
+    (tmp_path / f"{frames[1].name}.npy").write_bytes(b"garbage")
+    seg = PrecomputedSegmenter(tmp_path)
+    with pytest.raises(FormatError, match="apply a softmax"):
+        seg.segment(frames[0])
+    with pytest.raises(FormatError, match=frames[1].name):
+        seg.segment(frames[1])
+    write_png(tmp_path / f"{frames[2].name}.png", np.full(frames[2].depth.shape, 9, np.uint16))
+    with pytest.raises(FormatError, match="outside the label set"):
+        PrecomputedSegmenter(tmp_path, label_set=room_label_set()).segment(frames[2])
+
+
+# ------------------------------------------------------------------ scheduling
+def test_every_k_and_keyframe_schedules():
+    still = np.eye(4)
+    every3 = Scheduler(SegmentationSchedule(every=3))
+    assert [every3.due(still) for _ in range(7)] == [True, False, False, True, False, False, True]
+    key = Scheduler(SegmentationSchedule(keyframes=True, min_translation=0.1, min_rotation_deg=10))
+    moved = make_pose(np.eye(3), [0.15, 0, 0])
+    c, s = np.cos(np.radians(12)), np.sin(np.radians(12))
+    turned = make_pose(np.array([[c, -s, 0], [s, c, 0], [0, 0, 1]]), [0.15, 0, 0])
+    assert [key.due(T) for T in (still, still, moved, moved, turned)] == [True, False, True, False, True]
+
+
+class CountingSegmenter:
+    name = "counting"
+    label_set = LABELS
+
+    def __init__(self):
+        self.batches: list[int] = []
+
+    def segment(self, frame):
+        return self.segment_batch([frame])[0]
+
+    def segment_batch(self, frames):
+        self.batches.append(len(frames))
+        return [TopKProbs.from_hard_labels(np.full(f.depth.shape, 1, np.uint16), 0.9, 5) for f in frames]
+
+
+def test_batched_segmentation_keeps_frame_order(frames):
+    more = make_room_frames(7)
+    seg = CountingSegmenter()
+    timings: dict[str, float] = {}
+    out = list(with_semantics(((f, f.T_world_cam) for f in more), seg, Scheduler(SegmentationSchedule(every=2)),
+                              batch_size=3, timings=timings))
+    assert [f.index for f, _, _ in out] == list(range(7))
+    assert [sem is not None for _, _, sem in out] == [True, False, True, False, True, False, True]
+    assert seg.batches == [3, 1] and timings["segment"] > 0
+
+
+# ------------------------------------------------------------------ metrics (eqs. 11-12)
+def test_mpa_and_miou_against_a_hand_computed_confusion_matrix():
+    # p_ij: true i predicted j; 3 classes, class 0 counted (VOC background)
+    conf = np.array([[5, 1, 0], [2, 6, 2], [0, 0, 4]])
+    gt = np.repeat(np.repeat(np.arange(3), 3), conf.ravel())
+    pred = np.repeat(np.tile(np.arange(3), 3), conf.ravel())
+    s = segmentation_scores(pred, gt, 3, ignore=None)
+    iou = [5 / (6 + 7 - 5), 6 / (10 + 7 - 6), 4 / (4 + 6 - 4)]
+    acc = [5 / 6, 6 / 10, 4 / 4]
+    np.testing.assert_allclose(s.iou, iou)
+    np.testing.assert_allclose(s.class_accuracy, acc)
+    assert s.miou == pytest.approx(np.mean(iou)) and s.mpa == pytest.approx(np.mean(acc))
+    assert s.accuracy == pytest.approx(15 / 20)
+
+
+def test_eval_folders_resize_ignore_and_report_missing(tmp_path):
+    pred_dir, gt_dir = tmp_path / "pred", tmp_path / "gt"
+    gt = np.zeros((4, 6), np.uint8)
+    gt[:, 3:] = 1
+    gt[0, 0] = 255  # VOC boundary pixel: ignored
+    write_png(gt_dir / "a.png", gt)
+    write_png(gt_dir / "b.png", gt)
+    pred = np.zeros((2, 3), np.uint8)
+    pred[:, 2] = 1  # half resolution: upsampled by nearest neighbour
+    write_png(pred_dir / "a.png", pred)
+    r = evaluate_label_folders(pred_dir, gt_dir, 2)
+    assert r.images == 1 and r.missing == ("b",)
+    assert r.confusion.tolist() == [[11, 0], [4, 8]]  # column 3 of the upsampled prediction is class 0
+    d = r.to_dict()
+    assert d["per_class"]["1"]["iou"] == pytest.approx(8 / 12, abs=1e-4)
+    unrelated = tmp_path / "unrelated"
+    write_png(unrelated / "zzz.png", gt)
+    with pytest.raises(DatasetError, match="no prediction matches"):
+        evaluate_label_folders(unrelated, gt_dir, 2)
+
+
+# ------------------------------------------------------------------ end to end
+def test_run_with_precomputed_segmentation_every_second_frame(tmp_path):
+    from test_pipeline_cli import run_cli
+
+    from semmap.datasets import open_dataset
+    from semmap.datasets.tum_writer import write_tum_sequence
+
+    root = tmp_path / "seq"
+    write_tum_sequence(root, make_room_frames(6), label_set=room_label_set())
+    preds = tmp_path / "preds"
+    for frame in open_dataset(root):  # predictions named like the frames, from the room's true labels
+        write_png(preds / f"{frame.name}.png", frame.labels)
+    (preds / "labelset.json").write_text(json.dumps(room_label_set().to_dict()))
+    out = tmp_path / "out"
+    r = run_cli("run", str(root), "--out", str(out), "--resolution", "0.1", "--segmenter", "precomputed",
+                "--weights", str(preds), "--segment-every", "2")
+    assert r.returncode == 0, r.stderr
+    report = json.loads((out / "report.json").read_text())
+    assert report["segmenter"] == "precomputed" and report["frames_segmented"] == 3
+    assert set(report["voxels_per_class"]) <= set(room_label_set().names[1:])
+    classified = sum(report["voxels_per_class"].values())
+    assert classified + report["voxels_without_class"] == report["occupied_voxels"]
+    assert classified > 0.5 * report["occupied_voxels"]  # voxels seen only by unsegmented frames have no class
+    assert report["precomputed_miou_2d"] == 1.0  # predictions are the ground truth
+
+
+def test_eval_seg_command(tmp_path):
+    from test_pipeline_cli import run_cli
+
+    gt = np.zeros((4, 6), np.uint8)
+    gt[:, 3:] = 1
+    write_png(tmp_path / "gt" / "x.png", gt)
+    write_png(tmp_path / "pred" / "x.png", gt)
+    r = run_cli("eval-seg", str(tmp_path / "pred"), str(tmp_path / "gt"), "--num-classes", "2", "--out",
+                str(tmp_path / "s.json"))
+    assert r.returncode == 0, r.stderr
+    assert json.loads(r.stdout)["miou"] == 1.0 and json.loads((tmp_path / "s.json").read_text())["mpa"] == 1.0
+    r = run_cli("eval-seg", str(tmp_path / "nope"), str(tmp_path / "gt"))
+    assert r.returncode == 1 and "nope" in r.stderr and "Traceback" not in r.stderr
