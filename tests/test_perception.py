@@ -16,6 +16,7 @@ from semmap.perception.network import NetworkInput, NetworkSegmenter
 from semmap.perception.precomputed import PrecomputedSegmenter
 from semmap.perception.schedule import Scheduler, SegmentationSchedule, with_semantics
 from semmap.types import EMPTY_LABEL, LabelSet, TopKProbs, make_pose
+from test_pipeline_cli import run_cli
 
 LABELS = LabelSet.generic(5)
 
@@ -67,6 +68,14 @@ def test_onnx_backend_matches_torch(rgb, tmp_path):
     b = NetworkSegmenter(TinyNet(), LABELS, backend="onnx", cache_dir=tmp_path, cache_key="tiny", **kw)
     np.testing.assert_allclose(b.probabilities(rgb).astype(np.float32), a, atol=2e-3)
     assert len(list(tmp_path.glob("*.onnx"))) == 1
+
+
+def test_input_keeps_the_aspect_ratio_at_the_short_side():
+    assert NetworkInput().size_for(640, 480) == (512, 384)
+    assert NetworkInput(short_side=200).size_for(480, 640) == (208, 272)
+    assert NetworkInput(size=(384, 384)).size_for(640, 480) == (384, 384)
+    with pytest.raises(ConfigError):
+        NetworkInput(size=None, short_side=None)
 
 
 def test_wrong_class_count_and_backend_are_clear_errors(rgb):
@@ -202,8 +211,6 @@ def test_eval_folders_resize_ignore_and_report_missing(tmp_path):
 
 # ------------------------------------------------------------------ end to end
 def test_run_with_precomputed_segmentation_every_second_frame(tmp_path):
-    from test_pipeline_cli import run_cli
-
     from semmap.datasets import open_dataset
     from semmap.datasets.tum_writer import write_tum_sequence
 
@@ -227,8 +234,6 @@ def test_run_with_precomputed_segmentation_every_second_frame(tmp_path):
 
 
 def test_eval_seg_command(tmp_path):
-    from test_pipeline_cli import run_cli
-
     gt = np.zeros((4, 6), np.uint8)
     gt[:, 3:] = 1
     write_png(tmp_path / "gt" / "x.png", gt)

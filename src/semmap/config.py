@@ -76,7 +76,8 @@ class SemanticsConfig(_Section):
     keyframes: bool = Field(False, description="segment only frames where the camera moved enough")
     batch_size: int = Field(1, ge=1, le=64, description="frames per network batch")
     backend: str = Field("torch", pattern="^(torch|onnx)$", description="network runtime")
-    input_size: tuple[int, int] | None = Field(None, description="network input (width, height); None = default")
+    input_size: tuple[int, int] | int | None = Field(
+        None, description="network input: (width, height), or the short side keeping the aspect ratio; None = 384")
 
 
 class PosesConfig(_Section):

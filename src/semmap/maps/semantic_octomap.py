@@ -499,7 +499,8 @@ class SemanticOctoMap:
 
     def leaf_colors(self, cells: CellArrays, *, color_mode: str = "class") -> np.ndarray:
         """Colour each cell shows in an OctoMap file: free cells unset (white); occupied cells their top class
-        colour (``class``, when a label set is known and the cell has a class) or mean observed colour."""
+        colour (``class``, when a label set is known and the top class is a real one, not 0 = unknown / void
+        / background) or else their mean observed colour."""
         if color_mode not in ("class", "rgb"):
             raise ConfigError(f"color mode must be 'class' or 'rgb', got {color_mode!r}")
         n = cells.packed.shape[0]
@@ -516,7 +517,7 @@ class SemanticOctoMap:
         out[occ[colored]] = mean
         if color_mode == "class" and self.label_set is not None:
             top = cells.sem_labels[rows, 0]
-            labelled = top < len(self.label_set)
+            labelled = (top < len(self.label_set)) & (top != 0)
             out[occ[labelled]] = self.label_set.colors[top[labelled]]
         return out
 

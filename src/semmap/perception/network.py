@@ -30,20 +30,35 @@ BACKENDS = ("torch", "onnx")
 
 @dataclass(frozen=True)
 class NetworkInput:
-    """How images are fed to a network: size (width, height) and per-channel normalisation of RGB in [0, 1]."""
+    """How images are fed to a network: a fixed ``size`` (width, height) when given, else scaled to ``short_side``
+    pixels keeping the aspect ratio (sides rounded to a multiple of ``multiple``); RGB in [0, 1] normalised per
+    channel."""
 
-    size: tuple[int, int] = (384, 384)
+    size: tuple[int, int] | None = None
+    short_side: int | None = 384
+    multiple: int = 16
     mean: tuple[float, float, float] = IMAGENET_MEAN
     std: tuple[float, float, float] = IMAGENET_STD
 
     def __post_init__(self) -> None:
-        w, h = self.size
-        if w < 16 or h < 16:
-            raise ConfigError(f"network input size must be at least 16x16, got {w}x{h}")
+        if self.size is None and self.short_side is None:
+            raise ConfigError("network input needs a fixed size or a short side")
+        if self.size is not None and min(self.size) < 16:
+            raise ConfigError(f"network input size must be at least 16x16, got {self.size[0]}x{self.size[1]}")
+        if self.short_side is not None and self.short_side < 16:
+            raise ConfigError(f"network input short side must be at least 16 pixels, got {self.short_side}")
+
+    def size_for(self, width: int, height: int) -> tuple[int, int]:
+        """(width, height) of the network input for an image of ``width`` x ``height``."""
+        if self.size is not None:
+            return self.size
+        f = self.short_side / min(width, height)
+        m = self.multiple
+        return max(m, int(width * f / m + 0.5) * m), max(m, int(height * f / m + 0.5) * m)
 
     def batch(self, rgbs: Sequence[np.ndarray]) -> np.ndarray:
-        """(N, 3, h, w) float32 network input from (H, W, 3) uint8 RGB images."""
-        w, h = self.size
+        """(N, 3, h, w) float32 network input from equally sized (H, W, 3) uint8 RGB images."""
+        w, h = self.size_for(rgbs[0].shape[1], rgbs[0].shape[0])
         out = np.empty((len(rgbs), 3, h, w), np.float32)
         scale = np.float32(1.0 / 255.0)
         mean = np.asarray(self.mean, np.float32)
@@ -76,9 +91,9 @@ class NetworkSegmenter:
         if threads is not None:
             torch.set_num_threads(int(threads))
         self._model = model.eval()
-        self._session = None
-        if backend == "onnx":
-            self._session = _onnx_session(model, net_input, cache_dir, cache_key, threads)
+        self._threads = threads
+        self._cache_dir, self._cache_key = cache_dir, cache_key
+        self._sessions: dict[tuple[int, int], object] = {}  # ONNX graphs are traced for one input size
 
     @property
     def label_set(self) -> LabelSet:
@@ -88,8 +103,12 @@ class NetworkSegmenter:
     def logits(self, rgbs: Sequence[np.ndarray]) -> np.ndarray:
         """(N, K, h', w') float32 network output for a batch of RGB images (at network resolution)."""
         x = self.net_input.batch(rgbs)
-        if self._session is not None:
-            return self._session.run(None, {"image": x})[0]
+        if self.backend == "onnx":
+            size = (x.shape[3], x.shape[2])
+            if size not in self._sessions:
+                self._sessions[size] = _onnx_session(self._model, size, self._cache_dir, self._cache_key,
+                                                     self._threads)
+            return self._sessions[size].run(None, {"image": x})[0]
         with self._torch.inference_mode():
             return self._model(self._torch.from_numpy(x)).numpy()
 
@@ -145,12 +164,13 @@ class NetworkSegmenter:
         return self.predict_batch([f.rgb for f in frames])
 
 
-def _onnx_session(model, net_input: NetworkInput, cache_dir: Path | None, cache_key: str, threads: int | None):
-    """An ONNX Runtime session for ``model``, exported once to ``cache_dir`` (keyed by weights and input size)."""
+def _onnx_session(model, size: tuple[int, int], cache_dir: Path | None, cache_key: str, threads: int | None):
+    """An ONNX Runtime session for ``model`` at input ``size`` (width, height), exported once to ``cache_dir``
+    (keyed by the weights and the size)."""
     import onnxruntime as ort
     import torch
 
-    w, h = net_input.size
+    w, h = size
     root = cache_dir or Path.home() / ".cache" / "semmap" / "onnx"
     key = hashlib.sha1(f"{cache_key}|{w}x{h}|{torch.__version__}".encode()).hexdigest()[:16]
     path = root / f"{type(model).__name__.lower()}-{key}.onnx"

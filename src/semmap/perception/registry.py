@@ -18,7 +18,7 @@ SEGMENTERS = {
 
 def make_segmenter(name: str, *, weights: Path | None = None, label_set: LabelSet | None = None, k: int = 3,
                    label_confidence: float = 0.9, oracle_preset: str = "cnn-like", seed: int = 0,
-                   backend: str = "torch", batch_size: int = 1, input_size: tuple[int, int] | None = None,
+                   backend: str = "torch", batch_size: int = 1, input_size: tuple[int, int] | int | None = None,
                    threads: int | None = None) -> Segmenter:
     """Build the segmenter ``name``; ``label_set`` is the dataset's (the oracle predicts its classes)."""
     if name == "oracle":
@@ -43,7 +43,10 @@ def make_segmenter(name: str, *, weights: Path | None = None, label_set: LabelSe
         if weights is None:
             raise ConfigError("--segmenter espnetv2 needs its weights: --weights espnetv2_s_2.0_pascal_384x384.pth")
         model = load_espnetv2(weights)
-        net_input = NetworkInput(size=input_size) if input_size is not None else NetworkInput()
+        if isinstance(input_size, int):
+            net_input = NetworkInput(short_side=input_size)
+        else:
+            net_input = NetworkInput(size=input_size) if input_size is not None else NetworkInput()
         stat = Path(weights).stat()
         return NetworkSegmenter(model, PASCAL_VOC, name="espnetv2", net_input=net_input, k=k, backend=backend,
                                 batch_size=batch_size, threads=threads,
