@@ -255,7 +255,7 @@ class PyramidPool(nn.Module):
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         """Project, run each scale's depthwise conv at its own resolution, resample back, concat, merge."""
         x = self.projection_layer(x)
-        h, w = x.shape[-2:]
+        h, w = int(x.shape[-2]), int(x.shape[-1])  # plain ints: ONNX export traces one input size
         outs = []
         for scale, stage in zip(self.scales, self.stages, strict=True):
             hs = max(PYRAMID_MIN_SIDE, math.ceil(h * scale))
@@ -263,11 +263,11 @@ class PyramidPool(nn.Module):
             if (hs, ws) == (h, w):
                 outs.append(stage(x))
             elif scale < 1.0:
-                y = stage(F.adaptive_avg_pool2d(x, (hs, ws)))
+                y = stage(adaptive_avg_pool(x, (hs, ws)))
                 outs.append(F.interpolate(y, (h, w), mode="bilinear", align_corners=True))
             else:
                 y = stage(F.interpolate(x, (hs, ws), mode="bilinear", align_corners=True))
-                outs.append(F.adaptive_avg_pool2d(y, (h, w)))
+                outs.append(adaptive_avg_pool(y, (h, w)))
         y = self.merge_layer(torch.cat(outs, 1))
         return self.br(y) if self.br is not None else y
 
@@ -283,6 +283,24 @@ class GatedProjection(nn.Module):
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         """Project ``x`` and reweight its channels from its global average."""
         return self.expansion_layer(x) * self.wt_layer(x)
+
+
+def _pool_matrix(n_in: int, n_out: int) -> torch.Tensor:
+    """(n_out, n_in) averaging weights of adaptive average pooling along one axis (bin i covers
+    floor(i * n_in / n_out) .. ceil((i + 1) * n_in / n_out))."""
+    m = torch.zeros(n_out, n_in)
+    for i in range(n_out):
+        lo, hi = (i * n_in) // n_out, -((-(i + 1) * n_in) // n_out)
+        m[i, lo:hi] = 1.0 / (hi - lo)
+    return m
+
+
+def adaptive_avg_pool(x: torch.Tensor, size: tuple[int, int]) -> torch.Tensor:
+    """``F.adaptive_avg_pool2d`` as two matrix products: the same numbers, and exportable to ONNX for any sizes
+    (the exporter refuses adaptive pooling whose output size does not divide the input size)."""
+    h, w = int(x.shape[-2]), int(x.shape[-1])
+    rows, cols = _pool_matrix(h, size[0]).to(x.dtype), _pool_matrix(w, size[1]).to(x.dtype)
+    return torch.matmul(torch.matmul(rows, x), cols.T)
 
 
 def _bn_prelu(channels: int) -> nn.Sequential:

@@ -93,7 +93,7 @@ class NetworkSegmenter:
         self._model = model.eval()
         self._threads = threads
         self._cache_dir, self._cache_key = cache_dir, cache_key
-        self._sessions: dict[tuple[int, int], object] = {}  # ONNX graphs are traced for one input size
+        self._sessions: dict[tuple[int, ...], object] = {}  # ONNX graphs are traced for one input shape
 
     @property
     def label_set(self) -> LabelSet:
@@ -104,11 +104,10 @@ class NetworkSegmenter:
         """(N, K, h', w') float32 network output for a batch of RGB images (at network resolution)."""
         x = self.net_input.batch(rgbs)
         if self.backend == "onnx":
-            size = (x.shape[3], x.shape[2])
-            if size not in self._sessions:
-                self._sessions[size] = _onnx_session(self._model, size, self._cache_dir, self._cache_key,
-                                                     self._threads)
-            return self._sessions[size].run(None, {"image": x})[0]
+            if x.shape not in self._sessions:
+                self._sessions[x.shape] = _onnx_session(self._model, x.shape, self._cache_dir, self._cache_key,
+                                                        self._threads)
+            return self._sessions[x.shape].run(None, {"image": x})[0]
         with self._torch.inference_mode():
             return self._model(self._torch.from_numpy(x)).numpy()
 
@@ -164,15 +163,15 @@ class NetworkSegmenter:
         return self.predict_batch([f.rgb for f in frames])
 
 
-def _onnx_session(model, size: tuple[int, int], cache_dir: Path | None, cache_key: str, threads: int | None):
-    """An ONNX Runtime session for ``model`` at input ``size`` (width, height), exported once to ``cache_dir``
-    (keyed by the weights and the size)."""
+def _onnx_session(model, shape: tuple[int, ...], cache_dir: Path | None, cache_key: str, threads: int | None):
+    """An ONNX Runtime session for ``model`` at input ``shape`` (N, 3, H, W), exported once to ``cache_dir``
+    (keyed by the weights and the shape)."""
     import onnxruntime as ort
     import torch
 
-    w, h = size
+    n, _, h, w = shape
     root = cache_dir or Path.home() / ".cache" / "semmap" / "onnx"
-    key = hashlib.sha1(f"{cache_key}|{w}x{h}|{torch.__version__}".encode()).hexdigest()[:16]
+    key = hashlib.sha1(f"{cache_key}|{n}x{w}x{h}|{torch.__version__}".encode()).hexdigest()[:16]
     path = root / f"{type(model).__name__.lower()}-{key}.onnx"
     if not path.is_file():
         root.mkdir(parents=True, exist_ok=True)
@@ -180,9 +179,8 @@ def _onnx_session(model, size: tuple[int, int], cache_dir: Path | None, cache_ke
         log.info("exporting %s to ONNX (%s), once", type(model).__name__, path)
         with torch.inference_mode(), warnings.catch_warnings():
             warnings.simplefilter("ignore", DeprecationWarning)  # the TorchScript exporter needs no onnxscript
-            torch.onnx.export(model, (torch.zeros(1, 3, h, w),), str(tmp), input_names=["image"],
-                              output_names=["logits"], dynamic_axes={"image": {0: "n"}, "logits": {0: "n"}},
-                              opset_version=17, dynamo=False)
+            torch.onnx.export(model, (torch.zeros(n, 3, h, w),), str(tmp), input_names=["image"],
+                              output_names=["logits"], opset_version=17, dynamo=False)
         tmp.replace(path)
     options = ort.SessionOptions()
     if threads is not None:
