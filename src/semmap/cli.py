@@ -23,6 +23,7 @@ _INPUT = "Input"
 _MAPPING = "Mapping"
 _SEMANTICS = "Semantics"
 _OUTPUT = "Output"
+_POSES = "Poses"
 
 
 def _console():
@@ -99,15 +100,19 @@ def run(
                                             rich_help_panel=_SEMANTICS)] = False,
     batch_size: Annotated[int, typer.Option(help="frames per network batch", rich_help_panel=_SEMANTICS)] = 1,
     backend: Annotated[str, typer.Option(help="torch | onnx: network runtime", rich_help_panel=_SEMANTICS)] = "torch",
-    input_size: Annotated[str | None, typer.Option(help="network input WIDTHxHEIGHT (default 384x384)",
-                                                   rich_help_panel=_SEMANTICS)] = None,
+    input_size: Annotated[str | None, typer.Option(help="network input: short side N keeping the aspect ratio "
+                                                   "(default 384), or WIDTHxHEIGHT", rich_help_panel=_SEMANTICS)
+                          ] = None,
+    poses: Annotated[str, typer.Option(help="gt (the dataset's) | slam | odometry | PATH of a TUM trajectory",
+                                       rich_help_panel=_POSES)] = "gt",
     color_mode: Annotated[str, typer.Option(help="class | rgb: voxel colour in map.ot",
                                             rich_help_panel=_OUTPUT)] = "class",
     verbose: Annotated[bool, typer.Option("--verbose", "-v", help="debug logging")] = False,
 ) -> None:
-    """Map an RGB-D sequence: writes map.ot, map.bt, map.semmap, preview.png, report.json, config.json."""
+    """Map an RGB-D sequence: writes map.ot, map.bt, map.semmap, preview.png, trajectory.txt, report.json,
+    report.md and config.json."""
     _setup_logging(verbose)
-    from semmap.config import InputConfig, MappingConfig, OutputConfig, RunConfig, SemanticsConfig
+    from semmap.config import InputConfig, MappingConfig, OutputConfig, PosesConfig, RunConfig, SemanticsConfig
     from semmap.pipeline import Pipeline
     from semmap.pipeline import color_mode as parse_color_mode
 
@@ -118,9 +123,11 @@ def run(
         semantics=SemanticsConfig(source=semantics, label_confidence=label_confidence, lam=lam, segmenter=segmenter,
                                   weights=weights, segment_every=segment_every, keyframes=keyframes,
                                   batch_size=batch_size, backend=backend, input_size=_size(input_size)),
+        poses=PosesConfig(source=poses),
         output=OutputConfig(out=out, color_mode=parse_color_mode(color_mode)),
     ))
     result = Pipeline(config, segmenter=_segmenter(config), progress=progress_bar("mapping"),
+                      track_progress=progress_bar(f"tracking ({poses})"),
                       ground_truth=_simulated_ground_truth(dataset)).run()
     _print_summary(result.report, result.out_dir)
 
@@ -162,14 +169,16 @@ def _segmenter(config):
                           input_size=s.input_size)
 
 
-def _size(text: str | None) -> tuple[int, int] | None:
-    """``"512x384"`` -> (512, 384)."""
+def _size(text: str | None) -> tuple[int, int] | int | None:
+    """``"512x384"`` -> (512, 384); ``"384"`` -> 384 (the short side)."""
     if text is None:
         return None
     try:
+        if "x" not in text.lower():
+            return int(text)
         w, h = (int(v) for v in text.lower().split("x"))
     except ValueError:
-        raise SemmapError(f"--input-size must look like 512x384, got {text!r}") from None
+        raise SemmapError(f"--input-size must be a short side like 384 or a size like 512x384, got {text!r}") from None
     return w, h
 
 
@@ -189,9 +198,16 @@ def _print_summary(report: dict, out_dir: Path) -> None:
 
     t = Table(title=f"semmap: {out_dir}", show_header=False)
     for key in ("frames_used", "frames_skipped", "occupied_voxels", "free_voxels", "occupied_leaves",
-                "free_leaves", "bytes_in_memory", "miou_3d", "oracle_miou_2d", "segmentation_miou_2d"):
+                "free_leaves", "bytes_in_memory", "miou_3d", "oracle_miou_2d", "segmentation_miou_2d",
+                "frames_segmented"):
         if key in report:
             t.add_row(key, str(report[key]))
+    if "trajectory_vs_ground_truth" in report:
+        ate = report["trajectory_vs_ground_truth"]["ate_rmse_m"]
+        t.add_row("ATE of the poses used", f"{100 * ate:.2f} cm")
+    top = list(report.get("voxels_per_class", {}).items())[:8]
+    if top:
+        t.add_row("voxels per class", ", ".join(f"{name} {n:,}" for name, n in top))
     for name, size in report.get("bytes_on_disk", {}).items():
         t.add_row(f"size of {name}", f"{size:,} B")
     t.add_row("ms per frame", f"{report['ms_per_frame']['total']:.1f}")
@@ -266,6 +282,86 @@ def demo(
     result = Pipeline(config, segmenter=segmenter, dataset=dataset, ground_truth=ground_truth,
                       progress=progress_bar("simulate + map"), title=f"semmap demo: {dataset.name}").run()
     _print_summary(result.report, result.out_dir)
+
+
+@app.command()
+def track(
+    dataset: Annotated[Path, typer.Argument(help="RGB-D sequence folder (TUM RGB-D or 7-Scenes layout)")],
+    out: Annotated[Path, typer.Option("--out", "-o", help="trajectory file to write (TUM format)")],
+    method: Annotated[str, typer.Option(help="slam | slam-noloop | odometry | open3d-f2f | open3d-f2f-tensor")
+                      ] = "slam",
+    format: Annotated[str, typer.Option(help="auto | tum | 7scenes")] = "auto",
+    max_frames: Annotated[int | None, typer.Option(help="use at most N frames")] = None,
+    stride: Annotated[int, typer.Option(help="use every k-th frame")] = 1,
+    plot: Annotated[Path | None, typer.Option(help="also plot the trajectory (and ground truth) to this PNG")] = None,
+) -> None:
+    """Estimate the camera trajectory of a sequence and write it in TUM format; scored against the dataset's
+    ground truth when it has one."""
+    _setup_logging(False)
+    import time
+
+    from semmap.datasets import open_dataset
+    from semmap.io.trajectory import write_trajectory
+    from semmap.poses.base import estimate_trajectory
+    from semmap.poses.track import make_tracker
+    from semmap.types import Trajectory
+
+    ds = open_dataset(dataset, format, stride=stride, max_frames=max_frames)
+    seen, truth = [0], []  # frames read; their own poses, to score the estimate without reading twice
+
+    def frames():
+        for frame in ds:
+            seen[0] += 1
+            if frame.T_world_cam is not None:
+                truth.append((frame.timestamp, frame.T_world_cam, frame.name))
+            yield frame
+
+    t0 = time.perf_counter()
+    est = estimate_trajectory(make_tracker(method), frames(), total=len(ds),
+                              progress=progress_bar(f"tracking ({method})"))
+    seconds = time.perf_counter() - t0
+    write_trajectory(out, est)
+    summary = {"method": method, "frames": seen[0], "tracked": len(est),
+               "ms_per_frame": round(1e3 * seconds / max(seen[0], 1), 1), "trajectory": str(out)}
+    gt = Trajectory([t for t, _, _ in truth], [T for _, T, _ in truth], tuple(n for _, _, n in truth))
+    if len(gt) >= 3 and len(est) >= 3:
+        from semmap.eval.trajectory import evaluate_trajectory, plot_trajectories
+
+        scores = evaluate_trajectory(gt, est)
+        summary.update({k: scores[k] for k in ("ate_rmse_m", "rpe_trans_m", "matched")})
+        if plot is not None:
+            plot_trajectories(plot, gt, {method: est})
+    elif plot is not None:
+        from semmap.eval.trajectory import plot_trajectories
+
+        plot_trajectories(plot, est, {})
+    typer.echo(json.dumps(summary, indent=2))
+
+
+@app.command("eval-traj")
+def eval_traj(
+    gt: Annotated[Path, typer.Argument(help="ground truth: a TUM trajectory file, or a dataset folder with poses")],
+    est: Annotated[Path, typer.Argument(help="estimated trajectory (TUM format)")],
+    max_time_diff: Annotated[float, typer.Option(help="largest timestamp difference of matched poses (s)")] = 0.02,
+    plot: Annotated[Path | None, typer.Option(help="write a trajectory plot PNG here")] = None,
+) -> None:
+    """ATE (after SE(3) Umeyama alignment) and RPE of an estimated trajectory against ground truth."""
+    _setup_logging(False)
+    from semmap.eval.trajectory import evaluate_trajectory, plot_trajectories
+    from semmap.io.trajectory import read_trajectory
+
+    if gt.is_dir():
+        from semmap.datasets import open_dataset
+        from semmap.poses.file import trajectory_of_dataset
+
+        reference = trajectory_of_dataset(open_dataset(gt))
+    else:
+        reference = read_trajectory(gt)
+    estimate = read_trajectory(est)
+    scores = evaluate_trajectory(reference, estimate, max_time_diff=max_time_diff)
+    if plot is not None:
+        plot_trajectories(plot, reference, {est.stem: estimate}, max_time_diff=max_time_diff)
+    typer.echo(json.dumps(scores, indent=2))
 
 
 @app.command("eval-seg")

@@ -34,7 +34,7 @@ from semmap.maps.semantic_octomap import (
 )
 from semmap.perception.base import Segmenter
 from semmap.perception.schedule import Scheduler, SegmentationSchedule, with_semantics
-from semmap.types import Frame, LabelSet, TopKProbs
+from semmap.types import Frame, LabelSet, TopKProbs, Trajectory
 from semmap.viz.preview import CEILING_MARGIN, perspective, side_by_side, top_down, up_vector, write_png
 
 log = logging.getLogger("semmap")
@@ -89,6 +89,46 @@ def semantics_for(frame: Frame, source: SemanticSource, *, segmenter: Segmenter 
     return None
 
 
+class FramePoses:
+    """Pose of each frame from one source (ground truth, a trajectory lookup or a tracker's poses by frame
+    name); remembers the poses used and the frames' own ground truth, for ``trajectory.txt`` and its score."""
+
+    def __init__(self, source: str, *, by_name: dict[str, np.ndarray] | None = None, lookup=None,
+                 tracking_s: float | None = None, tracked: int = 0):
+        self.source, self.by_name, self.lookup = source, by_name, lookup
+        self.tracking_s, self.tracked = tracking_s, tracked
+        self._used: list[tuple[float, str, np.ndarray]] = []
+        self._gt: list[tuple[float, str, np.ndarray]] = []
+
+    def __call__(self, frame: Frame) -> tuple[np.ndarray | None, str]:
+        """(pose or None, why not)."""
+        if self.by_name is not None:
+            T = self.by_name.get(frame.name)
+            reason = "" if T is not None else f"{self.source} tracking lost"
+        elif self.lookup is not None:
+            found = self.lookup.pose_of(frame)
+            T, reason = found.pose, found.reason
+        else:
+            T, reason = frame.T_world_cam, "no ground-truth pose"
+        if frame.T_world_cam is not None:
+            self._gt.append((frame.timestamp, frame.name, frame.T_world_cam))
+        if T is not None:
+            self._used.append((frame.timestamp, frame.name, T))
+        return T, reason
+
+    @staticmethod
+    def _trajectory(rows: list[tuple[float, str, np.ndarray]]) -> Trajectory:
+        rows = sorted(rows, key=lambda r: r[0])
+        return Trajectory(np.array([r[0] for r in rows]), np.array([r[2] for r in rows]).reshape(-1, 4, 4),
+                          tuple(r[1] for r in rows))
+
+    def used_trajectory(self) -> Trajectory:
+        return self._trajectory(self._used)
+
+    def ground_truth(self) -> Trajectory:
+        return self._trajectory(self._gt)
+
+
 @dataclass
 class RunResult:
     """What a run produced: the map, where files went, the report dict."""
@@ -105,10 +145,12 @@ class Pipeline:
 
     def __init__(self, config: RunConfig, *, segmenter: Segmenter | None = None,
                  progress: Callable[[Iterator, int], Iterator] | None = None, dataset: Dataset | None = None,
-                 ground_truth: GroundTruthFn | None = None, title: str = "semmap run"):
+                 ground_truth: GroundTruthFn | None = None, title: str = "semmap run",
+                 track_progress: Callable[[Iterator, int], Iterator] | None = None):
         self.config = config
         self.segmenter = segmenter
         self.progress = progress or (lambda it, n: it)
+        self.track_progress = track_progress
         self.dataset = dataset
         self.ground_truth = ground_truth
         self.title = title
@@ -123,10 +165,12 @@ class Pipeline:
         octomap = self._make_map(label_set)
         mapper = Mapper(octomap, min_depth=self.config.mapping.min_depth, max_depth=self.config.mapping.max_depth,
                         pixel_stride=self.config.mapping.pixel_stride)
-        timings, poses, no_pose = self._integrate_all(dataset, mapper, label_set)
+        pose_of = self._pose_source(dataset)
+        timings, poses, no_pose = self._integrate_all(dataset, mapper, label_set, pose_of)
         files, sizes, tree_counts = self._write_outputs(octomap, poses)
         report = self._report(dataset, mapper, timings, poses, no_pose, sizes, tree_counts)
         report["startup_s"] = round(startup_s, 3)
+        report.update(self._trajectory_outputs(pose_of, files))
         report.update(self._evaluate(octomap))
         out = self.config.output.out
         write_text_atomic(out / "report.json", json.dumps(report, indent=2))
@@ -160,13 +204,57 @@ class Pipeline:
             occupancy=OccupancyParams(m.prob_hit, m.prob_miss, m.clamp_min, m.clamp_max),
             semantics=SemanticParams(s.k, s.lam, s.max_confidence))
 
-    def _integrate_all(self, dataset: Dataset, mapper: Mapper, label_set: LabelSet | None):
+    def _pose_source(self, dataset: Dataset) -> FramePoses:
+        """Where each frame's pose comes from: ground truth, a trajectory file, or a tracker run over the
+        sequence first (its final, loop-closed trajectory is then used for mapping)."""
+        source = self.config.poses.source
+        if source == "gt":
+            return FramePoses("gt")
+        from semmap.poses.track import METHODS, track_dataset
+
+        if source in METHODS:
+            t0 = time.perf_counter()
+            trajectory = track_dataset(dataset, source, progress=self.track_progress)
+            tracking_s = time.perf_counter() - t0
+            if len(trajectory) == 0:
+                raise ConfigError(f"{self.config.input.dataset}: the {source} tracker lost every frame")
+            return FramePoses(source, by_name=dict(zip(trajectory.names, trajectory.poses, strict=True)),
+                              tracking_s=tracking_s, tracked=len(trajectory))
+        from semmap.poses.file import TrajectoryPoses
+
+        path = Path(source)
+        if not path.is_file():
+            raise ConfigError(f"--poses must be gt, a tracker ({', '.join(METHODS)}) or a trajectory file; "
+                              f"{path} does not exist")
+        return FramePoses(str(path), lookup=TrajectoryPoses.from_file(path,
+                                                                      max_time_diff=self.config.poses.max_time_diff))
+
+    def _trajectory_outputs(self, pose_of: FramePoses, files: dict[str, Path]) -> dict:
+        """Write the poses used into ``trajectory.txt``; score them against ground truth when there is one."""
+        from semmap.io.trajectory import write_trajectory
+
+        out: dict = {"poses": pose_of.source}
+        used = pose_of.used_trajectory()
+        if len(used):
+            files["trajectory"] = write_trajectory(self.config.output.out / "trajectory.txt", used)
+        if pose_of.tracking_s is not None:
+            out["tracking_ms_per_frame"] = round(1e3 * pose_of.tracking_s / max(pose_of.tracked, 1), 2)
+        gt = pose_of.ground_truth()
+        if pose_of.source != "gt" and len(gt) >= 3 and len(used) >= 3:
+            from semmap.eval.trajectory import evaluate_trajectory
+
+            scores = evaluate_trajectory(gt, used)
+            out["trajectory_vs_ground_truth"] = {k: scores[k] for k in ("ate_rmse_m", "rpe_trans_m", "matched")
+                                                 if k in scores}
+        return out
+
+    def _integrate_all(self, dataset: Dataset, mapper: Mapper, label_set: LabelSet | None, pose_of: FramePoses):
         s = self.config.semantics
         timings: dict[str, float] = defaultdict(float)
         poses: list[np.ndarray] = []
         no_pose: list[str] = []
         self._segmented = 0
-        posed = self._posed_frames(dataset, timings, no_pose)
+        posed = self._posed_frames(dataset, timings, no_pose, pose_of)
         if self.segmenter is not None:
             schedule = SegmentationSchedule(every=s.segment_every, keyframes=s.keyframes)
             stream = with_semantics(posed, self.segmenter, Scheduler(schedule), batch_size=s.batch_size,
@@ -189,16 +277,16 @@ class Pipeline:
                               f"({len(dataset.skipped)} unreadable, {len(no_pose)} without pose){hint}")
         return timings, poses, no_pose
 
-    def _posed_frames(self, dataset: Dataset, timings: dict[str, float], no_pose: list[str]):
+    def _posed_frames(self, dataset: Dataset, timings: dict[str, float], no_pose: list[str], pose_of: FramePoses):
         """``(frame, T_world_cam)`` for every readable frame with a pose, behind the progress bar; frames
         without a pose are warned about and listed in ``no_pose``."""
         frames = self.progress(iter(dataset), len(dataset))
         t_load = time.perf_counter()
         for frame in frames:
             timings["load"] += (time.perf_counter() - t_load) * 1e3
-            T = frame.T_world_cam
+            T, reason = pose_of(frame)
             if T is None:
-                log.warning("frame %s has no pose; skipped", frame.name)
+                log.warning("frame %s has no pose (%s); skipped", frame.name, reason)
                 no_pose.append(frame.name)
             else:
                 yield frame, T
@@ -295,8 +383,8 @@ def render_preview(octomap: SemanticOctoMap, poses: list[np.ndarray]) -> np.ndar
     titles = ["colour (top-down)"]
     if octomap.label_set is not None:
         top = vox.labels[:, 0]
-        ok = top < len(octomap.label_set)
-        class_colors = np.full_like(vox.colors, 90)
+        ok = (top < len(octomap.label_set)) & (top != 0)  # no class, or unknown / background: observed colour
+        class_colors = vox.colors.copy()
         class_colors[ok] = octomap.label_set.colors[top[ok]]
         views.insert(0, top_down(vox.centers, class_colors, octomap.resolution, up=up, max_height=cut))
         titles.insert(0, "classes (top-down)")

@@ -1,0 +1,168 @@
+"""Camera trajectory accuracy with ``evo``: ATE after SE(3) Umeyama alignment, RPE per frame, and a plot.
+
+Poses are associated by timestamp (evo's nearest-time sync within ``max_time_diff``); ground-truth rotations
+are re-orthonormalised first (real ground truth is slightly off and evo rejects it).
+"""
+
+from __future__ import annotations
+
+import copy
+import io
+from pathlib import Path
+
+import numpy as np
+from evo.core import metrics, sync
+from evo.core.geometry import GeometryException
+from evo.core.trajectory import PoseTrajectory3D
+
+from semmap.errors import ConfigError
+from semmap.io.atomic import write_bytes_atomic
+from semmap.io.trajectory import clean_poses
+from semmap.types import Trajectory
+
+#: Fewest associated poses an evaluation accepts (Umeyama alignment needs three non-collinear positions).
+MIN_MATCHES = 3
+
+
+def _to_evo(trajectory: Trajectory, source: str) -> PoseTrajectory3D:
+    """evo trajectory with cleaned (re-orthonormalised) rotations; :class:`ConfigError` when empty."""
+    if len(trajectory) == 0:
+        raise ConfigError(f"{source} trajectory has no poses")
+    poses = clean_poses(trajectory.poses, f"{source} trajectory")
+    return PoseTrajectory3D(poses_se3=list(poses), timestamps=trajectory.timestamps.copy(), name=source)
+
+
+def synchronize(gt: Trajectory, est: Trajectory, max_time_diff: float = 0.02
+                ) -> tuple[PoseTrajectory3D, PoseTrajectory3D]:
+    """(ground truth, estimate) evo trajectories reduced to the poses matched by timestamp.
+
+    :class:`ConfigError` when fewer than :data:`MIN_MATCHES` poses match.
+    """
+    ref, est_evo = _to_evo(gt, "ground-truth"), _to_evo(est, "estimated")
+    try:
+        ref_s, est_s = sync.associate_trajectories(ref, est_evo, max_diff=max_time_diff)
+        matched = ref_s.num_poses
+    except sync.SyncException:
+        matched = 0
+    if matched < MIN_MATCHES:
+        raise ConfigError(
+            f"only {matched} estimated poses match a ground-truth pose within {max_time_diff} s (need at least "
+            f"{MIN_MATCHES}); ground truth spans t=[{gt.timestamps[0]:.3f}, {gt.timestamps[-1]:.3f}] s "
+            f"({len(gt)} poses), the estimate t=[{est.timestamps[0]:.3f}, {est.timestamps[-1]:.3f}] s "
+            f"({len(est)} poses)")
+    return ref_s, est_s
+
+
+def align(ref: PoseTrajectory3D, est: PoseTrajectory3D) -> tuple[PoseTrajectory3D, np.ndarray]:
+    """Copy of ``est`` moved onto ``ref`` by the SE(3) Umeyama fit of its positions (no scale), and the fit."""
+    aligned = copy.deepcopy(est)
+    try:
+        R, t, _ = aligned.align(ref, correct_scale=False)
+    except GeometryException as exc:
+        raise ConfigError(f"cannot align the estimated trajectory to the ground truth: {exc} "
+                          f"(does the camera move?)") from None
+    T = np.eye(4)
+    T[:3, :3], T[:3, 3] = R, t
+    return aligned, T
+
+
+def _ape(ref: PoseTrajectory3D, est: PoseTrajectory3D) -> metrics.APE:
+    ape = metrics.APE(metrics.PoseRelation.translation_part)
+    ape.process_data((ref, est))
+    return ape
+
+
+def _rpe(ref: PoseTrajectory3D, est: PoseTrajectory3D, relation: metrics.PoseRelation) -> metrics.RPE:
+    rpe = metrics.RPE(relation, delta=1, delta_unit=metrics.Unit.frames, all_pairs=False)
+    rpe.process_data((ref, est))
+    return rpe
+
+
+def evaluate_trajectory(gt: Trajectory, est: Trajectory, *, max_time_diff: float = 0.02) -> dict:
+    """ATE (after SE(3) alignment, metres: rmse/mean/median/max) and RPE over one frame (rmse/mean, metres and
+    degrees, also per second of motion) of ``est`` against ``gt``, with the number of matched poses."""
+    ref, est_s = synchronize(gt, est, max_time_diff)
+    aligned, T_align = align(ref, est_s)
+    ate = _ape(ref, aligned)
+    rpe_t = _rpe(ref, est_s, metrics.PoseRelation.translation_part)
+    rpe_r = _rpe(ref, est_s, metrics.PoseRelation.rotation_angle_deg)
+    dt = float(np.median(np.diff(ref.timestamps)))
+    stat = metrics.StatisticsType
+    return {
+        "matched": int(ref.num_poses),
+        "gt_poses": len(gt),
+        "est_poses": len(est),
+        "ate_rmse_m": float(ate.get_statistic(stat.rmse)),
+        "ate_mean_m": float(ate.get_statistic(stat.mean)),
+        "ate_median_m": float(ate.get_statistic(stat.median)),
+        "ate_max_m": float(ate.get_statistic(stat.max)),
+        "rpe_trans_m": float(rpe_t.get_statistic(stat.rmse)),
+        "rpe_trans_mean_m": float(rpe_t.get_statistic(stat.mean)),
+        "rpe_rot_deg": float(rpe_r.get_statistic(stat.rmse)),
+        "rpe_rot_mean_deg": float(rpe_r.get_statistic(stat.mean)),
+        "rpe_trans_m_per_s": float(rpe_t.get_statistic(stat.rmse)) / dt if dt > 0 else float("nan"),
+        "rpe_rot_deg_per_s": float(rpe_r.get_statistic(stat.rmse)) / dt if dt > 0 else float("nan"),
+        "gt_path_length_m": float(ref.path_length),
+        "alignment": T_align.round(9).tolist(),
+    }
+
+
+def ate_without_alignment(gt: Trajectory, est: Trajectory, *, max_time_diff: float = 0.02) -> dict:
+    """ATE (rmse/mean/median/max, metres) of ``est`` taken as it is, in the ground truth's frame."""
+    ref, est_s = synchronize(gt, est, max_time_diff)
+    ate = _ape(ref, est_s)
+    stat = metrics.StatisticsType
+    return {
+        "matched": int(ref.num_poses),
+        "ate_rmse_m": float(ate.get_statistic(stat.rmse)),
+        "ate_mean_m": float(ate.get_statistic(stat.mean)),
+        "ate_median_m": float(ate.get_statistic(stat.median)),
+        "ate_max_m": float(ate.get_statistic(stat.max)),
+    }
+
+
+# --------------------------------------------------------------------------------------------------
+# Plot
+# --------------------------------------------------------------------------------------------------
+def plot_trajectories(path: str | Path, gt: Trajectory, estimates: dict[str, Trajectory], *,
+                      max_time_diff: float = 0.02, title: str = "") -> Path:
+    """PNG with the aligned trajectories seen from above (the ground truth's two largest-extent axes) and each
+    estimate's position error over time; written atomically."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    gt_clean = Trajectory(gt.timestamps, clean_poses(gt.poses, "ground-truth trajectory"), gt.names)
+    extent = np.ptp(gt_clean.positions, axis=0)
+    ax0, ax1 = sorted(np.argsort(extent)[-2:].tolist())
+    axis_names = "xyz"
+
+    fig = Figure(figsize=(13, 5.5), dpi=100)
+    FigureCanvasAgg(fig)
+    top, err = fig.add_subplot(1, 2, 1), fig.add_subplot(1, 2, 2)
+    t0 = gt_clean.timestamps[0]
+    top.plot(gt_clean.positions[:, ax0], gt_clean.positions[:, ax1], color="black", lw=2, label="ground truth")
+    for name, est in estimates.items():
+        ref, est_s = synchronize(gt_clean, est, max_time_diff)
+        aligned, _ = align(ref, est_s)
+        xyz = aligned.positions_xyz
+        errors = np.linalg.norm(xyz - ref.positions_xyz, axis=1)
+        rmse = float(np.sqrt(np.mean(errors**2)))
+        line, = top.plot(xyz[:, ax0], xyz[:, ax1], lw=1.2, label=f"{name} (ATE {100 * rmse:.2f} cm)")
+        err.plot(ref.timestamps - t0, 100 * errors, lw=1.2, color=line.get_color(), label=name)
+    top.set_xlabel(f"{axis_names[ax0]} (m)")
+    top.set_ylabel(f"{axis_names[ax1]} (m)")
+    top.set_aspect("equal", adjustable="datalim")
+    top.set_title("trajectories (aligned, SE(3))")
+    top.legend(fontsize=8)
+    err.set_xlabel("time (s)")
+    err.set_ylabel("position error (cm)")
+    err.set_title("absolute trajectory error")
+    err.grid(alpha=0.3)
+    if estimates:
+        err.legend(fontsize=8)
+    if title:
+        fig.suptitle(title)
+    fig.tight_layout()
+    buffer = io.BytesIO()
+    fig.savefig(buffer, format="png")
+    return write_bytes_atomic(path, buffer.getvalue())

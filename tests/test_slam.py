@@ -1,0 +1,188 @@
+"""The built-in RGB-D SLAM: PnP, short simulated sequences, pose-graph loop correction, relocalisation, bad input."""
+
+from __future__ import annotations
+
+import itertools
+
+import cv2
+import numpy as np
+import pytest
+
+from semmap.errors import ConfigError, DatasetError
+from semmap.poses.base import PoseTracker, estimate_trajectory
+from semmap.poses.slam import RgbdSlam, SlamConfig, se3
+from semmap.poses.slam.optimisation import optimise_pose_graph
+from semmap.poses.slam.pose_solver import PinholeModel, pnp_ransac, refine_pose
+from semmap.types import CameraIntrinsics, Frame
+
+CAM = PinholeModel(525.0, 525.0, 319.5, 239.5, 0.08 * 525.0)
+
+
+def _umeyama_ate(est: np.ndarray, gt: np.ndarray) -> float:
+    """ATE RMSE (m) after rigid alignment of estimated to true camera positions."""
+    src, dst = est[:, :3, 3], gt[:, :3, 3]
+    ms, md = src.mean(0), dst.mean(0)
+    U, _, Vt = np.linalg.svd((dst - md).T @ (src - ms))
+    S = np.diag([1.0, 1.0, np.sign(np.linalg.det(U @ Vt))])
+    R = U @ S @ Vt
+    aligned = (src - ms) @ R.T + md
+    return float(np.sqrt(((aligned - dst) ** 2).sum(1).mean()))
+
+
+@pytest.fixture(scope="module")
+def desk_frames() -> list[Frame]:
+    """The first 40 frames of the simulated desk sequence (rendered once per module)."""
+    from semmap.datasets.simulated import SimulatedDataset
+
+    ds = SimulatedDataset.default(scene_seed=0, trajectory="desk", frames=300)
+    return list(itertools.islice(iter(ds), 40))
+
+
+def _blank(frame: Frame, stamp: float) -> Frame:
+    return frame.with_(rgb=np.zeros_like(frame.rgb), depth=np.zeros_like(frame.depth), timestamp=stamp,
+                       name=f"blank{stamp:.3f}")
+
+
+# ------------------------------------------------------------------------------------------ PnP
+def test_pnp_ransac_and_refinement_recover_a_known_pose_despite_outliers():
+    rng = np.random.default_rng(0)
+    cv2.setRNGSeed(0)
+    T_cw = se3.exp_update(np.array([0.1, -0.05, 0.08, 0.3, -0.2, 0.5]))
+    pts_w = rng.uniform([-2, -1.5, 2], [2, 1.5, 5], (300, 3))
+    pts_w = se3.transform(se3.inverse(T_cw), pts_w)  # points in front of the camera
+    uv, ur = CAM.project(se3.transform(T_cw, pts_w))
+    uv = uv + rng.normal(0, 0.5, uv.shape)
+    ur = ur + rng.normal(0, 0.3, ur.shape)
+    outliers = rng.choice(300, 90, replace=False)
+    uv[outliers] = rng.uniform([0, 0], [640, 480], (90, 2))
+    ur[:40] = np.nan  # some keypoints without depth
+    found = pnp_ransac(pts_w, uv, CAM, None, 3.0, 200, seed=0)
+    assert found is not None
+    T0, inl = found
+    assert not inl[outliers].any() or inl[outliers].mean() < 0.1
+    T, ok = refine_pose(T0, pts_w[inl], uv[inl], ur[inl], np.ones(inl.sum()), CAM)
+    err = se3.inverse(T) @ T_cw
+    assert np.linalg.norm(err[:3, 3]) < 5e-3
+    assert np.degrees(se3.rotation_angle(err)) < 0.2
+    assert ok.mean() > 0.9
+
+
+def test_pnp_gives_up_on_too_few_points():
+    assert pnp_ransac(np.zeros((4, 3)), np.zeros((4, 2)), CAM, None, 3.0, 50) is None
+
+
+# ------------------------------------------------------------------------------------------ pose graph
+def test_pose_graph_with_a_loop_edge_removes_injected_drift():
+    n = 24
+    true = []
+    for k in range(n):  # a circle of radius 2 m, camera looking at the centre
+        a = 2 * np.pi * k / n
+        R = cv2.Rodrigues(np.array([0.0, -a, 0.0]))[0]
+        true.append(se3.orthonormalise(np.block([[R, np.array([[2 * np.sin(a)], [0.0], [2 * np.cos(a)]])],
+                                                 [np.zeros((1, 3)), np.ones((1, 1))]])))
+    true = np.array(true)
+    drift = se3.exp_update(np.array([0.0, 0.004, 0.0, 0.01, 0.0, 0.0]))  # per-step bias
+    odo = [se3.inverse(true[k]) @ true[k + 1] @ drift for k in range(n - 1)]
+    est = [true[0]]
+    for step in odo:
+        est.append(est[-1] @ step)
+    est = np.array(est)
+    before = np.linalg.norm(est[-1][:3, 3] - true[-1][:3, 3])
+    edges = [(k, k + 1, odo[k], 1.0) for k in range(n - 1)]
+    edges.append((0, n - 1, se3.inverse(true[0]) @ true[n - 1], 1.0))
+    fixed = optimise_pose_graph(est, edges, fixed=0)
+    after = np.linalg.norm(fixed[-1][:3, 3] - true[-1][:3, 3])
+    assert before > 0.15
+    assert after < 0.1 * before
+    assert _umeyama_ate(fixed, true) < 0.75 * _umeyama_ate(est, true)
+
+
+# ------------------------------------------------------------------------------------------ sequences
+def test_short_simulated_sequence_is_tracked_accurately(desk_frames):
+    slam = RgbdSlam(SlamConfig(loop_closure=True))
+    assert isinstance(slam, PoseTracker) and slam.name == "slam"
+    first = slam.track(desk_frames[0])
+    assert np.allclose(first, np.eye(4))
+    for f in desk_frames[1:]:
+        T = slam.track(f)
+        assert T is not None and T.shape == (4, 4) and T.dtype == np.float64
+    traj = slam.trajectory()
+    assert traj.names == tuple(f.name for f in desk_frames)
+    assert np.allclose(traj.timestamps, [f.timestamp for f in desk_frames])
+    assert np.allclose(traj.poses[0], np.eye(4), atol=1e-9)
+    gt = np.array([f.T_world_cam for f in desk_frames])
+    assert _umeyama_ate(traj.poses, gt) < 0.01
+    assert slam.stats.keyframes >= 2 and slam.stats.lost == 0
+
+
+def test_relocalises_after_blank_frames(desk_frames):
+    slam = RgbdSlam(SlamConfig(loop_closure=False))
+    for f in desk_frames[:20]:
+        slam.track(f)
+    stamp = desk_frames[19].timestamp
+    for k in range(3):  # the sensor goes blind: tracking is lost, no crash
+        assert slam.track(_blank(desk_frames[19], stamp + 0.001 * (k + 1))) is None
+    # ... and comes back some frames later, elsewhere along the path
+    poses = [slam.track(f) for f in desk_frames[26:]]
+    assert all(T is not None for T in poses)
+    assert slam.stats.relocalisations >= 1 and slam.stats.lost == 3
+    traj = slam.trajectory()
+    assert len(traj) == 20 + len(desk_frames) - 26
+    by_name = {f.name: f.T_world_cam for f in desk_frames}
+    gt = np.array([by_name[n] for n in traj.names])
+    assert _umeyama_ate(traj.poses, gt) < 0.02
+
+
+def test_estimate_trajectory_runs_the_tracker(desk_frames):
+    traj = estimate_trajectory(RgbdSlam(), desk_frames[:8])
+    assert len(traj) == 8
+
+
+# ------------------------------------------------------------------------------------------ bad input
+def test_frames_without_depth_or_texture_do_not_crash(desk_frames):
+    f0 = desk_frames[0]
+    slam = RgbdSlam()
+    assert slam.track(f0.with_(depth=np.zeros_like(f0.depth))) is None  # cannot start a map without depth
+    assert slam.track(_blank(f0, 0.01)) is None
+    nan_depth = f0.depth.copy()
+    nan_depth[:, :200] = np.nan
+    assert slam.track(f0.with_(depth=nan_depth, timestamp=0.02)) is not None  # starts the map here
+    # once there is a map, a frame without depth is still tracked from its pixels (no new landmarks, though)
+    assert slam.track(desk_frames[1].with_(depth=np.zeros_like(f0.depth), timestamp=0.05)) is not None
+    assert len(slam.trajectory()) == 2
+    assert len(RgbdSlam().trajectory()) == 0
+
+
+def test_wrong_input_raises_clear_errors(desk_frames):
+    slam = RgbdSlam()
+    with pytest.raises(DatasetError, match="Frame"):
+        slam.track(np.zeros((480, 640, 3)))  # type: ignore[arg-type]
+    slam.track(desk_frames[0])
+    with pytest.raises(DatasetError, match="timestamp"):
+        slam.track(desk_frames[0])
+    other = CameraIntrinsics(640, 480, 500.0, 500.0, 320.0, 240.0)
+    with pytest.raises(DatasetError, match="intrinsics"):
+        slam.track(desk_frames[1].with_(intrinsics=other))
+    with pytest.raises(ConfigError):
+        RgbdSlam("fast")  # type: ignore[arg-type]
+    with pytest.raises(ConfigError):
+        SlamConfig(n_features=0)
+    with pytest.raises(ConfigError):
+        SlamConfig(min_depth=5.0, max_depth=1.0)
+    with pytest.raises(ConfigError):
+        SlamConfig(match_ratio=1.5)
+
+
+# ------------------------------------------------------------------------------------------ real data
+def test_seven_scenes_start_is_tracked(seven_scenes):
+    from semmap.datasets import open_dataset
+
+    frames = list(open_dataset(seven_scenes, max_frames=60))
+    slam = RgbdSlam()
+    for f in frames:
+        slam.track(f)
+    traj = slam.trajectory()
+    assert len(traj) >= 55
+    by_name = {f.name: f.T_world_cam for f in frames}
+    gt = np.array([by_name[n] for n in traj.names])
+    assert _umeyama_ate(traj.poses, gt) < 0.05

@@ -1,0 +1,276 @@
+"""Trajectories: SE(3) algebra, TUM trajectory files, pose lookup by time, ATE/RPE with evo, dense odometry."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from semmap.errors import ConfigError, FormatError
+from semmap.eval.trajectory import ate_without_alignment, evaluate_trajectory, plot_trajectories
+from semmap.io.trajectory import clean_poses, orthonormalize, read_trajectory, write_trajectory
+from semmap.poses.file import TrajectoryPoses, trajectory_of_dataset
+from semmap.poses.track import make_tracker
+from semmap.types import (
+    Frame,
+    Trajectory,
+    interpolate_pose,
+    invert_pose,
+    make_pose,
+    quat_xyzw_to_rot,
+    rot_to_quat_xyzw,
+)
+
+unit = st.floats(-1.0, 1.0, allow_nan=False)
+quats = st.tuples(unit, unit, unit, unit).filter(lambda q: np.linalg.norm(q) > 0.1)
+vectors = st.tuples(*(st.floats(-10.0, 10.0, allow_nan=False),) * 3)
+
+
+def _pose(q, t) -> np.ndarray:
+    return make_pose(quat_xyzw_to_rot(q), t)
+
+
+def _random_rotation(rng: np.random.Generator) -> np.ndarray:
+    return quat_xyzw_to_rot(rng.normal(size=4))
+
+
+def _trajectory(n: int = 60, seed: int = 0) -> Trajectory:
+    """A smooth, non-degenerate camera path (a wobbly circle with turning camera), 30 Hz."""
+    rng = np.random.default_rng(seed)
+    t = np.arange(n) / 30.0
+    poses = []
+    for k, s in enumerate(t):
+        yaw = 0.8 * s + 0.05 * np.sin(3 * s + k * 0.01)
+        R = quat_xyzw_to_rot([0.1 * np.sin(s), np.sin(yaw / 2), 0.05, np.cos(yaw / 2)])
+        pos = [np.cos(s), np.sin(s), 0.3 * np.sin(2 * s)] + 0.001 * rng.normal(size=3)
+        poses.append(make_pose(R, pos))
+    return Trajectory(t, np.array(poses), tuple(f"f{k}" for k in range(n)))
+
+
+# --------------------------------------------------------------------------------------------------
+# SE(3) algebra
+# --------------------------------------------------------------------------------------------------
+@settings(max_examples=60, deadline=None)
+@given(quats, vectors, quats, vectors)
+def test_invert_compose_identity(q1, t1, q2, t2):
+    A, B = _pose(q1, t1), _pose(q2, t2)
+    assert np.allclose(A @ invert_pose(A), np.eye(4), atol=1e-9)
+    assert np.allclose(invert_pose(A @ B), invert_pose(B) @ invert_pose(A), atol=1e-9)
+
+
+@settings(max_examples=60, deadline=None)
+@given(quats)
+def test_quaternion_round_trip(q):
+    q = np.asarray(q) / np.linalg.norm(q)
+    back = rot_to_quat_xyzw(quat_xyzw_to_rot(q))
+    assert min(np.abs(back - q).max(), np.abs(back + q).max()) < 1e-9
+
+
+@settings(max_examples=60, deadline=None)
+@given(quats, vectors, quats, vectors, st.floats(0.0, 1.0))
+def test_interpolation_endpoints_and_rigidity(q1, t1, q2, t2, alpha):
+    A, B = _pose(q1, t1), _pose(q2, t2)
+    assert np.allclose(interpolate_pose(A, B, 0.0), A, atol=1e-9)
+    assert np.allclose(interpolate_pose(A, B, 1.0), B, atol=1e-9)
+    M = interpolate_pose(A, B, alpha)
+    assert np.allclose(M[:3, :3] @ M[:3, :3].T, np.eye(3), atol=1e-9)
+    assert np.allclose(M[:3, 3], (1 - alpha) * A[:3, 3] + alpha * B[:3, 3])
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.integers(0, 2**32 - 1), st.floats(1e-6, 5e-3))
+def test_orthonormalize_gives_nearest_rotation(seed, eps):
+    rng = np.random.default_rng(seed)
+    R = _random_rotation(rng)
+    noisy = R + eps * rng.normal(size=(3, 3))
+    fixed = orthonormalize(noisy)
+    assert np.allclose(fixed @ fixed.T, np.eye(3), atol=1e-12)
+    assert np.linalg.det(fixed) > 0
+    assert np.abs(fixed - R).max() < 10 * eps
+
+
+# --------------------------------------------------------------------------------------------------
+# TUM trajectory files
+# --------------------------------------------------------------------------------------------------
+def test_tum_round_trip(tmp_path):
+    traj = _trajectory(40)
+    path = write_trajectory(tmp_path / "sub" / "traj.txt", traj)
+    back = read_trajectory(path)
+    assert np.allclose(back.timestamps, traj.timestamps, atol=1e-9)
+    assert np.allclose(back.poses, traj.poses, atol=1e-7)
+    assert path.read_text().startswith("#")
+    assert not list(path.parent.glob(".*.tmp"))
+
+
+@pytest.mark.parametrize(("text", "problem"), [
+    ("", "no poses"),
+    ("# only a comment\n\n", "no poses"),
+    ("0.0 1 2 3 0 0 0 1\n1.0 1 2 3 0 0 1\n", ":2: expected 8 values"),
+    ("0.0 1 2 x 0 0 0 1\n", ":1: 'x' is not a number"),
+    ("0.0 1 2 3 0 0 0 1\n1.0 1 2 3 0 0 0 1\n0.5 1 2 3 0 0 0 1\n", ":3: timestamp"),
+    ("0.0 1 2 3 0 0 0 1\n0.0 1 2 3 0 0 0 1\n", ":2: timestamp"),
+    ("0.0 1 2 3 0 0 0 0\n", ":1: quaternion is zero"),
+    ("0.0 1 2 3 0 0 0 2\n", ":1: quaternion norm"),
+    ("0.0 1 2 3 0 0 0 nan\n", ":1: row has non-finite"),
+])
+def test_bad_trajectory_files(tmp_path, text, problem):
+    path = tmp_path / "bad.txt"
+    path.write_text(text)
+    with pytest.raises(FormatError, match=r"bad\.txt") as info:
+        read_trajectory(path)
+    assert problem in str(info.value)
+
+
+def test_missing_trajectory_file(tmp_path):
+    with pytest.raises(FormatError, match="does not exist"):
+        read_trajectory(tmp_path / "nope.txt")
+
+
+def test_rotation_far_from_orthonormal_is_an_error():
+    poses = _trajectory(5).poses.copy()
+    poses[3, :3, :3] *= 1.05
+    with pytest.raises(FormatError, match=r"my-gt: pose 3 .*not orthonormal"):
+        clean_poses(poses, "my-gt")
+    gt = Trajectory(np.arange(5.0), poses)
+    with pytest.raises(FormatError, match="not orthonormal"):
+        evaluate_trajectory(gt, _trajectory(5))
+
+
+# --------------------------------------------------------------------------------------------------
+# ATE / RPE
+# --------------------------------------------------------------------------------------------------
+def test_ate_of_rigid_perturbation_is_zero_after_alignment():
+    gt = _trajectory(60)
+    rng = np.random.default_rng(3)
+    G = make_pose(_random_rotation(rng), rng.normal(size=3))
+    est = Trajectory(gt.timestamps, np.array([G @ T for T in gt.poses]))
+    result = evaluate_trajectory(gt, est)
+    assert result["matched"] == 60
+    assert result["ate_rmse_m"] < 1e-6
+    assert result["rpe_trans_m"] < 1e-6
+    assert result["rpe_rot_deg"] < 1e-4
+    assert ate_without_alignment(gt, est)["ate_rmse_m"] > 0.1
+
+
+def test_ate_without_alignment_equals_translation_offset():
+    gt = _trajectory(30)
+    offset = np.array([0.03, -0.04, 0.0])  # 5 cm
+    est = Trajectory(gt.timestamps + 0.004, gt.poses.copy())
+    est.poses[:, :3, 3] += offset
+    raw = ate_without_alignment(gt, est)
+    assert raw["ate_rmse_m"] == pytest.approx(0.05, abs=1e-9)
+    assert raw["ate_max_m"] == pytest.approx(0.05, abs=1e-9)
+    assert evaluate_trajectory(gt, est)["ate_rmse_m"] < 1e-9
+
+
+def test_rpe_of_identical_trajectories_is_zero():
+    gt = _trajectory(30)
+    result = evaluate_trajectory(gt, gt)
+    assert result["rpe_trans_m"] == pytest.approx(0.0, abs=1e-12)
+    assert result["rpe_rot_deg"] == pytest.approx(0.0, abs=1e-5)
+    assert result["ate_rmse_m"] == pytest.approx(0.0, abs=1e-9)
+
+
+def test_slightly_non_orthonormal_ground_truth_is_accepted():
+    gt = _trajectory(30)
+    poses = gt.poses.copy()
+    poses[:, :3, :3] += 3e-4 * np.random.default_rng(1).uniform(-1, 1, size=(30, 3, 3))
+    noisy_gt = Trajectory(gt.timestamps, poses)
+    assert evaluate_trajectory(noisy_gt, gt)["ate_rmse_m"] < 1e-3
+
+
+def test_too_few_matched_poses_is_a_clear_error():
+    gt = _trajectory(30)
+    late = Trajectory(gt.timestamps + 100.0, gt.poses)
+    with pytest.raises(ConfigError, match="only 0 estimated poses match"):
+        evaluate_trajectory(gt, late)
+
+
+def test_plot_trajectories_writes_png(tmp_path):
+    gt = _trajectory(40)
+    est = Trajectory(gt.timestamps, gt.poses.copy())
+    est.poses[:, :3, 3] += 0.01 * np.sin(np.arange(40))[:, None]
+    path = plot_trajectories(tmp_path / "plot.png", gt, {"wobbly": est}, title="test")
+    assert path.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+# --------------------------------------------------------------------------------------------------
+# Pose sources
+# --------------------------------------------------------------------------------------------------
+def test_file_poses_interpolate_between_two_poses(tmp_path):
+    A = make_pose(np.eye(3), [0.0, 0.0, 0.0])
+    B = make_pose(quat_xyzw_to_rot([0, 0, np.sin(np.pi / 8), np.cos(np.pi / 8)]), [1.0, 2.0, 0.0])  # 45° yaw
+    path = write_trajectory(tmp_path / "poses.txt", Trajectory(np.array([10.0, 10.2]), np.stack([A, B])))
+    source = TrajectoryPoses.from_file(path, max_time_diff=0.02)
+    mid = source.lookup(10.05).pose
+    assert np.allclose(mid[:3, 3], [0.25, 0.5, 0.0], atol=1e-6)
+    assert np.allclose(mid[:3, :3], quat_xyzw_to_rot([0, 0, np.sin(np.pi / 32), np.cos(np.pi / 32)]), atol=1e-6)
+    assert np.allclose(source.lookup(10.21).pose, B, atol=1e-6)  # clamped to the end within max_time_diff
+    outside = source.lookup(10.5)
+    assert outside.pose is None and "outside" in outside.reason and "poses.txt" in outside.reason
+
+
+def test_file_poses_refuse_to_bridge_a_gap():
+    traj = Trajectory(np.array([0.0, 0.1, 5.0]), np.stack([np.eye(4)] * 3))
+    source = TrajectoryPoses(traj, max_gap=1.0)
+    assert source.lookup(0.05).pose is not None
+    gap = source.lookup(2.0)
+    assert gap.pose is None and "gap" in gap.reason
+    assert source.lookup(4.99).pose is not None
+
+
+def _frame(index: int, pose: np.ndarray | None) -> Frame:
+    from semmap.types import CameraIntrinsics
+
+    cam = CameraIntrinsics(4, 3, 2.0, 2.0, 2.0, 1.5)
+    return Frame(index, index / 30, np.zeros((3, 4, 3), np.uint8), np.zeros((3, 4), np.float32), cam,
+                 T_world_cam=pose, name=f"f{index}")
+
+
+def test_trajectory_of_dataset_skips_frames_without_pose():
+    frames = [_frame(0, np.eye(4)), _frame(1, None), _frame(2, make_pose(np.eye(3), [1, 0, 0]))]
+    traj = trajectory_of_dataset(frames)
+    assert traj.names == ("f0", "f2")
+    assert np.allclose(traj.timestamps, [0.0, 2 / 30])
+
+
+def test_unknown_tracker_is_a_config_error():
+    with pytest.raises(ConfigError, match="unknown pose method"):
+        make_tracker("magic")
+
+
+def test_dense_odometry_tracks_a_short_simulated_sequence():
+    from semmap.datasets.simulated import DEFAULT_INTRINSICS, SimulatedDataset
+    from semmap.poses.odometry import DenseOdometry
+
+    sim = SimulatedDataset.default(scene_seed=0, trajectory="desk", frames=20)
+    small = SimulatedDataset(sim.scene, sim.poses, seed=0, intrinsics=DEFAULT_INTRINSICS.scaled(0.5))  # fast
+    frames = list(small)
+    gt = trajectory_of_dataset(frames)
+    tracker = DenseOdometry()
+    for frame in frames:
+        tracker.track(frame)
+    est = tracker.trajectory()
+    assert len(est) == 20 and est.names == gt.names
+    assert np.allclose(est.poses[0], np.eye(4))
+    result = evaluate_trajectory(gt, est)
+    assert result["ate_rmse_m"] < 0.01
+    assert result["rpe_rot_deg"] < 0.2
+    assert not tracker.fallbacks
+
+    # A frame without valid depth cannot be aligned: it falls back to the motion model and is flagged.
+    broken = [f.with_(depth=np.zeros_like(f.depth)) if f.index == 10 else f for f in frames]
+    tracker = DenseOdometry()
+    for frame in broken:
+        tracker.track(frame)
+    assert [r.name for r in tracker.fallbacks] == [frames[10].name]
+    assert evaluate_trajectory(gt, tracker.trajectory())["ate_rmse_m"] < 0.02
+
+
+def test_seven_scenes_ground_truth_evaluates(seven_scenes):
+    from semmap.datasets import open_dataset
+
+    gt = trajectory_of_dataset(open_dataset(seven_scenes, max_frames=20))
+    result = evaluate_trajectory(gt, gt)
+    assert result["matched"] == 20 and result["ate_rmse_m"] < 1e-6
