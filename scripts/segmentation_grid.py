@@ -21,6 +21,7 @@ import numpy as np
 
 from semmap.datasets import open_dataset
 from semmap.io.atomic import write_text_atomic
+from semmap.perception.network import parse_input_size
 from semmap.perception.registry import make_segmenter
 from semmap.viz.preview import write_png
 
@@ -52,7 +53,8 @@ def main() -> None:
     parser.add_argument("--segmenter", default="espnetv2")
     parser.add_argument("--weights", type=Path,
                         default=SHARED / "weights" / "espnetv2" / "espnetv2_s_2.0_pascal_384x384.pth")
-    parser.add_argument("--input-size", type=int, default=None, help="network short side (default: the model's)")
+    parser.add_argument("--input-size", type=parse_input_size, default=None,
+                        help="network input: short side N or WxH (default: the segmenter's)")
     parser.add_argument("--out", type=Path, default=ROOT / "docs" / "images" / "espnetv2_7scenes.png")
     args = parser.parse_args()
 

@@ -140,6 +140,23 @@ def test_output_shape_non_square(model_s1: ESPNetv2Seg) -> None:
     assert out.shape == (1, 21, 200, 264)
 
 
+def test_half_resolution_logits_give_the_same_segmentation(model_s1: ESPNetv2Seg) -> None:
+    """Skipping the network's last upsampling (the segmenter samples once, to the image) changes no decision."""
+    from semmap.perception.network import NetworkInput, NetworkSegmenter
+    from semmap.perception.voc import PASCAL_VOC
+
+    rgb = np.random.default_rng(0).integers(0, 256, (120, 160, 3), dtype=np.uint8)
+    half = ESPNetv2Seg(model_s1.s, channels=model_s1.channels, full_resolution=False).eval()
+    half.load_state_dict(model_s1.state_dict())
+    with torch.no_grad():
+        assert half(torch.zeros(1, 3, 96, 128)).shape == (1, 21, 48, 64)
+    net_input = NetworkInput(size=(128, 96))
+    full_top = NetworkSegmenter(model_s1, PASCAL_VOC, name="full", net_input=net_input).predict(rgb)
+    half_top = NetworkSegmenter(half, PASCAL_VOC, name="half", net_input=net_input).predict(rgb)
+    assert (full_top.labels[..., 0] == half_top.labels[..., 0]).mean() > 0.97
+    np.testing.assert_allclose(full_top.probs[..., 0], half_top.probs[..., 0], atol=0.1)
+
+
 def test_real_frame_finds_kitchen_furniture(model_s1: ESPNetv2Seg) -> None:
     cv2 = pytest.importorskip("cv2")
     frame = FRAMES / "frame-000400.color.jpg"

@@ -72,6 +72,26 @@ def test_ot_leaves_carry_log_odds_and_class_colours(semantic_map, tmp_path):
     assert checked == len(vox)
 
 
+def test_unclassified_voxels_show_grey_in_class_mode_and_colour_in_rgb_mode(tmp_path):
+    """Background (class 0) voxels keep their brightness but not their hue, so class colours stand out."""
+    m = SemanticOctoMap(0.1, label_set=LabelSet.generic(3))
+    pts = np.array([[0.05, 0.05, 1.05], [0.55, 0.05, 1.05]])
+    sem = TopKProbs(np.array([[0, EMPTY, EMPTY], [2, EMPTY, EMPTY]], np.uint16),
+                    np.array([[0.9, 0, 0], [0.9, 0, 0]], np.float32))
+    red = np.array([[200, 10, 10], [200, 10, 10]], np.uint8)
+    m.insert_points(pts, [0.0, 0.0, 0.0], colors=red, semantics=sem)
+    for mode in ("class", "rgb"):
+        write_ot(tmp_path / f"{mode}.ot", m.tree(color_mode=mode), m.resolution)
+        ot = pyoctomap.ColorOcTree(0.1).read(str(tmp_path / f"{mode}.ot"))
+        background, classified = (np.array(ot.search(p).getColor()) for p in pts)
+        if mode == "class":
+            assert background[0] == background[1] == background[2] and 64 <= background[0] <= 192
+            np.testing.assert_array_equal(classified, m.label_set.colors[2])
+        else:
+            np.testing.assert_array_equal(background, red[0])
+            np.testing.assert_array_equal(classified, red[0])
+
+
 def test_our_reader_reads_what_pyoctomap_writes(tmp_path):
     rng = np.random.default_rng(1)
     tree = pyoctomap.ColorOcTree(0.1)

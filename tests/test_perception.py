@@ -70,6 +70,24 @@ def test_onnx_backend_matches_torch(rgb, tmp_path):
     assert len(list(tmp_path.glob("*.onnx"))) == 1
 
 
+@pytest.mark.parametrize("align_corners", [False, True])
+def test_fused_resample_matches_torch_softmax_then_bilinear(align_corners):
+    """Top-k from the numba kernel equals torch: softmax on the logit grid, bilinear resize, topk."""
+    from semmap.perception._resample_kernels import resample_topk, sampling_map, softmax_channels_last
+
+    logits = np.random.default_rng(1).normal(0, 3, (7, 9, 13)).astype(np.float32)
+    out_h, out_w = (9 * 3, 13 * 3) if not align_corners else (17, 25)  # align_corners: image = network input
+    in_h, in_w = (9, 13) if not align_corners else (17, 25)
+    sy, oy = sampling_map(out_h, in_h, 9, align_corners)
+    sx, ox = sampling_map(out_w, in_w, 13, align_corners)
+    labels, probs = resample_topk(softmax_channels_last(logits), out_h, out_w, sy, oy, sx, ox, 3, EMPTY_LABEL)
+    ref = torch.nn.functional.interpolate(torch.softmax(torch.from_numpy(logits)[None], 1), size=(out_h, out_w),
+                                          mode="bilinear", align_corners=align_corners)
+    ref_p, ref_i = torch.topk(ref, 3, dim=1)
+    np.testing.assert_allclose(probs, ref_p[0].permute(1, 2, 0).numpy(), atol=1e-6)
+    assert (labels == ref_i[0].permute(1, 2, 0).numpy()).mean() > 0.999  # ties may order differently
+
+
 def test_input_keeps_the_aspect_ratio_at_the_short_side():
     assert NetworkInput().size_for(640, 480) == (512, 384)
     assert NetworkInput(short_side=200).size_for(480, 640) == (208, 272)

@@ -100,8 +100,9 @@ def run(
                                             rich_help_panel=_SEMANTICS)] = False,
     batch_size: Annotated[int, typer.Option(help="frames per network batch", rich_help_panel=_SEMANTICS)] = 1,
     backend: Annotated[str, typer.Option(help="torch | onnx: network runtime", rich_help_panel=_SEMANTICS)] = "torch",
-    input_size: Annotated[str | None, typer.Option(help="network input: short side N keeping the aspect ratio "
-                                                   "(default 384), or WIDTHxHEIGHT", rich_help_panel=_SEMANTICS)
+    input_size: Annotated[str | None, typer.Option(help="network input: WIDTHxHEIGHT, or a short side N "
+                                                   "keeping the aspect ratio (espnetv2 default: 320)",
+                                                   rich_help_panel=_SEMANTICS)
                           ] = None,
     poses: Annotated[str, typer.Option(help="gt (the dataset's) | slam | odometry | PATH of a TUM trajectory",
                                        rich_help_panel=_POSES)] = "gt",
@@ -171,15 +172,9 @@ def _segmenter(config):
 
 def _size(text: str | None) -> tuple[int, int] | int | None:
     """``"512x384"`` -> (512, 384); ``"384"`` -> 384 (the short side)."""
-    if text is None:
-        return None
-    try:
-        if "x" not in text.lower():
-            return int(text)
-        w, h = (int(v) for v in text.lower().split("x"))
-    except ValueError:
-        raise SemmapError(f"--input-size must be a short side like 384 or a size like 512x384, got {text!r}") from None
-    return w, h
+    from semmap.perception.network import parse_input_size
+
+    return parse_input_size(text)
 
 
 def _validated(make):

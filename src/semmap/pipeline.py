@@ -34,7 +34,7 @@ from semmap.maps.semantic_octomap import (
 )
 from semmap.perception.base import Segmenter
 from semmap.perception.schedule import Scheduler, SegmentationSchedule, with_semantics
-from semmap.types import Frame, LabelSet, TopKProbs, Trajectory
+from semmap.types import Frame, LabelSet, TopKProbs, Trajectory, muted_grey
 from semmap.viz.preview import CEILING_MARGIN, perspective, side_by_side, top_down, up_vector, write_png
 
 log = logging.getLogger("semmap")
@@ -374,7 +374,7 @@ class Pipeline:
 
 
 def render_preview(octomap: SemanticOctoMap, poses: list[np.ndarray]) -> np.ndarray:
-    """Top-down views of the occupied voxels: class colours (where classified) and observed RGB."""
+    """Top-down views of the occupied voxels: class colours (grey where unclassified) and observed RGB."""
     vox = octomap.voxels()
     up = up_vector(poses)
     cam_h = max(float(np.asarray(T)[:3, 3] @ up) for T in poses) if poses else None
@@ -383,8 +383,8 @@ def render_preview(octomap: SemanticOctoMap, poses: list[np.ndarray]) -> np.ndar
     titles = ["colour (top-down)"]
     if octomap.label_set is not None:
         top = vox.labels[:, 0]
-        ok = (top < len(octomap.label_set)) & (top != 0)  # no class, or unknown / background: observed colour
-        class_colors = vox.colors.copy()
+        ok = (top < len(octomap.label_set)) & (top != 0)  # no class, or unknown / background: observed grey
+        class_colors = muted_grey(vox.colors)
         class_colors[ok] = octomap.label_set.colors[top[ok]]
         views.insert(0, top_down(vox.centers, class_colors, octomap.resolution, up=up, max_height=cut))
         titles.insert(0, "classes (top-down)")

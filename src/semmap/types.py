@@ -76,6 +76,14 @@ class CameraIntrinsics:
 # --------------------------------------------------------------------------------------------------
 # Labels
 # --------------------------------------------------------------------------------------------------
+def muted_grey(rgb: np.ndarray) -> np.ndarray:
+    """Grey of (N, 3) uint8 colours (luminance squeezed into 64..192), for voxels without a real class in
+    class-coloured views: the scene stays readable while only classified things show colour."""
+    lum = np.asarray(rgb, np.float32) @ np.array([0.299, 0.587, 0.114], np.float32)
+    grey = (64.0 + lum * (128.0 / 255.0)).astype(np.uint8)
+    return np.repeat(grey[:, None], 3, axis=1)
+
+
 @dataclass(frozen=True)
 class LabelSet:
     """Class names and display colours, indexed by class id; id 0 is "unknown / void".

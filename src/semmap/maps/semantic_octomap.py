@@ -25,7 +25,7 @@ from semmap.maps import _octree_kernels as kern
 from semmap.maps._coarsen import coarsen_cells
 from semmap.maps._keys import EMPTY_KEY
 from semmap.maps.octree_tree import UNSET_COLOR, OctreeNodes, build_tree
-from semmap.types import EMPTY_LABEL, LabelSet, TopKProbs
+from semmap.types import EMPTY_LABEL, LabelSet, TopKProbs, muted_grey
 
 log = logging.getLogger("semmap")
 
@@ -498,9 +498,9 @@ class SemanticOctoMap:
         return np.asarray(logodds_values) >= self._thr
 
     def leaf_colors(self, cells: CellArrays, *, color_mode: str = "class") -> np.ndarray:
-        """Colour each cell shows in an OctoMap file: free cells unset (white); occupied cells their top class
-        colour (``class``, when a label set is known and the top class is a real one, not 0 = unknown / void
-        / background) or else their mean observed colour."""
+        """Colour each cell shows in an OctoMap file: free cells unset (white); occupied cells their mean
+        observed colour (``rgb``) or, in ``class`` mode with a label set, their top class colour when that is
+        a real class, else (0 = unknown / void / background, or no semantics) their observed colour in grey."""
         if color_mode not in ("class", "rgb"):
             raise ConfigError(f"color mode must be 'class' or 'rgb', got {color_mode!r}")
         n = cells.packed.shape[0]
@@ -518,6 +518,7 @@ class SemanticOctoMap:
         if color_mode == "class" and self.label_set is not None:
             top = cells.sem_labels[rows, 0]
             labelled = (top < len(self.label_set)) & (top != 0)
+            out[occ[colored]] = muted_grey(mean)
             out[occ[labelled]] = self.label_set.colors[top[labelled]]
         return out
 

@@ -309,12 +309,21 @@ def _bn_prelu(channels: int) -> nn.Sequential:
 
 
 class ESPNetv2Seg(nn.Module):
-    """ESPNetv2 segmentation network: (N, 3, H, W) ImageNet-normalised RGB -> (N, classes, H, W) logits."""
+    """ESPNetv2 segmentation network: (N, 3, H, W) ImageNet-normalised RGB -> (N, classes, H, W) logits.
+
+    With ``full_resolution=False`` the last bilinear upsampling is left out and the logits come at half the input
+    resolution; :class:`~semmap.perception.network.NetworkSegmenter` then samples them straight to the image
+    size, which is cheaper than upsampling twice.  Either way the logit grid spans the input corner to corner.
+    """
+
+    #: the logit grid's first and last samples sit on the input's first and last pixels
+    logits_align_corners = True
 
     def __init__(self, s: float = 2.0, num_classes: int = NUM_CLASSES,
-                 channels: tuple[int, int, int, int] | None = None) -> None:
+                 channels: tuple[int, int, int, int] | None = None, full_resolution: bool = True) -> None:
         super().__init__()
         self.s = s
+        self.full_resolution = full_resolution
         self.num_classes = num_classes
         self.channels = tuple(channels) if channels is not None else espnetv2_channels(s)
         c1, c2, c3, c4 = self.channels
@@ -347,6 +356,8 @@ class ESPNetv2Seg(nn.Module):
         y = self.bu_dec_l3(y)
         y = self.bu_br_l4(self._up(y, l1) + self.merge_enc_dec_l4(l1))
         y = self.bu_dec_l4(y)
+        if not self.full_resolution:
+            return y
         return F.interpolate(y, x.shape[-2:], mode="bilinear", align_corners=True)
 
 
@@ -384,8 +395,10 @@ def _few(names: list[str], n: int = 5) -> str:
     return ", ".join(names[:n]) + more
 
 
-def load_espnetv2(weights_path: str | Path, num_classes: int | None = None) -> ESPNetv2Seg:
-    """Build ESPNetv2 for a state-dict file, load it strictly and return it in eval mode on the CPU."""
+def load_espnetv2(weights_path: str | Path, num_classes: int | None = None,
+                  full_resolution: bool = True) -> ESPNetv2Seg:
+    """Build ESPNetv2 for a state-dict file, load it strictly and return it in eval mode on the CPU
+    (``full_resolution=False``: logits at half the input resolution, see :class:`ESPNetv2Seg`)."""
     path = Path(weights_path)
     if not path.is_file():
         raise FormatError(f"{path}: ESPNetv2 weights file not found")
@@ -403,7 +416,7 @@ def load_espnetv2(weights_path: str | Path, num_classes: int | None = None) -> E
         head = sd.get("bu_dec_l4.merge_layer.3.bias")
         num_classes = int(head.numel()) if head is not None else NUM_CLASSES
     try:
-        model = ESPNetv2Seg(s, num_classes, channels=_channels_from_state_dict(sd))
+        model = ESPNetv2Seg(s, num_classes, channels=_channels_from_state_dict(sd), full_resolution=full_resolution)
     except ValueError as exc:
         raise FormatError(f"{path}: state dict does not describe a buildable ESPNetv2 ({exc})") from exc
     expected = model.state_dict()

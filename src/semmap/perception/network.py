@@ -69,6 +69,19 @@ class NetworkInput:
         return out
 
 
+def parse_input_size(text: str | None) -> tuple[int, int] | int | None:
+    """Network input from the command line: ``"512x384"`` -> (512, 384); ``"384"`` -> 384 (the short side)."""
+    if text is None:
+        return None
+    try:
+        if "x" not in text.lower():
+            return int(text)
+        w, h = (int(v) for v in text.lower().split("x"))
+    except ValueError:
+        raise ConfigError(f"--input-size must be a short side like 384 or a size like 512x384, got {text!r}") from None
+    return w, h
+
+
 class NetworkSegmenter:
     """:class:`~semmap.perception.base.Segmenter` around a network predicting logits over ``label_set``."""
 
@@ -111,20 +124,28 @@ class NetworkSegmenter:
         with self._torch.inference_mode():
             return self._model(self._torch.from_numpy(x)).numpy()
 
-    def _probabilities(self, rgbs: Sequence[np.ndarray]):
-        """(N, K, H, W) torch softmax probabilities at the images' own resolution."""
-        torch = self._torch
+    def _top_classes(self, rgbs: Sequence[np.ndarray], k: int) -> list[tuple[np.ndarray, np.ndarray]]:
+        """Per image, (labels, probs) of its ``k`` most likely classes at the image's own resolution.
+
+        Softmax runs on the network's output grid; probabilities are then sampled bilinearly at each image pixel
+        through the exact resize geometry (image -> network input -> logit grid), in one numba pass.
+        """
+        from semmap.perception._resample_kernels import resample_topk, sampling_map, softmax_channels_last
+
         h, w = rgbs[0].shape[:2]
         if any(r.shape[:2] != (h, w) for r in rgbs):
             raise ConfigError("all images of a batch must have the same size")
-        logits = torch.from_numpy(self.logits(rgbs))
+        logits = np.ascontiguousarray(self.logits(rgbs), dtype=np.float32)
+        if logits.ndim != 4:
+            raise ConfigError(f"{self.name}: network output has shape {logits.shape}, expected (N, K, h, w)")
         if logits.shape[1] != len(self._label_set):
             raise ConfigError(f"{self.name}: network predicts {logits.shape[1]} classes but its label set has "
                               f"{len(self._label_set)}")
-        with torch.inference_mode():
-            if logits.shape[2:] != (h, w):
-                logits = torch.nn.functional.interpolate(logits, size=(h, w), mode="bilinear", align_corners=False)
-            return torch.softmax(logits, dim=1)
+        in_w, in_h = self.net_input.size_for(w, h)
+        align = bool(getattr(self._model, "logits_align_corners", False))
+        sy, oy = sampling_map(h, in_h, logits.shape[2], align)
+        sx, ox = sampling_map(w, in_w, logits.shape[3], align)
+        return [resample_topk(softmax_channels_last(lg), h, w, sy, oy, sx, ox, k, EMPTY_LABEL) for lg in logits]
 
     def probabilities(self, rgb: np.ndarray, depth: np.ndarray | None = None) -> np.ndarray:
         """(H, W, K) float16 class probabilities of one image (``depth`` is unused by RGB-only networks)."""
@@ -132,7 +153,11 @@ class NetworkSegmenter:
 
     def probabilities_batch(self, rgbs: Sequence[np.ndarray]) -> np.ndarray:
         """(N, H, W, K) float16 class probabilities of a batch of equally sized images."""
-        return self._probabilities(rgbs).permute(0, 2, 3, 1).to(self._torch.float16).numpy()
+        n_classes = len(self._label_set)
+        out = np.zeros((len(rgbs), *rgbs[0].shape[:2], n_classes), np.float16)
+        for i, (labels, probs) in enumerate(self._top_classes(rgbs, n_classes)):
+            np.put_along_axis(out[i], labels.astype(np.intp), probs.astype(np.float16), axis=-1)
+        return out
 
     def predict(self, rgb: np.ndarray, depth: np.ndarray | None = None) -> TopKProbs:
         """(H, W, k) top-k class distribution of one image."""
@@ -141,19 +166,9 @@ class NetworkSegmenter:
     def predict_batch(self, rgbs: Sequence[np.ndarray]) -> list[TopKProbs]:
         """Top-k class distributions of images, run through the network ``batch_size`` at a time."""
         out: list[TopKProbs] = []
-        k_eff = min(self.k, len(self._label_set))
         for start in range(0, len(rgbs), self.batch_size):
-            probs = self._probabilities(rgbs[start:start + self.batch_size])
-            with self._torch.inference_mode():
-                top_p, top_i = self._torch.topk(probs, k_eff, dim=1)  # sorted, descending
-            top_p = top_p.permute(0, 2, 3, 1).numpy().astype(np.float32)
-            top_i = top_i.permute(0, 2, 3, 1).numpy().astype(np.uint16)
-            for p, i in zip(top_p, top_i, strict=True):
-                if k_eff < self.k:
-                    pad = (*i.shape[:2], self.k - k_eff)
-                    i = np.concatenate([i, np.full(pad, EMPTY_LABEL, np.uint16)], axis=-1)
-                    p = np.concatenate([p, np.zeros(pad, np.float32)], axis=-1)
-                out.append(TopKProbs(i, p))
+            out.extend(TopKProbs(labels, probs)
+                       for labels, probs in self._top_classes(rgbs[start:start + self.batch_size], self.k))
         return out
 
     def segment(self, frame: Frame) -> TopKProbs:

@@ -8,6 +8,12 @@ from semmap.errors import ConfigError
 from semmap.perception.base import Segmenter
 from semmap.types import LabelSet
 
+#: ESPNetv2's default network input: 320 px short side keeping the aspect ratio (432x320 for 640x480).
+#: Measured on 24 7-Scenes frames (scripts/segmentation_grid.py, docs/images/): at 320 px the VOC weights find
+#: chairs in 13 frames, monitors in 5 and the table in 16; at 384 px (512x384) chairs in only 8, and 384x384
+#: loses much of the table. Indoor objects close to a Kinect look larger than in VOC's training crops.
+ESPNETV2_INPUT = 320
+
 #: name -> what it needs, for help texts and errors.
 SEGMENTERS = {
     "oracle": "simulated network made from ground-truth labels (simulator sequences)",
@@ -42,13 +48,11 @@ def make_segmenter(name: str, *, weights: Path | None = None, label_set: LabelSe
 
         if weights is None:
             raise ConfigError("--segmenter espnetv2 needs its weights: --weights espnetv2_s_2.0_pascal_384x384.pth")
-        model = load_espnetv2(weights)
-        if isinstance(input_size, int):
-            net_input = NetworkInput(short_side=input_size)
-        else:
-            net_input = NetworkInput(size=input_size) if input_size is not None else NetworkInput()
+        model = load_espnetv2(weights, full_resolution=False)  # the segmenter upsamples once, to the image
+        size = ESPNETV2_INPUT if input_size is None else input_size
+        net_input = NetworkInput(short_side=size) if isinstance(size, int) else NetworkInput(size=size)
         stat = Path(weights).stat()
         return NetworkSegmenter(model, PASCAL_VOC, name="espnetv2", net_input=net_input, k=k, backend=backend,
                                 batch_size=batch_size, threads=threads,
-                                cache_key=f"{Path(weights).resolve()}|{stat.st_size}|{stat.st_mtime_ns}")
+                                cache_key=f"{Path(weights).resolve()}|{stat.st_size}|{stat.st_mtime_ns}|half")
     raise ConfigError(f"unknown segmenter {name!r}; choose one of {', '.join(SEGMENTERS)}")

@@ -88,9 +88,11 @@ def _splat(img, zbuf, u, v, z, size, colors):
 
 
 def perspective(centers: np.ndarray, colors: np.ndarray, resolution: float, *, up: np.ndarray,
-                width: int = 640, height: int = 480, max_height: float | None = None) -> np.ndarray:
-    """Voxels seen from above one corner of the map (a pinhole camera looking down at 40 degrees), drawn as
-    z-buffered squares with simple depth shading; returns an RGB uint8 image."""
+                width: int = 640, height: int = 480, max_height: float | None = None,
+                azimuth_deg: float = 0.0, tilt_deg: float = 40.0) -> np.ndarray:
+    """Voxels seen from above one corner of the map (a pinhole camera looking down at ``tilt_deg``, turned by
+    ``azimuth_deg`` about the up axis), drawn as z-buffered squares with simple depth shading; returns an RGB
+    uint8 image."""
     img = np.full((height, width, 3), 32, np.uint8)
     if len(centers) == 0:
         return img
@@ -102,8 +104,10 @@ def perspective(centers: np.ndarray, colors: np.ndarray, resolution: float, *, u
     e1, e2 = _horizontal_axes(up)
     mid = (c.min(axis=0) + c.max(axis=0)) / 2
     radius = max(float(np.linalg.norm(c.max(axis=0) - c.min(axis=0))) / 2, resolution * 4)
-    tilt = np.deg2rad(40.0)
+    tilt = np.deg2rad(tilt_deg)
+    az = np.deg2rad(azimuth_deg)
     back = -(0.8 * e1 + 0.6 * e2)
+    back = np.cos(az) * back + np.sin(az) * np.cross(up, back)  # rotate about up (back is horizontal)
     fwd = np.cos(tilt) * -back - np.sin(tilt) * up
     fwd /= np.linalg.norm(fwd)
     eye = mid - fwd * radius * 2.2
