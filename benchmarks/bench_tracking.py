@@ -2,10 +2,11 @@
 
 Sequences: the real 7-Scenes redkitchen frames in ../shared/data (600; skipped with a message when absent)
 and simulated sequences (desk, loop, walk by default, 200 frames each; orbit on request). Methods:
-semmap-slam, semmap-slam-noloop, semmap-odometry and the peers open3d-f2f (legacy hybrid odometry, frame to
-frame) and open3d-f2f-tensor (tensor hybrid, frame to frame). Frames are loaded into memory before timing,
-so ms/frame measures tracking only (the final ``trajectory()`` call, e.g. SLAM's global optimisation, is
-included). Prints one JSON line per sequence and method, then a table with the ATE ratio against open3d-f2f.
+semmap-slam, semmap-slam-noloop, semmap-slam-features, semmap-odometry and the peers open3d-f2f (legacy hybrid
+odometry, frame to frame) and open3d-f2f-tensor (tensor hybrid, frame to frame). Frames are loaded into
+memory before timing, so ms/frame measures tracking only (the final ``trajectory()`` call, e.g. SLAM's
+global optimisation, is included). Prints one JSON line per sequence and method, then a table with the ATE
+ratio against open3d-f2f.
 
     python benchmarks/bench_tracking.py [--quick] [--sequences 7scenes-redkitchen,sim-desk] [--methods ...]
                                         [--frames N] [--out DIR]
@@ -35,7 +36,8 @@ ALL_SEQUENCES = ("7scenes-redkitchen", *SIM_SEQUENCES)
 DEFAULT_SEQUENCES = ("7scenes-redkitchen", "sim-desk", "sim-loop", "sim-walk")
 QUICK_SEQUENCES = ("7scenes-redkitchen", "sim-desk", "sim-loop")
 #: Benchmark method name -> tracker name for :func:`semmap.poses.track.make_tracker`.
-METHODS = {"semmap-slam": "slam", "semmap-slam-noloop": "slam-noloop", "semmap-odometry": "odometry",
+METHODS = {"semmap-slam": "slam", "semmap-slam-noloop": "slam-noloop", "semmap-slam-features": "slam-features",
+           "semmap-odometry": "odometry",
            "open3d-f2f": "open3d-f2f", "open3d-f2f-tensor": "open3d-f2f-tensor"}
 PEER = "open3d-f2f"
 
@@ -77,6 +79,10 @@ def _extra(tracker: object) -> dict:
     if hasattr(tracker, "fallbacks"):
         return {"fallbacks": len(tracker.fallbacks),
                 "keyframes": sum(1 for r in tracker.reports if r.keyframe)}
+    stats = getattr(tracker, "stats", None)
+    if stats is not None and hasattr(stats, "dense_fallbacks"):
+        return {"lost": stats.lost, "keyframes": stats.keyframes, "loops": stats.loops,
+                "dense_fallbacks": stats.dense_fallbacks, "dense_refined": stats.dense_refined}
     if hasattr(tracker, "failures") and isinstance(tracker.failures, int):
         return {"failures": tracker.failures}
     return {}

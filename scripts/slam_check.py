@@ -83,12 +83,14 @@ def main() -> None:
     ap.add_argument("--max-frames", type=int, default=None)
     ap.add_argument("--no-loop", action="store_true", help="disable loop closure")
     ap.add_argument("--no-ba", action="store_true", help="disable local bundle adjustment")
+    ap.add_argument("--dense", choices=("off", "keyframes", "frames"), default=SlamConfig.dense_refine,
+                    help="dense refinement of the feature-tracked poses (SlamConfig.dense_refine)")
     ap.add_argument("--cache", type=Path, default=None)
     ap.add_argument("--repeat", type=int, default=1, help="runs (the best time is reported)")
     ap.add_argument("--profile", action="store_true")
     args = ap.parse_args()
     frames = load_frames(args.dataset, args.frames, args.max_frames, args.cache)
-    cfg = SlamConfig(loop_closure=not args.no_loop, local_ba=not args.no_ba)
+    cfg = SlamConfig(loop_closure=not args.no_loop, local_ba=not args.no_ba, dense_refine=args.dense)
     best = None
     for _ in range(args.repeat):
         slam = RgbdSlam(cfg)
@@ -112,7 +114,8 @@ def main() -> None:
     s = slam.stats
     n = len(frames)
     print(f"{args.dataset}: frames={n} tracked={len(traj)} lost={s.lost} relocs={s.relocalisations} "
-          f"keyframes={s.keyframes} loops={s.loops} loop={'off' if args.no_loop else 'on'}")
+          f"keyframes={s.keyframes} loops={s.loops} loop={'off' if args.no_loop else 'on'} dense={args.dense} "
+          f"dense_refined={s.dense_refined} dense_fallbacks={s.dense_fallbacks}")
     rt, rr = rpe(traj.poses, gt, 1)
     rt30, rr30 = rpe(traj.poses, gt, 30) if len(traj) > 30 else (float("nan"), float("nan"))
     print(f"  ATE RMSE {ate_rmse(traj.poses, gt) * 100:.2f} cm | RPE(1 frame) {rt * 1000:.2f} mm {rr:.3f} deg"

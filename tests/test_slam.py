@@ -138,6 +138,66 @@ def test_estimate_trajectory_runs_the_tracker(desk_frames):
     assert len(traj) == 8
 
 
+def test_dense_aligner_recovers_a_relative_pose(desk_frames):
+    from semmap.poses.slam.dense import DenseAligner
+
+    f0, f6 = desk_frames[0], desk_frames[6]
+    true = se3.inverse(f0.T_world_cam) @ f6.T_world_cam  # ~5 cm and ~4 degrees
+    guess = se3.exp_update(np.array([0.01, -0.01, 0.005, 0.01, 0.01, -0.01])) @ true  # what features would give
+    for scale in (1, 2):
+        aligner = DenseAligner(SlamConfig(dense_scale=scale), f0.intrinsics)
+        out = aligner.align(aligner.image(f6.rgb, f6.depth), aligner.image(f0.rgb, f0.depth), guess)
+        assert out is not None and out.fitness > 0.5
+        err = se3.inverse(true) @ out.T
+        assert np.linalg.norm(err[:3, 3]) < 3e-3
+        assert np.degrees(se3.rotation_angle(err)) < 0.2
+    blank = aligner.image(np.zeros_like(f0.rgb), np.zeros_like(f0.depth))
+    result = aligner.align(blank, aligner.image(f0.rgb, f0.depth), np.eye(4))
+    assert result is None or result.fitness < 0.3  # nothing to align: rejected by the fitness gate
+
+
+def test_dense_fallback_carries_tracking_through_textureless_frames(desk_frames):
+    # frames 20..24 lose all texture (a flat grey image, depth intact): features cannot track them
+    frames = [f.with_(rgb=np.full_like(f.rgb, 128)) if 20 <= i < 25 else f for i, f in enumerate(desk_frames)]
+    with_fallback = RgbdSlam(SlamConfig(loop_closure=False))
+    for f in frames:
+        assert with_fallback.track(f) is not None
+    s = with_fallback.stats
+    assert s.lost == 0 and s.dense_fallbacks >= 3
+    traj = with_fallback.trajectory()
+    assert len(traj) == len(frames)
+    gt = np.array([f.T_world_cam for f in frames])
+    assert _umeyama_ate(traj.poses, gt) < 0.01
+    # without the fallback the same frames are lost
+    without = RgbdSlam(SlamConfig(loop_closure=False, dense_fallback=False, dense_refine="off"))
+    for f in frames[:25]:
+        without.track(f)
+    assert without.stats.lost >= 3
+
+
+@pytest.mark.parametrize("refine", ["off", "keyframes", "frames"])
+def test_dense_refinement_modes_track_the_desk(desk_frames, refine):
+    slam = RgbdSlam(SlamConfig(loop_closure=False, dense_refine=refine))
+    for f in desk_frames[:24]:
+        slam.track(f)
+    traj = slam.trajectory()
+    gt = np.array([f.T_world_cam for f in desk_frames[:24]])
+    assert len(traj) == 24
+    assert _umeyama_ate(traj.poses, gt) < 0.006
+    assert (slam.stats.dense_refined > 0) == (refine != "off")
+    if refine == "frames":
+        assert slam.stats.dense_refined >= 20
+
+
+def test_tracker_names_select_the_dense_refinement():
+    from semmap.poses.track import METHODS, make_tracker
+
+    assert {"slam", "slam-noloop", "slam-features"} <= set(METHODS)
+    assert make_tracker("slam").config.dense_refine == "frames"
+    assert make_tracker("slam-features").config.dense_refine == "off"
+    assert make_tracker("slam-noloop").config.loop_closure is False
+
+
 # ------------------------------------------------------------------------------------------ bad input
 def test_frames_without_depth_or_texture_do_not_crash(desk_frames):
     f0 = desk_frames[0]
@@ -171,6 +231,12 @@ def test_wrong_input_raises_clear_errors(desk_frames):
         SlamConfig(min_depth=5.0, max_depth=1.0)
     with pytest.raises(ConfigError):
         SlamConfig(match_ratio=1.5)
+    with pytest.raises(ConfigError, match="dense_refine"):
+        SlamConfig(dense_refine="always")
+    with pytest.raises(ConfigError, match="dense_iterations"):
+        SlamConfig(dense_iterations=())
+    with pytest.raises(ConfigError, match="dense_scale"):
+        SlamConfig(dense_scale=0)
 
 
 # ------------------------------------------------------------------------------------------ real data

@@ -35,6 +35,8 @@ class BundleAdjuster:
     window: int = 6
     iterations: int = 5
     max_fixed: int = 10
+    #: (radians, metres) standard deviations of the dense relative-pose factors of anchored keyframes
+    anchor_sigma: tuple[float, float] | None = None
 
     def __post_init__(self) -> None:
         c = self.cam
@@ -44,6 +46,9 @@ class BundleAdjuster:
         self._stereo_for = -1.0
         self.set_disparity_noise(self.disp_sigma)
         self._fixed = gtsam.noiseModel.Isotropic.Sigma(6, 1e-5)  # a tight prior: much faster than an equality
+        if self.anchor_sigma is not None:
+            rot, trans = self.anchor_sigma
+            self._anchor_noise = gtsam.noiseModel.Diagonal.Sigmas(np.array([rot] * 3 + [trans] * 3))
 
     def set_disparity_noise(self, disp_sigma: float) -> None:
         """Use ``disp_sigma`` (pixels) for the depth part of the stereo factors (models rebuilt on a 5% change)."""
@@ -86,6 +91,18 @@ class BundleAdjuster:
         keep = np.isin(okf, window) | np.isin(okf, fixed)
         return self._solve(smap, window, fixed, lm_ids, rows[keep], self.iterations)
 
+    def _add_anchors(self, smap: SlamMap, graph: gtsam.NonlinearFactorGraph, window: np.ndarray,
+                     fixed: np.ndarray) -> None:
+        """Relative-pose factors of keyframes in ``window`` whose dense anchor keyframe is in the problem too."""
+        if self.anchor_sigma is None:
+            return
+        present = set(np.concatenate([window, fixed]).astype(int).tolist())
+        for k in window:
+            anchor = smap.keyframes[int(k)].anchor
+            if anchor is not None and int(anchor[0]) in present:
+                graph.add(gtsam.BetweenFactorPose3(X(int(anchor[0])), X(int(k)), gtsam.Pose3(anchor[1]),
+                                                   self._anchor_noise))
+
     def run_global(self, smap: SlamMap, iterations: int = 10) -> int:
         """Optimise every keyframe (the first one fixed) and every landmark seen by two or more keyframes."""
         if len(smap.keyframes) < 2:
@@ -111,6 +128,7 @@ class BundleAdjuster:
             values.insert(X(int(k)), gtsam.Pose3(kf.T_wc))
         for k in fixed:
             graph.add(gtsam.PriorFactorPose3(X(int(k)), gtsam.Pose3(smap.keyframes[int(k)].T_wc), self._fixed))
+        self._add_anchors(smap, graph, window, fixed)
         pos = smap.landmarks.pos
         for lm in lm_ids:
             values.insert(L(int(lm)), gtsam.Point3(*pos[lm]))

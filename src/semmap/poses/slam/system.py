@@ -12,6 +12,7 @@ import numpy as np
 from semmap.errors import ConfigError, DatasetError
 from semmap.poses.slam import se3
 from semmap.poses.slam.config import SlamConfig
+from semmap.poses.slam.dense import DenseAligner, pose_change
 from semmap.poses.slam.features import VIRTUAL_BASELINE, FrameFeatures, OrbExtractor
 from semmap.poses.slam.keyframes import create_keyframe, cull_landmarks, need_keyframe
 from semmap.poses.slam.loop_closure import LoopCloser
@@ -36,6 +37,8 @@ class SlamStats:
     tracked: int = 0
     lost: int = 0
     relocalisations: int = 0
+    dense_fallbacks: int = 0  #: frames posed by dense alignment because feature tracking failed
+    dense_refined: int = 0  #: feature-tracked poses refined by dense alignment
     loops: int = 0
     keyframes: int = 0
     track_s: float = 0.0  #: seconds in per-frame tracking (features, matching, PnP, refinement)
@@ -46,6 +49,11 @@ class SlamStats:
 
 class RgbdSlam:
     """Feature-based RGB-D SLAM (ORB features, local map tracking, local BA, loop closure, relocalisation).
+
+    With the default settings every feature-tracked pose is refined by dense photometric + geometric alignment
+    to its reference keyframe (``dense_refine``), keyframes are tied to their reference keyframe by that dense
+    relative pose in bundle adjustment, and a frame that features cannot track (a textureless view) is posed by
+    dense alignment and made a keyframe, so tracking continues from it (``dense_fallback``).
 
     ``track`` returns ``T_world_cam`` of each frame, or None while tracking is lost (lost frames are left out of
     ``trajectory``; later frames are relocalised against the keyframes). The first frame with enough keypoints
@@ -76,6 +84,9 @@ class RgbdSlam:
         self._lost = False
         self._global_ba_at = -1  # frame count at the last final bundle adjustment
         self._last_lm = np.zeros(0, np.int64)  # landmarks the last tracked frame matched
+        self.dense: DenseAligner | None = None
+        self._kf_images: dict[int, object] = {}  # keyframe id -> dense image (the newest few keyframes)
+        self._last_image: object | None = None  # dense image of the last tracked frame
 
     # ------------------------------------------------------------------ setup
     def _setup(self, intr: CameraIntrinsics) -> None:
@@ -86,7 +97,11 @@ class RgbdSlam:
         sigma = cfg.scale_factor ** np.arange(cfg.n_levels)
         self.tracker = LocalMapTracker(self.map, self.cam, (intr.width, intr.height), cfg, 1.0 / sigma**2,
                                        self.cam.bf * cfg.depth_noise)
-        self.ba = BundleAdjuster(self.cam, sigma, self.tracker.disp_sigma, cfg.ba_window, cfg.ba_iterations)
+        anchor_sigma = (np.radians(cfg.dense_sigma_deg), cfg.dense_sigma)
+        self.ba = BundleAdjuster(self.cam, sigma, self.tracker.disp_sigma, cfg.ba_window, cfg.ba_iterations,
+                                 anchor_sigma=anchor_sigma)
+        if cfg.dense_fallback or cfg.dense_refine != "off":
+            self.dense = DenseAligner(cfg, intr)
         self.loops = LoopCloser(self.map, self.tracker, cfg)
 
     def _check(self, frame: Frame) -> None:
@@ -110,9 +125,14 @@ class RgbdSlam:
         t0 = time.perf_counter()
         depth = np.nan_to_num(frame.depth, nan=0.0, posinf=0.0, neginf=0.0)
         feats = self.extractor.extract(frame.rgb, depth)
+        image = self.dense.image(frame.rgb, depth) if self.dense is not None else None
         if not self.map.keyframes:
-            return self._initialise(frame, feats, t0)
+            return self._initialise(frame, feats, t0, image)
         res = self._track_frame(feats)
+        if res is None and image is not None and self.config.dense_fallback and not self._lost:
+            T_wc = self._dense_fallback(image)
+            if T_wc is not None:
+                return self._bridge(frame, feats, image, T_wc, t0)
         if res is None:
             self.stats.lost += 1
             self.stats.track_s += time.perf_counter() - t0
@@ -122,21 +142,27 @@ class RgbdSlam:
             self._velocity = None
             return None
         T_wc = se3.inverse(res.T_cw)
+        self._last_image = image
         lms = self.map.landmarks
         lms.col("visible")[res.n_visible_lm] += 1
         lms.col("found")[res.lm] += 1
-        if self._T_wc_last is not None and not self._lost:
-            self._velocity = se3.inverse(self._T_wc_last) @ T_wc
-        self._lost = False
-        self._T_wc_last = T_wc
         self._last_lm = res.lm
         self._since_kf += 1
         if self._since_kf == 1:
             self._ref_inliers = max(self._ref_inliers, res.n_inliers)
+        keyframe = need_keyframe(self.config, feats, res, self._since_kf, self._ref_inliers)
+        anchor = None
+        refine = self.config.dense_refine
+        if image is not None and (refine == "frames" or (refine == "keyframes" and keyframe)):
+            T_wc, anchor = self._dense_refine(image, T_wc)
+        if self._T_wc_last is not None and not self._lost:
+            self._velocity = se3.inverse(self._T_wc_last) @ T_wc
+        self._lost = False
+        self._T_wc_last = T_wc
         t1 = time.perf_counter()
         self.stats.track_s += t1 - t0
-        if need_keyframe(self.config, feats, res, self._since_kf, self._ref_inliers):
-            T_wc = self._insert_keyframe(feats, T_wc, res)
+        if keyframe:
+            T_wc = self._insert_keyframe(feats, T_wc, res, image, anchor if self.config.dense_ba_factor else None)
             self.stats.mapping_s += time.perf_counter() - t1
         else:
             self._log_frame(frame, T_wc)
@@ -144,7 +170,7 @@ class RgbdSlam:
         self._log_frame(frame, T_wc, keyframe=True)
         return T_wc
 
-    def _initialise(self, frame: Frame, feats: FrameFeatures, t0: float) -> np.ndarray | None:
+    def _initialise(self, frame: Frame, feats: FrameFeatures, t0: float, image: object | None) -> np.ndarray | None:
         if int(feats.has_depth.sum()) < MIN_INIT_POINTS:
             self.stats.lost += 1
             return None
@@ -152,6 +178,8 @@ class RgbdSlam:
         kf = create_keyframe(self.map, self.config, feats, T, len(self._names), np.zeros(0, np.int64),
                              np.zeros(0, np.int64))
         self.tracker.set_local_map(np.array([kf.id]))
+        self._keep_image(kf.id, image)
+        self._last_image = image
         self._ref_kf, self._since_kf, self._ref_inliers = kf.id, 0, 0
         self._T_wc_last, self._velocity = T, None
         self.stats.keyframes += 1
@@ -188,15 +216,22 @@ class RgbdSlam:
         self.tracker.set_local_map(ids)
 
     # ------------------------------------------------------------------ keyframes
-    def _insert_keyframe(self, feats: FrameFeatures, T_wc: np.ndarray, res: TrackResult) -> np.ndarray:
-        """Make the frame a keyframe, refine the local map, look for a loop; returns the frame's revised pose."""
+    def _insert_keyframe(self, feats: FrameFeatures, T_wc: np.ndarray, res: TrackResult | None,
+                         image: object | None = None, anchor: tuple[int, np.ndarray] | None = None) -> np.ndarray:
+        """Make the frame a keyframe, refine the local map, look for a loop; returns the frame's revised pose.
+
+        ``res`` None: a keyframe posed without feature matches (dense fallback), every keypoint with depth is new.
+        """
         cfg = self.config
-        kf = create_keyframe(self.map, cfg, feats, T_wc, len(self._names), res.kp, res.lm)
+        kp, lm = (res.kp, res.lm) if res is not None else (np.zeros(0, np.int64), np.zeros(0, np.int64))
+        kf = create_keyframe(self.map, cfg, feats, T_wc, len(self._names), kp, lm)
+        kf.anchor = anchor
+        self._keep_image(kf.id, image)
         self.stats.keyframes += 1
         if cfg.local_ba and kf.id >= 2:
             self.ba.run(self.map, kf.id)
         cull_landmarks(self.map, cfg, kf.id)
-        if cfg.loop_closure:
+        if cfg.loop_closure and res is not None:
             found = self.loops.detect(kf)
             if found is not None:
                 loop_kf, loop_res = found
@@ -209,6 +244,72 @@ class RgbdSlam:
         new_T = kf.T_wc.copy()
         self._T_wc_last = new_T
         return new_T
+
+    # ------------------------------------------------------------------ dense alignment
+    def _keep_image(self, kf_id: int, image: object | None) -> None:
+        """Remember a keyframe's dense image (only the newest few are kept: the reference is nearly always one)."""
+        if image is None:
+            return
+        self._kf_images[kf_id] = image
+        for old in [k for k in self._kf_images if k <= kf_id - 4]:
+            del self._kf_images[old]
+
+    def _dense_refine(self, image: object, T_wc: np.ndarray) -> tuple[np.ndarray, tuple[int, np.ndarray] | None]:
+        """``T_wc`` refined by dense alignment to the reference keyframe (unchanged when that is not possible or
+        disagrees too much), and the keyframe-relative pose as an anchor (None when not refined)."""
+        cfg = self.config
+        ref_image = self._kf_images.get(self._ref_kf)
+        if ref_image is None:
+            return T_wc, None
+        T_ref = self.map.keyframes[self._ref_kf].T_wc
+        init = se3.inverse(T_ref) @ T_wc
+        out = self.dense.align(image, ref_image, init)
+        if out is None or out.fitness < cfg.dense_min_fitness:
+            return T_wc, None
+        dist, angle = pose_change(init, out.T)
+        if dist > cfg.dense_max_correction or angle > cfg.dense_max_correction_deg:
+            return T_wc, None
+        self.stats.dense_refined += 1
+        return T_ref @ out.T, (self._ref_kf, out.T)
+
+    def _dense_fallback(self, image: object) -> np.ndarray | None:
+        """Pose of a frame that features could not track, by dense alignment to the reference keyframe, else to
+        the last tracked frame, from the constant-velocity prediction; None when neither agrees."""
+        cfg = self.config
+        predicted = self._T_wc_last @ self._velocity if self._velocity is not None else self._T_wc_last
+        targets = []
+        if self._ref_kf in self._kf_images:
+            targets.append((self._kf_images[self._ref_kf], self.map.keyframes[self._ref_kf].T_wc))
+        if self._last_image is not None:
+            targets.append((self._last_image, self._T_wc_last))
+        for target, T_target in targets:
+            out = self.dense.align(image, target, se3.inverse(T_target) @ predicted)
+            if out is None or out.fitness < cfg.dense_min_fitness:
+                continue
+            T_wc = T_target @ out.T
+            dist, angle = pose_change(predicted, T_wc)
+            if dist <= cfg.dense_max_jump and angle <= cfg.dense_max_jump_deg:
+                return T_wc
+        return None
+
+    def _bridge(self, frame: Frame, feats: FrameFeatures, image: object, T_wc: np.ndarray,
+                t0: float) -> np.ndarray:
+        """Keep tracking through a frame posed by dense alignment only: it becomes a keyframe (tied to the previous
+        reference keyframe by a relative-pose factor) whose keypoints start fresh landmarks, so feature tracking
+        resumes from it."""
+        self.stats.dense_fallbacks += 1
+        if self._T_wc_last is not None:
+            self._velocity = se3.inverse(self._T_wc_last) @ T_wc
+        self._T_wc_last = T_wc
+        self._last_image = image
+        self._last_lm = np.zeros(0, np.int64)
+        t1 = time.perf_counter()
+        self.stats.track_s += t1 - t0
+        anchor = (self._ref_kf, se3.inverse(self.map.keyframes[self._ref_kf].T_wc) @ T_wc)
+        T_wc = self._insert_keyframe(feats, T_wc, None, image, anchor)
+        self.stats.mapping_s += time.perf_counter() - t1
+        self._log_frame(frame, T_wc, keyframe=True)
+        return T_wc
 
     # ------------------------------------------------------------------ output
     def _log_frame(self, frame: Frame, T_wc: np.ndarray, keyframe: bool = False) -> None:

@@ -19,6 +19,9 @@ class Keyframe:
     feats: FrameFeatures
     lm: np.ndarray  # (N,) int64 landmark id per keypoint, -1 for none
     retrieval: np.ndarray = field(repr=False, default_factory=lambda: np.zeros((0, 32), np.uint8))
+    #: (earlier keyframe id, ``T_earlier_this``) measured by dense alignment, a bundle-adjustment factor; set for
+    #: keyframes made where features failed (they share no landmarks with the map) and with ``dense_ba_factor``
+    anchor: tuple[int, np.ndarray] | None = field(repr=False, default=None)
 
 
 class _Growable:
