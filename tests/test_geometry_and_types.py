@@ -18,9 +18,11 @@ from semmap.types import (
     interpolate_pose,
     invert_pose,
     make_pose,
+    pose_change,
     pose_from_tum,
     pose_to_tum,
     quat_xyzw_to_rot,
+    rotation_angle,
     transform_points,
 )
 
@@ -71,6 +73,25 @@ def test_tum_pose_round_trip_and_inverse(q, t):
     assert pose_from_tum(pose_to_tum(T)) == pytest.approx(T, abs=1e-9)
     assert T @ invert_pose(T) == pytest.approx(np.eye(4), abs=1e-9)
     check_pose(T)
+
+
+@settings(max_examples=100, deadline=None)
+@given(st.lists(st.floats(-1, 1), min_size=3, max_size=3).filter(lambda a: np.linalg.norm(a) > 1e-3),
+       st.floats(1e-6, np.pi - 1e-3))
+def test_rotation_angle_is_the_axis_angle(axis, angle):
+    axis = np.asarray(axis) / np.linalg.norm(axis)
+    R = quat_xyzw_to_rot([*(np.sin(angle / 2) * axis), np.cos(angle / 2)])
+    assert rotation_angle(R) == pytest.approx(angle, rel=1e-6, abs=1e-9)
+    T = make_pose(R, [0.3, 0, 0])
+    assert pose_change(np.eye(4), T) == pytest.approx((0.3, np.degrees(angle)), rel=1e-6, abs=1e-9)
+
+
+def test_rotation_angle_ignores_slight_non_orthonormality():
+    """7-Scenes rotations are off orthonormal by up to 3e-4; arccos of the trace would read that as ~1 degree."""
+    R = np.eye(3) + np.diag([-3e-4, -3e-4, 0.0])
+    assert np.degrees(rotation_angle(R)) < 1e-6
+    turn = quat_xyzw_to_rot([0, 0, np.sin(0.005), np.cos(0.005)])  # 0.01 rad about z
+    assert rotation_angle(turn * (1 - 3e-4)) == pytest.approx(0.01, rel=1e-3)
 
 
 def test_pose_interpolation_hits_the_ends_and_the_middle():

@@ -335,6 +335,21 @@ def invert_pose(T: np.ndarray) -> np.ndarray:
     return make_pose(R.T, -R.T @ t)
 
 
+def rotation_angle(R: np.ndarray) -> float:
+    """Angle (radians) of a rotation matrix (or the rotation of a 4x4 transform), from atan2 of its skew and
+    symmetric parts: exact for small angles and blind to slight non-orthonormality, where arccos of the trace
+    reads 3e-4 of drift (7-Scenes' ground truth) as a 1 degree turn."""
+    R = np.asarray(R, np.float64)[:3, :3]
+    skew = np.array([R[2, 1] - R[1, 2], R[0, 2] - R[2, 0], R[1, 0] - R[0, 1]])
+    return float(np.arctan2(0.5 * np.linalg.norm(skew), 0.5 * (np.trace(R) - 1.0)))
+
+
+def pose_change(T_a: np.ndarray, T_b: np.ndarray) -> tuple[float, float]:
+    """Translation (metres) and rotation (degrees) from pose ``T_a`` to pose ``T_b``."""
+    rel = invert_pose(T_a) @ T_b
+    return float(np.linalg.norm(rel[:3, 3])), float(np.degrees(rotation_angle(rel)))
+
+
 def transform_points(T: np.ndarray, points: np.ndarray) -> np.ndarray:
     """Apply a 4x4 transform to (N, 3) points; keeps float32 input as float32 (computed in float64)."""
     pts = np.asarray(points)

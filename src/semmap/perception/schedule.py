@@ -15,7 +15,7 @@ import numpy as np
 
 from semmap.errors import ConfigError
 from semmap.perception.base import Segmenter
-from semmap.types import Frame, TopKProbs
+from semmap.types import Frame, TopKProbs, pose_change
 
 
 @dataclass(frozen=True)
@@ -56,10 +56,7 @@ class Scheduler:
         return True
 
     def _moved(self, T: np.ndarray) -> bool:
-        last = self._last_pose
-        dt = float(np.linalg.norm(T[:3, 3] - last[:3, 3]))
-        cos = (np.trace(last[:3, :3].T @ T[:3, :3]) - 1.0) / 2.0
-        angle = float(np.degrees(np.arccos(np.clip(cos, -1.0, 1.0))))
+        dt, angle = pose_change(self._last_pose, T)
         return dt >= self.schedule.min_translation or angle >= self.schedule.min_rotation_deg
 
 

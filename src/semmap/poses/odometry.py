@@ -17,7 +17,7 @@ import open3d as o3d
 from semmap.errors import ConfigError
 from semmap.io.trajectory import orthonormalize
 from semmap.poses.o3d_images import DEPTH_SCALE, tensor_intrinsics, tensor_rgbd
-from semmap.types import Frame, Trajectory, invert_pose
+from semmap.types import Frame, Trajectory, invert_pose, pose_change
 
 _METHODS = {
     "hybrid": o3d.t.pipelines.odometry.Method.Hybrid,
@@ -155,7 +155,7 @@ class DenseOdometry:
             return "non-finite transformation"
         if fitness < c.min_fitness:
             return f"fitness {fitness:.2f} < {c.min_fitness}"
-        dist, angle = _motion(predicted, pose)
+        dist, angle = pose_change(predicted, pose)
         if dist > c.max_jump or angle > c.max_jump_deg:
             return f"jump of {dist:.2f} m / {angle:.1f} deg from the prediction"
         return ""
@@ -168,7 +168,7 @@ class DenseOdometry:
         if fallback:
             # Keep the old reference after a single failure; start afresh if two in a row failed.
             return bool(self.reports) and bool(self.reports[-1].fallback)
-        dist, angle = _motion(self._ref.pose, pose)
+        dist, angle = pose_change(self._ref.pose, pose)
         return dist > c.keyframe_distance or angle > c.keyframe_angle_deg or fitness < c.keyframe_fitness
 
     def _record(self, frame: Frame, name: str, pose: np.ndarray, report: FrameReport) -> None:
@@ -197,9 +197,3 @@ def _rigid(T: np.ndarray) -> np.ndarray:
     out[3] = (0.0, 0.0, 0.0, 1.0)
     return out
 
-
-def _motion(T_a: np.ndarray, T_b: np.ndarray) -> tuple[float, float]:
-    """Translation (metres) and rotation angle (degrees) between two poses."""
-    rel = invert_pose(T_a) @ T_b
-    cos = np.clip((np.trace(rel[:3, :3]) - 1.0) / 2.0, -1.0, 1.0)
-    return float(np.linalg.norm(rel[:3, 3])), float(np.degrees(np.arccos(cos)))

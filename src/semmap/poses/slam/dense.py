@@ -121,8 +121,3 @@ class DenseAligner:
             return None
         return DenseResult(se3.orthonormalise(T_np), fitness)
 
-
-def pose_change(T_a: np.ndarray, T_b: np.ndarray) -> tuple[float, float]:
-    """Translation (metres) and rotation (degrees) between two poses."""
-    rel = se3.inverse(T_a) @ T_b
-    return float(np.linalg.norm(rel[:3, 3])), float(np.degrees(se3.rotation_angle(rel)))

@@ -5,6 +5,10 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
+from semmap.types import rotation_angle
+
+__all__ = ["exp_update", "from_rvec", "inverse", "orthonormalise", "rotation_angle", "to_rvec", "transform"]
+
 
 def inverse(T: np.ndarray) -> np.ndarray:
     """Inverse of a rigid 4x4 transform (or a stack of them)."""
@@ -40,11 +44,6 @@ def from_rvec(rvec: np.ndarray, tvec: np.ndarray) -> np.ndarray:
 def to_rvec(T: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """OpenCV's (rvec, tvec) of a 4x4 transform."""
     return cv2.Rodrigues(np.ascontiguousarray(T[:3, :3]))[0], T[:3, 3].reshape(3, 1).copy()
-
-
-def rotation_angle(T: np.ndarray) -> float:
-    """Rotation angle (radians) of a 4x4 transform."""
-    return float(np.arccos(np.clip((np.trace(T[:3, :3]) - 1.0) / 2.0, -1.0, 1.0)))
 
 
 def orthonormalise(T: np.ndarray) -> np.ndarray:

@@ -12,7 +12,7 @@ import numpy as np
 from semmap.errors import ConfigError, DatasetError
 from semmap.poses.slam import se3
 from semmap.poses.slam.config import SlamConfig
-from semmap.poses.slam.dense import DenseAligner, pose_change
+from semmap.poses.slam.dense import DenseAligner
 from semmap.poses.slam.features import VIRTUAL_BASELINE, FrameFeatures, OrbExtractor
 from semmap.poses.slam.keyframes import create_keyframe, cull_landmarks, need_keyframe
 from semmap.poses.slam.loop_closure import LoopCloser
@@ -21,7 +21,7 @@ from semmap.poses.slam.pose_solver import PinholeModel
 from semmap.poses.slam.relocalisation import relocalise
 from semmap.poses.slam.tracking import LocalMapTracker, TrackResult
 from semmap.poses.slam.world_map import SlamMap
-from semmap.types import CameraIntrinsics, Frame, Trajectory
+from semmap.types import CameraIntrinsics, Frame, Trajectory, pose_change
 
 log = logging.getLogger("semmap")
 
