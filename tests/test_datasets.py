@@ -368,6 +368,28 @@ def test_real_sevenscenes_first_frames_load(redkitchen: Path) -> None:
         assert np.isfinite(f.T_world_cam).all()
 
 
+def test_real_sevenscenes_colour_is_registered_onto_depth(redkitchen: Path) -> None:
+    """The 7-Scenes colour camera (f = 526 px, 3 cm to the side) is resampled onto the depth camera: depth outlines
+    then fall on colour edges; ``raw_color`` keeps the stored image."""
+    from semmap.eval.registration import edge_misalignment
+
+    registered = open_dataset(redkitchen, stride=150)
+    assert registered.registers_color
+    raw = open_dataset(redkitchen, stride=150, raw_color=True)
+    assert not raw.registers_color
+    before, after = [], []
+    for a, b in zip(raw, registered, strict=True):
+        assert a.rgb.shape == b.rgb.shape and not np.array_equal(a.rgb, b.rgb)
+        np.testing.assert_array_equal(a.depth, b.depth)
+        before.append(edge_misalignment(a.rgb, a.depth))
+        after.append(edge_misalignment(b.rgb, b.depth))
+    assert np.mean(after) < 0.75 * np.mean(before)
+
+
+def test_sevenscenes_layout_from_another_camera_keeps_its_colour(scenes_seq: Path) -> None:
+    assert not SevenScenesDataset(scenes_seq).registers_color
+
+
 def test_copied_real_frame_with_missing_depth_is_skipped(redkitchen: Path, tmp_path: Path) -> None:
     for suffix in (".color.jpg", ".depth.png", ".pose.txt"):
         for i in (0, 1):

@@ -76,6 +76,8 @@ def run(
                                                  rich_help_panel=_INPUT)] = None,
     max_frames: Annotated[int | None, typer.Option(help="use at most N frames", rich_help_panel=_INPUT)] = None,
     stride: Annotated[int, typer.Option(help="use every k-th frame", rich_help_panel=_INPUT)] = 1,
+    raw_color: Annotated[bool, typer.Option("--raw-color", help="7-Scenes: keep colour as stored instead of "
+                                            "registering it onto the depth image", rich_help_panel=_INPUT)] = False,
     resolution: Annotated[float, typer.Option(help="finest voxel size (m)", rich_help_panel=_MAPPING)] = 0.05,
     min_depth: Annotated[float, typer.Option(help="ignore depth below (m)", rich_help_panel=_MAPPING)] = 0.1,
     max_depth: Annotated[float, typer.Option(help="ignore depth above (m)", rich_help_panel=_MAPPING)] = 8.0,
@@ -118,7 +120,8 @@ def run(
     from semmap.pipeline import color_mode as parse_color_mode
 
     config = _validated(lambda: RunConfig(
-        input=InputConfig(dataset=dataset, format=format, labels=labels, stride=stride, max_frames=max_frames),
+        input=InputConfig(dataset=dataset, format=format, labels=labels, stride=stride, max_frames=max_frames,
+                          raw_color=raw_color),
         mapping=MappingConfig(resolution=resolution, min_depth=min_depth, max_depth=max_depth,
                               max_range=max_range, pixel_stride=pixel_stride),
         semantics=SemanticsConfig(source=semantics, label_confidence=label_confidence, lam=lam, segmenter=segmenter,

@@ -40,6 +40,7 @@ class InputConfig(_Section):
     labels: Path | None = None
     stride: int = Field(1, ge=1)
     max_frames: int | None = Field(None, ge=1)
+    raw_color: bool = Field(False, description="keep colour unregistered (7-Scenes colour is registered to depth)")
 
 
 class MappingConfig(_Section):

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import cv2
 import numba as nb
 import numpy as np
 
@@ -131,3 +132,38 @@ def voxel_filter(points: np.ndarray, resolution: float) -> np.ndarray:
     flat = (cells[:, 0] * dims[1] + cells[:, 1]) * dims[2] + cells[:, 2]
     _, first = np.unique(flat, return_index=True)
     return np.sort(first)
+
+
+@dataclass(frozen=True)
+class ColorCamera:
+    """A colour camera beside the depth camera: its pinhole intrinsics (pixels of the colour image) and where a
+    point of the depth camera's frame lands in its frame, ``X_color = X_depth + t_color_depth`` (no rotation)."""
+
+    fx: float
+    fy: float
+    cx: float
+    cy: float
+    t_color_depth: tuple[float, float, float] = (0.0, 0.0, 0.0)
+
+
+def register_color(rgb: np.ndarray, depth: np.ndarray, depth_camera: CameraIntrinsics,
+                   color_camera: ColorCamera) -> np.ndarray:
+    """Colour resampled onto the depth camera's pixel grid, so ``rgb[v, u]`` shows what ``depth[v, u]`` measured.
+
+    Each depth pixel is back-projected at its depth, moved into the colour camera and projected there; the
+    colour is sampled bilinearly.  Pixels without depth use the frame's median depth (their colour is then only
+    approximately placed; they carry no 3D point anyway).
+    """
+    h, w = depth.shape
+    rays = pixel_rays(depth_camera)
+    valid = depth > 0
+    z = np.where(valid, depth, np.float32(np.median(depth[valid]) if valid.any() else 2.0)).astype(np.float32)
+    tx, ty, tz = (np.float32(v) for v in color_camera.t_color_depth)
+    zc = z + tz
+    zc[zc <= 1e-3] = 1e-3
+    inv = np.float32(1.0) / zc
+    c = color_camera
+    map_x = (rays.x.astype(np.float32)[None, :] * z + tx) * inv * np.float32(c.fx) + np.float32(c.cx)
+    map_y = (rays.y.astype(np.float32)[:, None] * z + ty) * inv * np.float32(c.fy) + np.float32(c.cy)
+    out = cv2.remap(np.ascontiguousarray(rgb), map_x, map_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+    return out.reshape(h, w, -1) if rgb.ndim == 3 else out

@@ -44,15 +44,19 @@ def open_dataset(
     labels: str | Path | LabelFolder | None = None,
     stride: int = 1,
     max_frames: int | None = None,
+    raw_color: bool = False,
     **kwargs,
 ) -> Dataset:
     """Open the sequence at ``path`` with the reader for ``format`` ("auto" detects it).
 
-    ``labels`` is an optional folder of per-frame label PNGs (see :class:`LabelFolder`); ``kwargs`` go to the
+    ``labels`` is an optional folder of per-frame label PNGs (see :class:`LabelFolder`); ``raw_color`` keeps
+    colour as stored where the reader would register it onto the depth image (7-Scenes); ``kwargs`` go to the
     reader (e.g. ``depth_scale`` for TUM).
     """
     root = ensure_folder(path)
     name = detect_format(root) if format == "auto" else format
+    if name == "7scenes":
+        kwargs["register_color"] = not raw_color
     try:
         reader = READERS[name]
     except KeyError:
