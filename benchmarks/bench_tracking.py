@@ -2,11 +2,14 @@
 
 Sequences: the real 7-Scenes redkitchen frames in ../shared/data (600; skipped with a message when absent)
 and simulated sequences (desk, loop, walk by default, 200 frames each; orbit on request). Methods:
-semmap-slam, semmap-slam-noloop, semmap-slam-features, semmap-odometry and the peers open3d-f2f (legacy hybrid
-odometry, frame to frame) and open3d-f2f-tensor (tensor hybrid, frame to frame). Frames are loaded into
-memory before timing, so ms/frame measures tracking only (the final ``trajectory()`` call, e.g. SLAM's
-global optimisation, is included). Prints one JSON line per sequence and method, then a table with the ATE
-ratio against open3d-f2f.
+semmap-slam (dense odometry + ORB loop closure + pose graph, the default of ``--poses slam``),
+semmap-slam-noloop (the same without loop closure), semmap-slam-orb (the ORB-SLAM2-style feature SLAM with dense
+refinement), semmap-slam-features (the feature SLAM alone), semmap-odometry (dense keyframe odometry) and the
+peers open3d-f2f (legacy hybrid odometry, frame to frame) and open3d-f2f-tensor (tensor hybrid, frame to
+frame). Frames are loaded into memory before timing, so ms/frame measures tracking only (the final
+``trajectory()`` call, e.g. SLAM's global optimisation, is included). Every method sees the same frames (7-Scenes
+colour registered onto depth, as ``semmap run`` reads it). Prints one JSON line per sequence and method, then a
+table with the ATE ratio against open3d-f2f.
 
     python benchmarks/bench_tracking.py [--quick] [--sequences 7scenes-redkitchen,sim-desk] [--methods ...]
                                         [--frames N] [--out DIR]
@@ -36,8 +39,8 @@ ALL_SEQUENCES = ("7scenes-redkitchen", *SIM_SEQUENCES)
 DEFAULT_SEQUENCES = ("7scenes-redkitchen", "sim-desk", "sim-loop", "sim-walk")
 QUICK_SEQUENCES = ("7scenes-redkitchen", "sim-desk", "sim-loop")
 #: Benchmark method name -> tracker name for :func:`semmap.poses.track.make_tracker`.
-METHODS = {"semmap-slam": "slam", "semmap-slam-noloop": "slam-noloop", "semmap-slam-features": "slam-features",
-           "semmap-odometry": "odometry",
+METHODS = {"semmap-slam": "slam", "semmap-slam-noloop": "slam-noloop", "semmap-slam-orb": "slam-orb",
+           "semmap-slam-features": "slam-features", "semmap-odometry": "odometry",
            "open3d-f2f": "open3d-f2f", "open3d-f2f-tensor": "open3d-f2f-tensor"}
 PEER = "open3d-f2f"
 
@@ -76,10 +79,12 @@ def run_method(method: str, frames: list[Frame]) -> tuple[Trajectory, float, obj
 
 def _extra(tracker: object) -> dict:
     """Tracker-specific counts worth printing (motion-model fallbacks, failed steps)."""
-    if hasattr(tracker, "fallbacks"):
-        return {"fallbacks": len(tracker.fallbacks),
-                "keyframes": sum(1 for r in tracker.reports if r.keyframe)}
     stats = getattr(tracker, "stats", None)
+    if hasattr(tracker, "fallbacks"):
+        extra = {"fallbacks": len(tracker.fallbacks), "keyframes": sum(1 for r in tracker.reports if r.keyframe)}
+        if stats is not None and hasattr(stats, "relocalisations"):
+            extra |= {"loops": stats.loops, "relocalisations": stats.relocalisations}
+        return extra
     if stats is not None and hasattr(stats, "dense_fallbacks"):
         return {"lost": stats.lost, "keyframes": stats.keyframes, "loops": stats.loops,
                 "dense_fallbacks": stats.dense_fallbacks, "dense_refined": stats.dense_refined}

@@ -120,3 +120,20 @@ def room_label_set():
     colors = np.array([[0, 0, 0], [200, 60, 60], [60, 200, 60], [60, 60, 200], [200, 200, 60], [150, 120, 90],
                        [90, 90, 90]], np.uint8)
     return LabelSet(names, colors)
+
+
+def umeyama_ate(est: np.ndarray, gt: np.ndarray) -> float:
+    """ATE RMSE (m) after rigid alignment of estimated to true camera positions."""
+    src, dst = est[:, :3, 3], gt[:, :3, 3]
+    ms, md = src.mean(0), dst.mean(0)
+    U, _, Vt = np.linalg.svd((dst - md).T @ (src - ms))
+    S = np.diag([1.0, 1.0, np.sign(np.linalg.det(U @ Vt))])
+    R = U @ S @ Vt
+    aligned = (src - ms) @ R.T + md
+    return float(np.sqrt(((aligned - dst) ** 2).sum(1).mean()))
+
+
+def blank_frame(frame: Frame, stamp: float) -> Frame:
+    """``frame`` with black colour and no depth (a blinded sensor), at timestamp ``stamp``."""
+    return frame.with_(rgb=np.zeros_like(frame.rgb), depth=np.zeros_like(frame.depth), timestamp=stamp,
+                       name=f"blank{stamp:.3f}")

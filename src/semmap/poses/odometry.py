@@ -78,7 +78,7 @@ class FrameReport:
 
 
 @dataclass
-class _Reference:
+class Reference:
     """The frame the next one is aligned to."""
 
     image: o3d.t.geometry.RGBDImage
@@ -97,7 +97,7 @@ class DenseOdometry:
         self._params = o3d.t.pipelines.odometry.OdometryLossParams(
             c.depth_outlier_trunc, c.depth_huber_delta, c.intensity_huber_delta)
         self._K: o3d.core.Tensor | None = None
-        self._ref: _Reference | None = None
+        self._ref: Reference | None = None
         self._stamps: list[float] = []
         self._poses: list[np.ndarray] = []
         self._names: list[str] = []
@@ -115,31 +115,46 @@ class DenseOdometry:
         if self._ref is None:
             self._K = tensor_intrinsics(frame.intrinsics)
             pose = np.eye(4)
-            self._ref = _Reference(image, pose)
+            self._set_reference(frame, image, pose)
             self._record(frame, name, pose, FrameReport(name, 1.0, 0.0, keyframe=True))
             return pose
 
         predicted = self._predict()
-        ref = self._ref
+        pose, fitness, rmse, reason = self._align(image, self._ref, predicted)
+        recovered = None
+        if reason:
+            recovered = self._recover(frame, image, predicted)
+            pose = predicted if recovered is None else recovered
+            if recovered is not None:
+                reason = ""
+        new_keyframe = recovered is not None or self._wants_keyframe(pose, fitness, reason)
+        if new_keyframe:
+            self._set_reference(frame, image, pose)
+        self._record(frame, name, pose, FrameReport(name, fitness, rmse, reason, new_keyframe))
+        return pose
+
+    def _align(self, image: o3d.t.geometry.RGBDImage, ref: Reference,
+               predicted: np.ndarray) -> tuple[np.ndarray, float, float, str]:
+        """(pose, fitness, inlier RMSE, why it is rejected or "") of ``image`` aligned to ``ref`` from a prediction."""
         init = invert_pose(ref.pose) @ predicted
         try:
             result = o3d.t.pipelines.odometry.rgbd_odometry_multi_scale(
                 image, ref.image, self._K, o3d.core.Tensor(init), DEPTH_SCALE, self.config.depth_max,
                 self._criteria, _METHODS[self.config.method], self._params)
         except RuntimeError as exc:  # Open3D raises on a singular system ("tracking failed")
-            pose, fitness, rmse = predicted, 0.0, float("nan")
-            reason = f"Open3D failed: {_open3d_message(exc)}"
-        else:
-            pose = _rigid(ref.pose @ result.transformation.numpy())
-            fitness, rmse = float(result.fitness), float(result.inlier_rmse)
-            reason = self._reject(pose, predicted, fitness)
-        if reason:
-            pose = predicted
-        new_keyframe = self._wants_keyframe(pose, fitness, reason)
-        if new_keyframe:
-            self._ref = _Reference(image, pose)
-        self._record(frame, name, pose, FrameReport(name, fitness, rmse, reason, new_keyframe))
-        return pose
+            return predicted, 0.0, float("nan"), f"Open3D failed: {_open3d_message(exc)}"
+        pose = _rigid(ref.pose @ result.transformation.numpy())
+        fitness = float(result.fitness)
+        return pose, fitness, float(result.inlier_rmse), self._reject(pose, predicted, fitness)
+
+    def _set_reference(self, frame: Frame, image: o3d.t.geometry.RGBDImage, pose: np.ndarray) -> None:
+        """Make ``frame`` (about to be recorded at ``pose``) the keyframe the next frames are aligned to."""
+        self._ref = Reference(image, pose)
+
+    def _recover(self, frame: Frame, image: o3d.t.geometry.RGBDImage, predicted: np.ndarray) -> np.ndarray | None:
+        """A pose for a frame whose alignment was rejected, or None for the motion-model fallback (a hook for
+        trackers that can relocalise; the frame then becomes a keyframe)."""
+        return None
 
     def _predict(self) -> np.ndarray:
         """Constant-velocity prediction of the next pose (the last pose without a motion model)."""

@@ -19,21 +19,24 @@ from semmap.poses.base import PoseTracker, Progress, estimate_trajectory
 from semmap.types import Frame, Trajectory
 
 #: Tracker names accepted by :func:`make_tracker`.
-METHODS: tuple[str, ...] = ("slam", "slam-noloop", "slam-features", "odometry", "open3d-f2f", "open3d-f2f-tensor")
+METHODS: tuple[str, ...] = ("slam", "slam-noloop", "slam-orb", "slam-features", "odometry", "open3d-f2f",
+                            "open3d-f2f-tensor")
 
 
 def make_tracker(method: str) -> PoseTracker:
     """A fresh tracker: "slam" (feature SLAM with loop closure), "slam-noloop", "slam-features" (feature SLAM
     without the per-frame dense refinement), "odometry" (dense RGB-D odometry), or the plain Open3D
     frame-to-frame peers "open3d-f2f" (legacy) and "open3d-f2f-tensor"."""
-    if method in ("slam", "slam-noloop", "slam-features"):
+    if method in ("slam", "slam-noloop", "slam-orb", "slam-features"):
         try:
-            from semmap.poses.slam import RgbdSlam, SlamConfig
+            from semmap.poses.slam import DenseSlam, DenseSlamConfig, RgbdSlam, SlamConfig
         except ImportError as exc:
             raise ConfigError(f"pose method {method!r} is not available: semmap.poses.slam cannot be "
                               f"imported ({exc})") from None
+        if method == "slam":
+            return DenseSlam()
         if method == "slam-noloop":
-            return RgbdSlam(SlamConfig(loop_closure=False))
+            return DenseSlam(DenseSlamConfig(loop_closure=False))
         if method == "slam-features":
             return RgbdSlam(SlamConfig(dense_refine="off"))
         return RgbdSlam()

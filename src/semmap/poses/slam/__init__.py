@@ -2,6 +2,7 @@
 adjustment, loop closure and relocalisation with gtsam), exposed as the ``slam`` pose tracker."""
 
 from semmap.poses.slam.config import SlamConfig
+from semmap.poses.slam.dense_slam import DenseSlam, DenseSlamConfig
 from semmap.poses.slam.system import RgbdSlam, SlamStats
 
-__all__ = ["RgbdSlam", "SlamConfig", "SlamStats"]
+__all__ = ["DenseSlam", "DenseSlamConfig", "RgbdSlam", "SlamConfig", "SlamStats"]

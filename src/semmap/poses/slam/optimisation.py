@@ -183,18 +183,20 @@ class BundleAdjuster:
 
 
 def optimise_pose_graph(poses: np.ndarray, edges: list[tuple[int, int, np.ndarray, float]],
-                        fixed: int = 0, iterations: int = 30) -> np.ndarray:
+                        fixed: int = 0, iterations: int = 30,
+                        sigmas: tuple[float, float] = (0.01, 0.02)) -> np.ndarray:
     """Keyframe poses ``T_world_cam`` that best agree with relative-pose ``edges`` ``(i, j, T_i_j, weight)``,
-    keyframe ``fixed`` held in place (gtsam Levenberg-Marquardt)."""
+    keyframe ``fixed`` held in place (gtsam Levenberg-Marquardt). An edge of weight w has standard deviations
+    ``sigmas`` (radians, metres) divided by sqrt(w)."""
     graph = gtsam.NonlinearFactorGraph()
     values = gtsam.Values()
     for i, T in enumerate(poses):
         values.insert(X(i), gtsam.Pose3(se3.orthonormalise(T)))
     graph.add(gtsam.PriorFactorPose3(X(fixed), gtsam.Pose3(poses[fixed]), gtsam.noiseModel.Isotropic.Sigma(6, 1e-6)))
     for i, j, T_ij, weight in edges:
-        sigmas = np.array([0.01, 0.01, 0.01, 0.02, 0.02, 0.02]) / np.sqrt(max(weight, 1e-6))
+        sd = np.repeat(np.asarray(sigmas, np.float64), 3) / np.sqrt(max(weight, 1e-6))
         graph.add(gtsam.BetweenFactorPose3(X(i), X(j), gtsam.Pose3(se3.orthonormalise(T_ij)),
-                                           gtsam.noiseModel.Diagonal.Sigmas(sigmas)))
+                                           gtsam.noiseModel.Diagonal.Sigmas(sd)))
     params = gtsam.LevenbergMarquardtParams()
     params.setMaxIterations(iterations)
     result = gtsam.LevenbergMarquardtOptimizer(graph, values, params).optimize()

@@ -60,7 +60,7 @@ class RgbdSlam:
     with depth is the world origin.
     """
 
-    name = "slam"
+    name = "slam-orb"
 
     def __init__(self, config: SlamConfig | None = None) -> None:
         config = SlamConfig() if config is None else config

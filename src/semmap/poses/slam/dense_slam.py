@@ -1,0 +1,270 @@
+"""Dense RGB-D SLAM: dense odometry for every frame, ORB features on keyframes for loop closure and
+relocalisation, and a keyframe pose graph (gtsam) that a closed loop re-optimises.
+
+Each frame is aligned densely (photometric + geometric, :class:`~semmap.poses.odometry.DenseOdometry`) to the
+current keyframe; that is what the pose of every frame rests on, and on real and simulated sequences it is more
+accurate than feature tracking (``benchmarks/bench_tracking.py``). Keyframes also get ORB features with depth.
+A new keyframe is compared with older ones by descriptor retrieval; a candidate is verified by PnP + RANSAC on
+its keypoints' 3D points and refined by dense alignment of the two keyframes, and the pose graph (consecutive
+keyframes tied by their odometry, plus every loop) is optimised. A frame the dense alignment rejects is
+relocalised against recent and similar keyframes by the same PnP check before the motion model is trusted.
+Every frame's final pose is its keyframe's optimised pose times its pose relative to that keyframe.
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass, field
+
+import numpy as np
+import open3d as o3d
+
+from semmap.errors import ConfigError
+from semmap.poses.odometry import DenseOdometry, OdometryConfig, Reference
+from semmap.poses.slam import se3
+from semmap.poses.slam.config import SlamConfig
+from semmap.poses.slam.features import VIRTUAL_BASELINE, FrameFeatures, OrbExtractor
+from semmap.poses.slam.matching import count_brute_force, match_brute_force
+from semmap.poses.slam.optimisation import optimise_pose_graph
+from semmap.poses.slam.pose_solver import PinholeModel, pnp_ransac
+from semmap.types import CameraIntrinsics, Frame, Trajectory, pose_change
+
+log = logging.getLogger("semmap")
+
+#: the dense refinement of a PnP pose may move it at most this far (metres, degrees)
+POLISH_M = 0.1
+POLISH_DEG = 5.0
+
+
+@dataclass(frozen=True)
+class DenseSlamConfig:
+    """Settings of :class:`DenseSlam`; the defaults are the variant that measured best (see the benchmark)."""
+
+    odometry: OdometryConfig = field(default_factory=OdometryConfig)  #: per-frame dense alignment and keyframes
+    features: SlamConfig = field(default_factory=SlamConfig)  #: ORB extraction (n_features, levels, depth range)
+    loop_closure: bool = True  #: look for revisits at every keyframe and re-optimise the pose graph
+    loop_min_gap: int = 8  #: a loop candidate is at least this many keyframes older
+    loop_candidates: int = 3  #: most similar older keyframes verified geometrically
+    loop_cooldown: int = 2  #: keyframes after a closed loop before the next search
+    retrieval_features: int = 300  #: strongest descriptors per keyframe used to rank loop candidates
+    min_inliers: int = 40  #: PnP inliers that confirm a loop or a relocalisation
+    min_fitness: float = 0.4  #: share of pixels in correspondence after the dense refinement of a loop
+    #: a loop must agree with the current estimate within this (metres, degrees): drift is far smaller, and a
+    #: repeated texture matching the wrong place is rejected
+    loop_max_correction: float = 0.5
+    loop_max_correction_deg: float = 30.0
+    #: a loop's dense alignment, run both ways, must agree within this (metres, degrees): a pair that far apart
+    #: can converge to a wrong pose (on the simulated desk one such loop was 1.7 cm off and cost 5x the ATE)
+    loop_consistency: float = 0.005
+    loop_consistency_deg: float = 0.3
+    #: standard deviations of a pose-graph edge (radians, metres), odometry and loops alike
+    edge_sigma: tuple[float, float] = (0.005, 0.01)
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.odometry, OdometryConfig) or not isinstance(self.features, SlamConfig):
+            raise ConfigError("DenseSlamConfig needs an OdometryConfig and a SlamConfig")
+        for name in ("loop_min_gap", "loop_candidates", "retrieval_features", "min_inliers"):
+            if int(getattr(self, name)) < 1:
+                raise ConfigError(f"DenseSlamConfig.{name} must be at least 1, got {getattr(self, name)!r}")
+        if self.min_inliers < 6:
+            raise ConfigError(f"DenseSlamConfig.min_inliers must be at least 6 (PnP needs them), "
+                              f"got {self.min_inliers}")
+        if not 0.0 <= self.min_fitness <= 1.0:
+            raise ConfigError(f"DenseSlamConfig.min_fitness must lie in [0, 1], got {self.min_fitness}")
+        bounds = (*self.edge_sigma, self.loop_max_correction, self.loop_max_correction_deg, self.loop_consistency,
+                  self.loop_consistency_deg)
+        if min(bounds) <= 0:
+            raise ConfigError("DenseSlamConfig: edge sigmas and loop bounds must be positive")
+
+
+@dataclass
+class _Keyframe:
+    """A keyframe: the frame it is, its ORB features, its RGB-D image (for the dense refinement of loops), and its
+    pose in the odometry's own frame (``raw``) and after pose-graph optimisation (``T_wc``)."""
+
+    frame: int
+    raw: np.ndarray
+    T_wc: np.ndarray
+    feats: FrameFeatures
+    retrieval: np.ndarray
+    image: o3d.t.geometry.RGBDImage
+
+
+@dataclass
+class DenseSlamStats:
+    """Counters of a run (for reports and benchmarks)."""
+
+    keyframes: int = 0
+    loops: int = 0
+    relocalisations: int = 0
+    loop_frames: list[int] = field(default_factory=list)
+
+
+class DenseSlam(DenseOdometry):
+    """Dense odometry + keyframe pose graph with ORB loop closure and relocalisation (see the module docstring)."""
+
+    name = "slam"
+
+    def __init__(self, config: DenseSlamConfig | None = None) -> None:
+        config = DenseSlamConfig() if config is None else config
+        if not isinstance(config, DenseSlamConfig):
+            raise ConfigError(f"DenseSlam needs a DenseSlamConfig, got {type(config).__name__}")
+        super().__init__(config.odometry)
+        self.slam_config = config
+        self.stats = DenseSlamStats()
+        self.keyframes: list[_Keyframe] = []
+        self._kf_of_frame: list[int] = []  # keyframe each recorded frame was aligned to (or is)
+        self._edges: list[tuple[int, int, np.ndarray, float]] = []  # pose-graph edges (i, j, T_i_j, weight)
+        self._last_loop = -(10**9)
+        self._extractor: OrbExtractor | None = None
+        self._cam: PinholeModel | None = None
+        self._anchor: tuple[int, np.ndarray] | None = None  # (keyframe, T_kf_frame) of a relocalised frame
+        self._cached: tuple[Frame, FrameFeatures] | None = None  # the last frame's features (reused as keyframe)
+
+    # ------------------------------------------------------------------ hooks of DenseOdometry
+    def _set_reference(self, frame: Frame, image: o3d.t.geometry.RGBDImage, pose: np.ndarray) -> None:
+        super()._set_reference(frame, image, pose)
+        self._add_keyframe(frame, image, pose)
+
+    def _record(self, frame, name, pose, report) -> None:
+        super()._record(frame, name, pose, report)
+        self._kf_of_frame.append(len(self.keyframes) - 1)
+
+    def _recover(self, frame: Frame, image: o3d.t.geometry.RGBDImage, predicted: np.ndarray) -> np.ndarray | None:
+        """Relocalise a frame the dense alignment rejected: PnP against the last keyframes and the most similar
+        ones, refined densely; its pose in the odometry's frame, or None."""
+        feats = self._features(frame)
+        recent = list(range(max(0, len(self.keyframes) - 3), len(self.keyframes)))[::-1]
+        similar = self._rank(feats, np.arange(len(self.keyframes)))
+        for k in dict.fromkeys(recent + similar):
+            found = self._register(feats, image, k)
+            if found is not None:
+                self.stats.relocalisations += 1
+                log.debug("slam: frame %s relocalised against keyframe %d", frame.name or frame.index, k)
+                self._anchor = (k, found)  # the frame becomes a keyframe tied to keyframe k by this pose
+                return self.keyframes[k].raw @ found  # in the odometry's frame, through keyframe k
+        return None
+
+    # ------------------------------------------------------------------ keyframes and loops
+    def _setup(self, intr: CameraIntrinsics) -> None:
+        cfg = self.slam_config
+        self._extractor = OrbExtractor(cfg.features, intr)
+        self._cam = PinholeModel(intr.fx, intr.fy, intr.cx, intr.cy, VIRTUAL_BASELINE * intr.fx)
+
+    def _features(self, frame: Frame) -> FrameFeatures:
+        """ORB features of a frame (computed once: a relocalised frame becomes a keyframe right after)."""
+        if self._cached is not None and self._cached[0] is frame:
+            return self._cached[1]
+        if self._extractor is None:
+            self._setup(frame.intrinsics)
+        depth = np.nan_to_num(frame.depth, nan=0.0, posinf=0.0, neginf=0.0)
+        feats = self._extractor.extract(frame.rgb, depth)
+        self._cached = (frame, feats)
+        return feats
+
+    def _add_keyframe(self, frame: Frame, image: o3d.t.geometry.RGBDImage, raw: np.ndarray) -> None:
+        cfg = self.slam_config
+        feats = self._features(frame)
+        if self.keyframes:
+            # tied to the previous keyframe by the odometry, or to the keyframe it was relocalised against
+            ref, rel = self._anchor or (len(self.keyframes) - 1, se3.inverse(self.keyframes[-1].raw) @ raw)
+            T_wc = self.keyframes[ref].T_wc @ rel
+            self._edges.append((ref, len(self.keyframes), rel, 1.0))
+        else:
+            T_wc = raw.copy()
+        self._anchor = None
+        kf = _Keyframe(len(self._poses), raw.copy(), T_wc, feats,
+                       feats.desc[feats.strongest(cfg.retrieval_features)], image)
+        self.keyframes.append(kf)
+        self.stats.keyframes += 1
+        if cfg.loop_closure:
+            self._close_loop(len(self.keyframes) - 1)
+
+    def _rank(self, feats: FrameFeatures, candidates: np.ndarray) -> list[int]:
+        """The ``loop_candidates`` keyframes among ``candidates`` that share most ORB matches with ``feats``."""
+        if len(candidates) == 0 or len(feats) == 0:
+            return []
+        query = feats.desc[feats.strongest(self.slam_config.retrieval_features)]
+        scores = np.array([count_brute_force(query, self.keyframes[int(k)].retrieval) for k in candidates])
+        order = np.argsort(-scores, kind="stable")[: self.slam_config.loop_candidates]
+        return [int(candidates[i]) for i in order if scores[i] >= self.slam_config.min_inliers // 2]
+
+    def _register(self, feats: FrameFeatures, image: o3d.t.geometry.RGBDImage, k: int) -> np.ndarray | None:
+        """``T_kf_frame`` of a frame relative to keyframe ``k``: ORB matches, PnP + RANSAC on the keyframe's 3D
+        keypoints, then dense alignment of the two images from there; None when either check fails."""
+        cfg = self.slam_config
+        kf = self.keyframes[k]
+        with_depth = np.flatnonzero(kf.feats.has_depth)
+        if len(with_depth) < cfg.min_inliers or len(feats) < cfg.min_inliers:
+            return None
+        q, t = match_brute_force(feats.desc, kf.feats.desc[with_depth], max_dist=cfg.features.max_descriptor_distance,
+                                 ratio=0.85)
+        if len(q) < cfg.min_inliers:
+            return None
+        found = pnp_ransac(kf.feats.xyz[with_depth[t]], feats.uv[q], self._cam, None,
+                           cfg.features.ransac_reprojection_error, max(cfg.features.ransac_iterations, 300), seed=k)
+        if found is None or int(found[1].sum()) < cfg.min_inliers:
+            return None
+        T_kf_frame = self._refine(image, kf.image, se3.inverse(found[0]))
+        if T_kf_frame is None:
+            return None
+        # the alignment the other way round must land on the same pose, else one of them did not converge
+        back = self._refine(kf.image, image, se3.inverse(T_kf_frame))
+        if back is None:
+            return None
+        dist, angle = pose_change(T_kf_frame, se3.inverse(back))
+        return T_kf_frame if dist <= cfg.loop_consistency and angle <= cfg.loop_consistency_deg else None
+
+    def _refine(self, source: o3d.t.geometry.RGBDImage, target: o3d.t.geometry.RGBDImage,
+                T_init: np.ndarray) -> np.ndarray | None:
+        """``T_target_source`` by dense alignment of two images from ``T_init`` (a PnP pose, which it should only
+        polish), None when rejected or below ``min_fitness``."""
+        T, fitness, _, reason = self._align(source, Reference(target, np.eye(4)), T_init)
+        if reason or fitness < self.slam_config.min_fitness:
+            return None
+        dist, angle = pose_change(T_init, T)
+        return T if dist <= POLISH_M and angle <= POLISH_DEG else None
+
+    def _close_loop(self, k: int) -> None:
+        """Look for an older keyframe that keyframe ``k`` revisits; on success re-optimise the pose graph."""
+        cfg = self.slam_config
+        if k - self._last_loop < cfg.loop_cooldown or k < cfg.loop_min_gap:
+            return
+        kf = self.keyframes[k]
+        for j in self._rank(kf.feats, np.arange(k - cfg.loop_min_gap + 1)):
+            T_j_k = self._register(kf.feats, kf.image, j)
+            if T_j_k is None:
+                continue
+            dist, angle = pose_change(se3.inverse(self.keyframes[j].T_wc) @ kf.T_wc, T_j_k)
+            if dist > cfg.loop_max_correction or angle > cfg.loop_max_correction_deg:
+                log.debug("slam: loop %d -> %d rejected (%.2f m, %.1f deg from the estimate)", k, j, dist, angle)
+                continue
+            self._edges.append((j, k, T_j_k, 1.0))
+            self._optimise()
+            self._last_loop = k
+            self.stats.loops += 1
+            self.stats.loop_frames.append(kf.frame)
+            log.debug("slam: loop closed between keyframes %d and %d (%.3f m, %.2f deg)", k, j, dist, angle)
+            return
+
+    def _optimise(self) -> None:
+        rot, trans = self.slam_config.edge_sigma
+        poses = np.array([kf.T_wc for kf in self.keyframes])
+        try:
+            new = optimise_pose_graph(poses, self._edges, fixed=0, sigmas=(rot, trans))
+        except RuntimeError:  # an indeterminate graph: keep the poses
+            return
+        for kf, T in zip(self.keyframes, new, strict=True):
+            kf.T_wc = T
+
+    # ------------------------------------------------------------------ output
+    def trajectory(self) -> Trajectory:
+        """Every frame's pose: its keyframe's optimised pose times its odometry pose relative to that keyframe."""
+        if not self._poses:
+            return Trajectory(np.zeros(0), np.zeros((0, 4, 4)), ())
+        raw = np.asarray(self._poses)
+        ref = np.asarray(self._kf_of_frame)
+        kf_raw = np.array([kf.raw for kf in self.keyframes])
+        kf_opt = np.array([kf.T_wc for kf in self.keyframes])
+        poses = kf_opt[ref] @ se3.inverse(kf_raw[ref]) @ raw
+        return Trajectory(np.asarray(self._stamps), poses, tuple(self._names))

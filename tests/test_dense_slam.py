@@ -1,0 +1,96 @@
+"""The dense RGB-D SLAM (dense odometry, ORB loop closure and relocalisation, keyframe pose graph)."""
+
+from __future__ import annotations
+
+import itertools
+
+import numpy as np
+import pytest
+
+from helpers import blank_frame, umeyama_ate
+from semmap.errors import ConfigError
+from semmap.poses.base import PoseTracker
+from semmap.poses.slam import DenseSlam, DenseSlamConfig
+from semmap.poses.track import make_tracker
+from semmap.types import Frame, pose_change
+
+
+@pytest.fixture(scope="module")
+def desk_frames() -> list[Frame]:
+    """The first 60 frames of the simulated desk sequence."""
+    from semmap.datasets.simulated import SimulatedDataset
+
+    ds = SimulatedDataset.default(scene_seed=0, trajectory="desk", frames=300)
+    return list(itertools.islice(iter(ds), 60))
+
+
+def _gt(frames: list[Frame], names: tuple[str, ...]) -> np.ndarray:
+    by_name = {f.name: f.T_world_cam for f in frames}
+    return np.array([by_name[n] for n in names])
+
+
+def test_tracks_the_simulated_desk_to_a_millimetre(desk_frames):
+    slam = DenseSlam()
+    assert isinstance(slam, PoseTracker) and slam.name == "slam"
+    assert np.allclose(slam.track(desk_frames[0]), np.eye(4))
+    for f in desk_frames[1:]:
+        T = slam.track(f)
+        assert T.shape == (4, 4) and np.isfinite(T).all()
+    traj = slam.trajectory()
+    assert traj.names == tuple(f.name for f in desk_frames)
+    assert np.allclose(traj.poses[0], np.eye(4))
+    assert umeyama_ate(traj.poses, _gt(desk_frames, traj.names)) < 0.002
+    assert slam.stats.keyframes >= 3 and len(slam.keyframes) == slam.stats.keyframes
+
+
+def test_a_revisit_closes_an_accurate_loop(desk_frames):
+    """Out along the desk and back the same way: the way back revisits the first keyframes, which is found as a
+    loop; its measured relative pose matches the truth, and the optimised trajectory stays accurate."""
+    out = desk_frames[:40]
+    back = [f.with_(timestamp=out[-1].timestamp + 0.05 * (i + 1), name=f"back{i}") for i, f in enumerate(out[::-1])]
+    frames = out + back
+    truth = {f.name: f.T_world_cam for f in out} | {b.name: f.T_world_cam for f, b in zip(out[::-1], back,
+                                                                                         strict=True)}
+    for loops in (False, True):
+        slam = DenseSlam(DenseSlamConfig(loop_closure=loops, loop_min_gap=4))
+        for f in frames:
+            slam.track(f)
+        assert (slam.stats.loops >= 1) == loops
+        traj = slam.trajectory()
+        assert umeyama_ate(traj.poses, np.array([truth[n] for n in traj.names])) < 0.002
+    gt_kf = np.array([truth[frames[kf.frame].name] for kf in slam.keyframes])
+    loop_edges = [(i, j, T) for i, j, T, _ in slam._edges if j - i >= 4]
+    assert loop_edges
+    for i, j, T in loop_edges:
+        dist, angle = pose_change(np.linalg.inv(gt_kf[i]) @ gt_kf[j], T)
+        assert dist < 0.003 and angle < 0.2
+
+
+def test_relocalises_after_the_sensor_goes_blind(desk_frames):
+    slam = DenseSlam(DenseSlamConfig(loop_closure=False))
+    for f in desk_frames[:20]:
+        slam.track(f)
+    stamp = desk_frames[19].timestamp
+    for k in range(3):  # no colour and no depth: the dense alignment fails, the motion model carries on
+        assert np.isfinite(slam.track(blank_frame(desk_frames[19], stamp + 0.001 * (k + 1)))).all()
+    # ... and the camera comes back some frames later, further along the path
+    for f in desk_frames[26:]:
+        slam.track(f)
+    assert slam.stats.relocalisations >= 1
+    traj = slam.trajectory()
+    real = [i for i, n in enumerate(traj.names) if not n.startswith("blank")]
+    assert umeyama_ate(traj.poses[real], _gt(desk_frames, tuple(traj.names[i] for i in real))) < 0.005
+
+
+def test_tracker_names_and_bad_settings():
+    assert isinstance(make_tracker("slam"), DenseSlam)
+    assert make_tracker("slam-noloop").slam_config.loop_closure is False
+    assert make_tracker("slam-orb").name == "slam-orb"
+    with pytest.raises(ConfigError, match="min_inliers"):
+        DenseSlamConfig(min_inliers=3)
+    with pytest.raises(ConfigError, match="min_fitness"):
+        DenseSlamConfig(min_fitness=2.0)
+    with pytest.raises(ConfigError, match="positive"):
+        DenseSlamConfig(edge_sigma=(0.0, 0.01))
+    with pytest.raises(ConfigError, match="DenseSlamConfig"):
+        DenseSlam(config="fast")
