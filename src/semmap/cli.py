@@ -106,8 +106,8 @@ def run(
                                                    "keeping the aspect ratio (espnetv2 default: 320)",
                                                    rich_help_panel=_SEMANTICS)
                           ] = None,
-    poses: Annotated[str, typer.Option(help="gt (the dataset's) | slam | odometry | PATH of a TUM trajectory",
-                                       rich_help_panel=_POSES)] = "gt",
+    poses: Annotated[str, typer.Option(help="gt (the dataset's) | slam | slam-noloop | slam-orb | slam-features | "
+                                            "odometry | PATH of a TUM trajectory", rich_help_panel=_POSES)] = "gt",
     color_mode: Annotated[str, typer.Option(help="class | rgb: voxel colour in map.ot",
                                             rich_help_panel=_OUTPUT)] = "class",
     verbose: Annotated[bool, typer.Option("--verbose", "-v", help="debug logging")] = False,
@@ -286,8 +286,8 @@ def demo(
 def track(
     dataset: Annotated[Path, typer.Argument(help="RGB-D sequence folder (TUM RGB-D or 7-Scenes layout)")],
     out: Annotated[Path, typer.Option("--out", "-o", help="trajectory file to write (TUM format)")],
-    method: Annotated[str, typer.Option(help="slam | slam-noloop | odometry | open3d-f2f | open3d-f2f-tensor")
-                      ] = "slam",
+    method: Annotated[str, typer.Option(help="slam | slam-noloop | slam-orb | slam-features | odometry | "
+                                             "open3d-f2f | open3d-f2f-tensor")] = "slam",
     format: Annotated[str, typer.Option(help="auto | tum | 7scenes")] = "auto",
     max_frames: Annotated[int | None, typer.Option(help="use at most N frames")] = None,
     stride: Annotated[int, typer.Option(help="use every k-th frame")] = 1,

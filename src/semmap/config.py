@@ -78,11 +78,13 @@ class SemanticsConfig(_Section):
     batch_size: int = Field(1, ge=1, le=64, description="frames per network batch")
     backend: str = Field("torch", pattern="^(torch|onnx)$", description="network runtime")
     input_size: tuple[int, int] | int | None = Field(
-        None, description="network input: (width, height), or the short side keeping the aspect ratio; None = 384")
+        None, description="network input: (width, height), or the short side keeping the aspect ratio; None = the "
+                    "segmenter's default (espnetv2: 320)")
 
 
 class PosesConfig(_Section):
-    source: str = Field("gt", description="gt | slam | odometry | path of a TUM trajectory file")
+    source: str = Field("gt", description="gt | a tracker (slam, odometry, ...: semmap.poses.track.METHODS) | path of "
+                                          "a TUM trajectory file")
     max_time_diff: float = Field(0.02, gt=0.0, description="largest timestamp gap when reading a trajectory file")
 
 

@@ -335,6 +335,13 @@ def invert_pose(T: np.ndarray) -> np.ndarray:
     return make_pose(R.T, -R.T @ t)
 
 
+def orthonormalize(R: np.ndarray) -> np.ndarray:
+    """Nearest rotation (Frobenius norm) to a 3x3 matrix, via SVD; a reflection is turned into a rotation."""
+    U, _, Vt = np.linalg.svd(np.asarray(R, dtype=np.float64))
+    D = np.diag([1.0, 1.0, np.sign(np.linalg.det(U @ Vt))])
+    return U @ D @ Vt
+
+
 def rotation_angle(R: np.ndarray) -> float:
     """Angle (radians) of a rotation matrix (or the rotation of a 4x4 transform), from atan2 of its skew and
     symmetric parts: exact for small angles and blind to slight non-orthonormality, where arccos of the trace

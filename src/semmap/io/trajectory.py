@@ -14,7 +14,7 @@ import numpy as np
 
 from semmap.errors import FormatError
 from semmap.io.atomic import write_text_atomic
-from semmap.types import Trajectory, pose_from_tum, pose_to_tum
+from semmap.types import Trajectory, orthonormalize, pose_from_tum, pose_to_tum
 
 #: Largest accepted deviation | ‖q‖ − 1 | of a stored quaternion (it is normalised on reading).
 QUAT_NORM_TOL = 0.1
@@ -100,13 +100,6 @@ def orthonormality_error(R: np.ndarray) -> float:
     """max |R Rᵀ − I| of a 3x3 matrix (0 for an exact rotation)."""
     R = np.asarray(R, dtype=np.float64)
     return float(np.abs(R @ R.T - np.eye(3)).max())
-
-
-def orthonormalize(R: np.ndarray) -> np.ndarray:
-    """Nearest rotation (Frobenius norm) to a 3x3 matrix, via SVD; a reflection is turned into a rotation."""
-    U, _, Vt = np.linalg.svd(np.asarray(R, dtype=np.float64))
-    D = np.diag([1.0, 1.0, np.sign(np.linalg.det(U @ Vt))])
-    return U @ D @ Vt
 
 
 def clean_poses(poses: np.ndarray, source: str, tol: float = ORTHO_TOL) -> np.ndarray:

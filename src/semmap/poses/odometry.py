@@ -15,9 +15,8 @@ import numpy as np
 import open3d as o3d
 
 from semmap.errors import ConfigError
-from semmap.io.trajectory import orthonormalize
 from semmap.poses.o3d_images import DEPTH_SCALE, tensor_intrinsics, tensor_rgbd
-from semmap.types import Frame, Trajectory, invert_pose, pose_change
+from semmap.types import Frame, Trajectory, invert_pose, orthonormalize, pose_change
 
 _METHODS = {
     "hybrid": o3d.t.pipelines.odometry.Method.Hybrid,

@@ -10,9 +10,8 @@ from __future__ import annotations
 import numpy as np
 import open3d as o3d
 
-from semmap.io.trajectory import orthonormalize
 from semmap.poses.o3d_images import DEPTH_SCALE, legacy_intrinsics, legacy_rgbd, tensor_intrinsics, tensor_rgbd
-from semmap.types import Frame, Trajectory
+from semmap.types import Frame, Trajectory, orthonormalize
 
 
 class _Chain:

@@ -5,7 +5,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from semmap.types import rotation_angle
+from semmap.types import orthonormalize, rotation_angle
 
 __all__ = ["exp_update", "from_rvec", "inverse", "orthonormalise", "rotation_angle", "to_rvec", "transform"]
 
@@ -47,12 +47,8 @@ def to_rvec(T: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 def orthonormalise(T: np.ndarray) -> np.ndarray:
-    """Nearest proper rotation in the upper-left block (guards against drift from repeated products)."""
-    U, _, Vt = np.linalg.svd(T[:3, :3])
-    out = T.copy()
-    R = U @ Vt
-    if np.linalg.det(R) < 0:
-        U[:, -1] *= -1
-        R = U @ Vt
-    out[:3, :3] = R
+    """``T`` with the nearest proper rotation in its upper-left block (guards against drift from repeated
+    products)."""
+    out = np.array(T, np.float64)
+    out[:3, :3] = orthonormalize(T[:3, :3])
     return out
