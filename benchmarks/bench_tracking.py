@@ -1,7 +1,8 @@
 """Camera tracking accuracy and speed: semmap's trackers against Open3D's RGB-D odometry, in one run.
 
 Sequences: the real 7-Scenes redkitchen frames in ../shared/data (600; skipped with a message when absent)
-and simulated sequences (desk, loop, walk by default, 200 frames each; orbit on request). Methods:
+and simulated sequences (desk and walk 200 frames, loop 450 frames: the 1.25 laps that bring the camera back
+over its start; orbit on request). Methods:
 semmap-slam (dense odometry + ORB loop closure + pose graph, the default of ``--poses slam``),
 semmap-slam-noloop (the same without loop closure), semmap-slam-orb (the ORB-SLAM2-style feature SLAM with dense
 refinement), semmap-slam-features (the feature SLAM alone), semmap-odometry (dense keyframe odometry) and the
@@ -33,8 +34,9 @@ from semmap.poses.track import make_tracker
 from semmap.types import Frame, Trajectory
 
 SEVEN_SCENES = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "7scenes-redkitchen"
-#: Simulated sequences: name -> (scene seed, trajectory kind).
-SIM_SEQUENCES = {"sim-desk": (0, "desk"), "sim-loop": (1, "loop"), "sim-orbit": (2, "orbit"), "sim-walk": (3, "walk")}
+#: Simulated sequences: name -> (scene seed, trajectory kind, frames).
+SIM_SEQUENCES = {"sim-desk": (0, "desk", 200), "sim-loop": (1, "loop", 450), "sim-orbit": (2, "orbit", 200),
+                 "sim-walk": (3, "walk", 200)}
 ALL_SEQUENCES = ("7scenes-redkitchen", *SIM_SEQUENCES)
 DEFAULT_SEQUENCES = ("7scenes-redkitchen", "sim-desk", "sim-loop", "sim-walk")
 QUICK_SEQUENCES = ("7scenes-redkitchen", "sim-desk", "sim-loop")
@@ -52,7 +54,7 @@ def load_sequence(name: str, frames: int) -> list[Frame] | None:
             print(f"skipping {name}: {SEVEN_SCENES} is not present", file=sys.stderr)
             return None
         return list(open_dataset(SEVEN_SCENES, max_frames=frames))
-    seed, kind = SIM_SEQUENCES[name]
+    seed, kind, _ = SIM_SEQUENCES[name]
     return list(SimulatedDataset.default(scene_seed=seed, trajectory=kind, frames=frames))
 
 
@@ -99,7 +101,7 @@ def main() -> None:
     parser.add_argument("--sequences", help=f"comma-separated subset of {', '.join(ALL_SEQUENCES)} "
                                             f"(default: all but sim-orbit)")
     parser.add_argument("--methods", help=f"comma-separated subset of {', '.join(METHODS)}")
-    parser.add_argument("--frames", type=int, help="frames per sequence (default 600 real / 200 simulated)")
+    parser.add_argument("--frames", type=int, help="frames per sequence (default 600 real, 200 or 450 simulated)")
     parser.add_argument("--out", type=Path, help="write trajectories (TUM) and a plot per sequence here")
     args = parser.parse_args()
 
@@ -118,7 +120,7 @@ def main() -> None:
     rows = []
     for sequence in sequences:
         real = sequence.startswith("7scenes")
-        n = args.frames or ((150 if real else 100) if args.quick else (600 if real else 200))
+        n = args.frames or ((150 if real else 100) if args.quick else (600 if real else SIM_SEQUENCES[sequence][2]))
         frames = load_sequence(sequence, n)
         if frames is None:
             continue

@@ -24,7 +24,7 @@ from semmap.poses.odometry import DenseOdometry, OdometryConfig, Reference
 from semmap.poses.slam import se3
 from semmap.poses.slam.config import SlamConfig
 from semmap.poses.slam.features import VIRTUAL_BASELINE, FrameFeatures, OrbExtractor
-from semmap.poses.slam.matching import count_brute_force, match_brute_force
+from semmap.poses.slam.matching import match_brute_force, nearest_owner_votes
 from semmap.poses.slam.optimisation import optimise_pose_graph
 from semmap.poses.slam.pose_solver import PinholeModel, pnp_ransac
 from semmap.types import CameraIntrinsics, Frame, Trajectory, pose_change
@@ -181,13 +181,19 @@ class DenseSlam(DenseOdometry):
             self._close_loop(len(self.keyframes) - 1)
 
     def _rank(self, feats: FrameFeatures, candidates: np.ndarray) -> list[int]:
-        """The ``loop_candidates`` keyframes among ``candidates`` that share most ORB matches with ``feats``."""
+        """The ``loop_candidates`` keyframes among ``candidates`` most of whose descriptors are the nearest
+        neighbours of ``feats``' strongest ones (one search over all keyframes' retrieval descriptors)."""
+        cfg = self.slam_config
         if len(candidates) == 0 or len(feats) == 0:
             return []
-        query = feats.desc[feats.strongest(self.slam_config.retrieval_features)]
-        scores = np.array([count_brute_force(query, self.keyframes[int(k)].retrieval) for k in candidates])
-        order = np.argsort(-scores, kind="stable")[: self.slam_config.loop_candidates]
-        return [int(candidates[i]) for i in order if scores[i] >= self.slam_config.min_inliers // 2]
+        last = int(np.max(candidates)) + 1
+        sizes = np.array([len(kf.retrieval) for kf in self.keyframes[:last]])
+        database = np.concatenate([kf.retrieval for kf in self.keyframes[:last]])
+        owner = np.repeat(np.arange(last), sizes)
+        votes = nearest_owner_votes(feats.desc[feats.strongest(cfg.retrieval_features)], database, owner, last)
+        scores = votes[np.asarray(candidates, np.int64)]
+        order = np.argsort(-scores, kind="stable")[: cfg.loop_candidates]
+        return [int(candidates[i]) for i in order if scores[i] >= cfg.min_inliers // 2]
 
     def _register(self, feats: FrameFeatures, image: o3d.t.geometry.RGBDImage, k: int) -> np.ndarray | None:
         """``T_kf_frame`` of a frame relative to keyframe ``k``: ORB matches, PnP + RANSAC on the keyframe's 3D

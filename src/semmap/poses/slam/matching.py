@@ -106,3 +106,17 @@ def match_brute_force(desc_a: np.ndarray, desc_b: np.ndarray, max_dist: int = 80
 def count_brute_force(desc_a: np.ndarray, desc_b: np.ndarray, max_dist: int = 64, ratio: float = 0.8) -> int:
     """Number of ratio-test matches between two descriptor sets (a similarity score for place recognition)."""
     return len(match_brute_force(desc_a, desc_b, max_dist, ratio)[0])
+
+
+def nearest_owner_votes(query: np.ndarray, database: np.ndarray, owner: np.ndarray, n_owners: int,
+                        max_dist: int = 64) -> np.ndarray:
+    """Place-recognition votes: each query descriptor votes for the owner (e.g. keyframe) of its nearest database
+    descriptor when that is within ``max_dist`` bits; one exhaustive search against all owners at once."""
+    votes = np.zeros(n_owners, np.int64)
+    if len(query) == 0 or len(database) == 0:
+        return votes
+    matches = _BF.match(np.ascontiguousarray(query), np.ascontiguousarray(database))
+    hits = np.array([m.trainIdx for m in matches if m.distance <= max_dist], np.int64)
+    if len(hits):
+        votes += np.bincount(owner[hits], minlength=n_owners)
+    return votes
