@@ -53,7 +53,8 @@ def load_sequence(name: str, frames: int) -> list[Frame] | None:
         if not SEVEN_SCENES.is_dir():
             print(f"skipping {name}: {SEVEN_SCENES} is not present", file=sys.stderr)
             return None
-        return list(open_dataset(SEVEN_SCENES, max_frames=frames))
+        # registered colour only: the colour camera's own image is for segmentation (and would double the memory)
+        return [f.with_(raw_color=None) for f in open_dataset(SEVEN_SCENES, max_frames=frames)]
     seed, kind, _ = SIM_SEQUENCES[name]
     return list(SimulatedDataset.default(scene_seed=seed, trajectory=kind, frames=frames))
 

@@ -65,7 +65,9 @@ def main() -> None:
     for i, frame in enumerate(open_dataset(args.dataset)):
         if i not in wanted:
             continue
-        top = seg.segment(frame)
+        # a network sees the colour camera's whole view (7-Scenes colour is registered onto depth for mapping)
+        view = frame.raw_color.image if frame.raw_color is not None and hasattr(seg, "predict") else frame.rgb
+        top = seg.predict(view) if view is not frame.rgb else seg.segment(frame)
         labels, conf = top.labels[..., 0].astype(np.int64), top.probs[..., 0]
         pixels += np.bincount(labels.ravel(), minlength=len(names))
         conf_sum += np.bincount(labels.ravel(), weights=conf.ravel(), minlength=len(names))
@@ -74,7 +76,7 @@ def main() -> None:
             seen_in.setdefault(name, []).append(frame.name)
         print(f"{frame.name}: " + ", ".join(f"{names[c]} {100 * np.mean(labels == c):.1f}%"
                                             for c in np.unique(labels)))
-        rows.append(np.hstack([frame.rgb, overlay(frame.rgb, labels, names, colors)]))
+        rows.append(np.hstack([view, overlay(view, labels, names, colors)]))
     if not rows:
         raise SystemExit(f"none of frames {sorted(wanted)} exists in {args.dataset}")
     total = pixels.sum()

@@ -380,6 +380,7 @@ def test_real_sevenscenes_colour_is_registered_onto_depth(redkitchen: Path) -> N
     before, after = [], []
     for a, b in zip(raw, registered, strict=True):
         assert a.rgb.shape == b.rgb.shape and not np.array_equal(a.rgb, b.rgb)
+        assert a.raw_color is None and np.array_equal(b.raw_color.image, a.rgb)  # the camera's own view, kept
         np.testing.assert_array_equal(a.depth, b.depth)
         before.append(edge_misalignment(a.rgb, a.depth))
         after.append(edge_misalignment(b.rgb, b.depth))

@@ -8,10 +8,11 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from semmap.errors import ConfigError, DatasetError
-from semmap.geometry import ColorCamera, backproject, backproject_world, register_color, voxel_filter
+from semmap.geometry import backproject, backproject_world, register_color, voxel_filter
 from semmap.types import (
     EMPTY_LABEL,
     CameraIntrinsics,
+    ColorCamera,
     LabelSet,
     TopKProbs,
     check_pose,

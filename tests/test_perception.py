@@ -104,6 +104,34 @@ def test_wrong_class_count_and_backend_are_clear_errors(rgb):
         seg.predict(rgb)
 
 
+def test_frames_with_their_colour_cameras_view_are_segmented_on_it_and_mapped_to_depth():
+    """A frame whose colour was registered onto depth keeps the colour camera's own image; the network segments
+    that whole view and the classes land on the depth pixels that see them."""
+    from semmap.geometry import onto_depth_grid, register_color
+    from semmap.types import CameraIntrinsics, ColorCamera, Frame, RawColor
+
+    cam = CameraIntrinsics(80, 60, 73.0, 73.0, 40.0, 30.0)
+    color_cam = ColorCamera(65.5, 65.5, 40.5, 29.0, (-0.03, 0.0, 0.0))
+    raw = np.zeros((60, 80, 3), np.uint8)
+    raw[:, 40:] = 255  # the right half of the colour camera's view is bright
+    depth = np.full((60, 80), 1.2, np.float32)
+    frame = Frame(0, 0.0, register_color(raw, depth, cam, color_cam), depth, cam,
+                  raw_color=RawColor(raw, color_cam))
+    seg = NetworkSegmenter(TinyNet(), LABELS, name="tiny", net_input=NetworkInput(size=(40, 30)), k=3)
+    on_raw = seg.predict(raw)
+    top = seg.segment(frame)
+    assert top.labels.shape == (60, 80, 3)
+    np.testing.assert_array_equal(top.labels, onto_depth_grid(frame, on_raw.labels))
+    np.testing.assert_array_equal(top.probs, onto_depth_grid(frame, on_raw.probs))
+    # where the registered colour is bright the mapped classes are the bright half's
+    bright = frame.rgb[..., 0] > 200
+    assert bright.any() and (~bright).any()
+    assert (top.labels[..., 0][bright] == on_raw.labels[30, 70, 0]).mean() > 0.95
+    assert seg.segment_batch([frame, frame])[1].labels.shape == (60, 80, 3)
+    with pytest.raises(DatasetError, match="raw colour"):
+        frame.with_(raw_color=RawColor(raw[..., 0], color_cam))
+
+
 # ------------------------------------------------------------------ precomputed
 @pytest.fixture()
 def frames():

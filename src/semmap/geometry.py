@@ -9,7 +9,7 @@ import numba as nb
 import numpy as np
 
 from semmap.errors import ConfigError
-from semmap.types import CameraIntrinsics
+from semmap.types import CameraIntrinsics, ColorCamera, Frame
 
 #: Default valid depth range of a Kinect-class sensor (metres).
 DEFAULT_MIN_DEPTH = 0.1
@@ -134,27 +134,14 @@ def voxel_filter(points: np.ndarray, resolution: float) -> np.ndarray:
     return np.sort(first)
 
 
-@dataclass(frozen=True)
-class ColorCamera:
-    """A colour camera beside the depth camera: its pinhole intrinsics (pixels of the colour image) and where a
-    point of the depth camera's frame lands in its frame, ``X_color = X_depth + t_color_depth`` (no rotation)."""
+def color_maps(depth: np.ndarray, depth_camera: CameraIntrinsics,
+               color_camera: ColorCamera) -> tuple[np.ndarray, np.ndarray]:
+    """For every depth pixel, where it lies in the colour image: (map_x, map_y) float32, as ``cv2.remap`` takes.
 
-    fx: float
-    fy: float
-    cx: float
-    cy: float
-    t_color_depth: tuple[float, float, float] = (0.0, 0.0, 0.0)
-
-
-def register_color(rgb: np.ndarray, depth: np.ndarray, depth_camera: CameraIntrinsics,
-                   color_camera: ColorCamera) -> np.ndarray:
-    """Colour resampled onto the depth camera's pixel grid, so ``rgb[v, u]`` shows what ``depth[v, u]`` measured.
-
-    Each depth pixel is back-projected at its depth, moved into the colour camera and projected there; the
-    colour is sampled bilinearly.  Pixels without depth use the frame's median depth (their colour is then only
-    approximately placed; they carry no 3D point anyway).
+    Each depth pixel is back-projected at its depth, moved into the colour camera and projected there. Pixels
+    without depth use the frame's median depth (their colour is then only approximately placed; they carry no
+    3D point anyway).
     """
-    h, w = depth.shape
     rays = pixel_rays(depth_camera)
     valid = depth > 0
     z = np.where(valid, depth, np.float32(np.median(depth[valid]) if valid.any() else 2.0)).astype(np.float32)
@@ -165,5 +152,25 @@ def register_color(rgb: np.ndarray, depth: np.ndarray, depth_camera: CameraIntri
     c = color_camera
     map_x = (rays.x.astype(np.float32)[None, :] * z + tx) * inv * np.float32(c.fx) + np.float32(c.cx)
     map_y = (rays.y.astype(np.float32)[:, None] * z + ty) * inv * np.float32(c.fy) + np.float32(c.cy)
-    out = cv2.remap(np.ascontiguousarray(rgb), map_x, map_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
-    return out.reshape(h, w, -1) if rgb.ndim == 3 else out
+    return map_x, map_y
+
+
+def register_color(rgb: np.ndarray, depth: np.ndarray, depth_camera: CameraIntrinsics,
+                   color_camera: ColorCamera) -> np.ndarray:
+    """Colour resampled (bilinearly) onto the depth camera's pixel grid, so ``rgb[v, u]`` shows what
+    ``depth[v, u]`` measured (see :func:`color_maps`)."""
+    map_x, map_y = color_maps(depth, depth_camera, color_camera)
+    return cv2.remap(np.ascontiguousarray(rgb), map_x, map_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+
+
+def onto_depth_grid(frame: Frame, per_color_pixel: np.ndarray) -> np.ndarray:
+    """A per-pixel array of the frame's raw colour image (``frame.raw_color``: class ids, probabilities) carried
+    onto its depth grid by nearest-pixel sampling; returned as is for frames whose colour needs no registration."""
+    if frame.raw_color is None:
+        return per_color_pixel
+    map_x, map_y = color_maps(frame.depth, frame.intrinsics, frame.raw_color.camera)
+    arr = np.ascontiguousarray(per_color_pixel)
+    if arr.ndim == 3 and arr.shape[2] > 4:  # cv2.remap takes at most 4 channels at a time
+        return np.dstack([onto_depth_grid(frame, arr[..., i:i + 4]) for i in range(0, arr.shape[2], 4)])
+    out = cv2.remap(arr, map_x, map_y, cv2.INTER_NEAREST, borderMode=cv2.BORDER_REPLICATE)
+    return out.reshape(*frame.depth.shape, *arr.shape[2:])

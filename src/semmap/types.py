@@ -263,6 +263,28 @@ class TopKProbs:
 # Frames
 # --------------------------------------------------------------------------------------------------
 @dataclass(frozen=True)
+class ColorCamera:
+    """A colour camera beside the depth camera: its pinhole intrinsics (pixels of the colour image) and where a
+    point of the depth camera's frame lands in its frame, ``X_color = X_depth + t_color_depth`` (no rotation)."""
+
+    fx: float
+    fy: float
+    cx: float
+    cy: float
+    t_color_depth: tuple[float, float, float] = (0.0, 0.0, 0.0)
+
+
+@dataclass(frozen=True)
+class RawColor:
+    """A frame's colour image as its own camera took it, kept where ``Frame.rgb`` was resampled onto the depth
+    camera: segmentation networks see the whole, unresampled view and their output is carried onto the depth grid
+    (:func:`semmap.geometry.onto_depth_grid`)."""
+
+    image: np.ndarray  # (h, w, 3) uint8
+    camera: ColorCamera
+
+
+@dataclass(frozen=True)
 class Frame:
     """One registered RGB-D frame and whatever ground truth or perception came with it.
 
@@ -279,6 +301,7 @@ class Frame:
     instances: np.ndarray | None = None  # (H, W) int32 instance ids, 0 = none
     semantics: TopKProbs | None = None  # (H, W, k) per-pixel class distribution
     name: str = ""
+    raw_color: RawColor | None = None  # the colour camera's own image, where rgb was registered onto depth
 
     def __post_init__(self) -> None:
         h, w = self.intrinsics.height, self.intrinsics.width
@@ -297,6 +320,10 @@ class Frame:
                                f"expected ({h}, {w})")
         if self.T_world_cam is not None:
             check_pose(self.T_world_cam, where)
+        if self.raw_color is not None and (self.raw_color.image.ndim != 3 or self.raw_color.image.shape[2] != 3
+                                           or self.raw_color.image.dtype != np.uint8):
+            raise DatasetError(f"{where}: raw colour image is {self.raw_color.image.shape} "
+                               f"{self.raw_color.image.dtype}, expected (h, w, 3) uint8")
 
     def with_(self, **changes) -> Frame:
         """Copy with some fields replaced (frames are immutable)."""

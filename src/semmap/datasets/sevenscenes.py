@@ -27,8 +27,8 @@ from semmap.datasets.base import (
 )
 from semmap.datasets.label_folder import LabelFolder, as_label_folder, choose_label_set
 from semmap.errors import ConfigError, DatasetError
-from semmap.geometry import ColorCamera, register_color
-from semmap.types import CameraIntrinsics, Frame, check_pose
+from semmap.geometry import register_color
+from semmap.types import CameraIntrinsics, ColorCamera, Frame, RawColor, check_pose
 
 #: Colour file names; png is preferred when a frame has both.
 COLOR_PATTERN = re.compile(r"^(frame-(\d+))\.color\.(png|jpg)$")
@@ -91,7 +91,9 @@ class SevenScenesDataset(SequenceReader[_SevenScenesRef]):
         depth_path = ref.sibling(".depth.png")
         depth = read_depth(depth_path, DEPTH_SCALE, invalid_values=(0, 65535))
         check_image_size(depth, cam, depth_path, "depth")
+        raw = None
         if self.registers_color:
+            raw = RawColor(rgb, SEVEN_SCENES_COLOR_CAMERA)
             rgb = register_color(rgb, depth, cam, SEVEN_SCENES_COLOR_CAMERA)
         return Frame(
             index=ref.index,
@@ -102,6 +104,7 @@ class SevenScenesDataset(SequenceReader[_SevenScenesRef]):
             T_world_cam=pose,
             labels=self._labels.read(ref.name, cam) if self._labels else None,
             name=ref.name,
+            raw_color=raw,
         )
 
 

@@ -19,6 +19,7 @@ import cv2
 import numpy as np
 
 from semmap.errors import ConfigError
+from semmap.geometry import onto_depth_grid
 from semmap.types import EMPTY_LABEL, Frame, LabelSet, TopKProbs
 
 log = logging.getLogger("semmap")
@@ -172,10 +173,14 @@ class NetworkSegmenter:
         return out
 
     def segment(self, frame: Frame) -> TopKProbs:
-        return self.predict(frame.rgb, frame.depth)
+        """Class distribution on the frame's depth grid; a frame that keeps its colour camera's own image
+        (``raw_color``) is segmented on that whole view and the result carried onto the depth grid."""
+        return self.segment_batch([frame])[0]
 
     def segment_batch(self, frames: Sequence[Frame]) -> list[TopKProbs]:
-        return self.predict_batch([f.rgb for f in frames])
+        tops = self.predict_batch([f.rgb if f.raw_color is None else f.raw_color.image for f in frames])
+        return [TopKProbs(onto_depth_grid(f, t.labels), onto_depth_grid(f, t.probs)) for f, t in
+                zip(frames, tops, strict=True)]
 
 
 def _onnx_session(model, shape: tuple[int, ...], cache_dir: Path | None, cache_key: str, threads: int | None):
@@ -194,6 +199,8 @@ def _onnx_session(model, shape: tuple[int, ...], cache_dir: Path | None, cache_k
         log.info("exporting %s to ONNX (%s), once", type(model).__name__, path)
         with torch.inference_mode(), warnings.catch_warnings():
             warnings.simplefilter("ignore", DeprecationWarning)  # the TorchScript exporter needs no onnxscript
+            # one graph per input shape is the intent: the tracer's notes on shapes read as constants are noise
+            warnings.simplefilter("ignore", torch.jit.TracerWarning)
             torch.onnx.export(model, (torch.zeros(n, 3, h, w),), str(tmp), input_names=["image"],
                               output_names=["logits"], opset_version=17, dynamo=False)
         tmp.replace(path)
