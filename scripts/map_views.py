@@ -41,6 +41,8 @@ def main() -> None:
     parser.add_argument("map", type=Path, help="a ColorOcTree .ot file")
     parser.add_argument("--out", type=Path, default=None, help="PNG to write (default: MAP_views.png)")
     parser.add_argument("--labels", choices=("voc", "indoor"), default="voc", help="palette to count classes by")
+    parser.add_argument("--keep-high", action="store_true",
+                        help="draw everything (by default voxels above the camera path are left out, like a ceiling)")
     args = parser.parse_args()
     leaves = read_octomap(args.map)
     if leaves.colors is None:
@@ -53,7 +55,7 @@ def main() -> None:
     traj_path = args.map.with_name("trajectory.txt")
     poses = read_trajectory(traj_path).poses if traj_path.is_file() else np.zeros((0, 4, 4))
     up = up_vector(poses)
-    cut = float((poses[:, :3, 3] @ up).max() + CEILING_MARGIN) if len(poses) else None
+    cut = float((poses[:, :3, 3] @ up).max() + CEILING_MARGIN) if len(poses) and not args.keep_high else None
     views = [perspective(centers, colors, leaves.resolution, up=up, max_height=cut, azimuth_deg=a, tilt_deg=35.0,
                          width=560, height=420) for a in AZIMUTHS]
     titles = [f"{args.map.name}, azimuth {a:.0f} deg" for a in AZIMUTHS]
