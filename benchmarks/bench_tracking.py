@@ -10,7 +10,7 @@ peers open3d-f2f (legacy hybrid odometry, frame to frame) and open3d-f2f-tensor 
 frame). Frames are loaded into memory before timing, so ms/frame measures tracking only (the final
 ``trajectory()`` call, e.g. SLAM's global optimisation, is included). Every method sees the same frames (7-Scenes
 colour registered onto depth, as ``semmap run`` reads it). Prints one JSON line per sequence and method, then a
-table with the ATE ratio against open3d-f2f.
+table with the ATE ratio against open3d-f2f, then all rows again as one JSON line (``tracking-summary``).
 
     python benchmarks/bench_tracking.py [--quick] [--sequences 7scenes-redkitchen,sim-desk] [--methods ...]
                                         [--frames N] [--out DIR]
@@ -145,6 +145,7 @@ def main() -> None:
         if args.out:
             _write_outputs(args.out, sequence, gt, estimates)
     print_table(rows)
+    print(json.dumps({"bench": "tracking-summary", "peer": PEER, "results": rows}))
 
 
 def _write_outputs(out: Path, sequence: str, gt: Trajectory, estimates: dict[str, Trajectory]) -> None:

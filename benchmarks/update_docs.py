@@ -57,6 +57,31 @@ def octree_table(bench: dict) -> list[str]:
     return rows
 
 
+#: methods shown in the README's tracking table (docs/BENCHMARKS.md lists them all)
+README_TRACKERS = ("semmap-slam", "semmap-slam-orb", "semmap-odometry", "open3d-f2f")
+
+
+def tracking_table(bench: dict, methods: tuple[str, ...] | None = None) -> list[str]:
+    """ATE, RPE and speed per sequence and tracker, with the ATE ratio against the peer on the same sequence."""
+    rows = [r for r in bench["results"] if methods is None or r["method"] in methods]
+    peer = {r["sequence"]: r["ate_rmse_m"] for r in bench["results"] if r["method"] == bench["peer"]}
+    out = [f"| sequence | frames | tracker | ATE cm | RPE cm | ms/frame | ATE / {bench['peer']} |",
+           "|---|---|---|---|---|---|---|"]
+    for r in rows:
+        ratio = r["ate_rmse_m"] / peer[r["sequence"]] if r["sequence"] in peer else float("nan")
+        out.append(f"| {r['sequence']} | {r['frames']} | {r['method']} | {100 * r['ate_rmse_m']:.2f} | "
+                   f"{100 * r['rpe_trans_m']:.2f} | {r['ms_per_frame']:.0f} | **{ratio:.2f}** |")
+    return out
+
+
+def segmenter_table(bench: dict) -> list[str]:
+    """CPU time per 640x480 frame (everything a run pays) and of the network alone, per model, input, runtime."""
+    out = ["| model | network input | runtime | ms/frame | network ms |", "|---|---|---|---|---|"]
+    for r in bench["results"]:
+        out.append(f"| {r['model']} | {r['input']} | {r['backend']} | {r['ms_per_frame']} | {r['network_ms']} |")
+    return out
+
+
 def demo_lines(report: dict) -> list[str]:
     sizes = report["bytes_on_disk"]
     ms = report["ms_per_frame"]
@@ -80,6 +105,8 @@ def main() -> None:
     extra = ["--quick"] if args.quick else []
     octree = run_json(["benchmarks/bench_octree_vs_octomap.py", *extra])
     sim = run_json(["benchmarks/bench_sim.py", *extra])
+    tracking = run_json(["benchmarks/bench_tracking.py", *extra])
+    segmenters = run_json(["benchmarks/bench_segmenters.py", *extra])
     demo = run_demo(ROOT / "outputs" / "demo")
     stamp = time.strftime("%Y-%m-%d")
     lines = [
@@ -99,15 +126,28 @@ def main() -> None:
         f"`benchmarks/bench_sim.py`: {sim['fps']} frames/s at {sim['width']}×{sim['height']} (rgb, depth with noise, "
         f"labels, instances; {sim.get('backend', 'raster')} backend), versus {sim.get('fps_raycast', '?')} frames/s "
         "with open3d ray casting.", "",
+        "## Camera tracking", "",
+        "`benchmarks/bench_tracking.py`: ATE (RMSE after SE(3) Umeyama alignment) and RPE (1 frame) with evo, on the "
+        "real 7-Scenes frames (ground truth from KinectFusion) and simulated sequences (exact ground truth); "
+        f"`{tracking['peer']}` is Open3D's legacy hybrid RGB-D odometry chained frame to frame.", "",
+        *tracking_table(tracking), "",
+        "## Segmentation speed", "",
+        "`benchmarks/bench_segmenters.py`: ESPNetv2 on 640×480 7-Scenes frames, 2 CPU threads; a frame's time "
+        "covers resizing, the network, softmax, sampling at every pixel and top-3.", "",
+        *segmenter_table(segmenters), "",
         "## Demo (`semmap demo`)", "", *demo_lines(demo), "",
-        "```json", json.dumps({"octree_vs_octomap": octree, "sim": sim}, indent=1), "```", "",
+        "```json", json.dumps({"octree_vs_octomap": octree, "sim": sim, "tracking": tracking,
+                               "segmenters": segmenters}, indent=1), "```", "",
     ]
     (ROOT / "docs" / "BENCHMARKS.md").write_text("\n".join(lines))
     readme = (ROOT / "README.md").read_text()
     if START in readme and END in readme:
         block = [START, "", f"Measured on {stamp} ({machine()}) by `benchmarks/update_docs.py`:", "",
                  *octree_table(octree), "", f"- Simulator: {sim['fps']} frames/s at 640×480, all channels.",
-                 *demo_lines(demo), "", END]
+                 *demo_lines(demo), "", "Camera tracking (`benchmarks/bench_tracking.py`; all trackers in "
+                 "[docs/BENCHMARKS.md](docs/BENCHMARKS.md)):", "", *tracking_table(tracking, README_TRACKERS), "",
+                 "ESPNetv2 segmentation on the CPU (`benchmarks/bench_segmenters.py`):", "",
+                 *segmenter_table(segmenters), "", END]
         head, rest = readme.split(START, 1)
         readme = head + "\n".join(block) + rest.split(END, 1)[1]
         (ROOT / "README.md").write_text(readme)
