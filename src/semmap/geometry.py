@@ -163,14 +163,22 @@ def register_color(rgb: np.ndarray, depth: np.ndarray, depth_camera: CameraIntri
     return cv2.remap(np.ascontiguousarray(rgb), map_x, map_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
 
 
-def onto_depth_grid(frame: Frame, per_color_pixel: np.ndarray) -> np.ndarray:
-    """A per-pixel array of the frame's raw colour image (``frame.raw_color``: class ids, probabilities) carried
-    onto its depth grid by nearest-pixel sampling; returned as is for frames whose colour needs no registration."""
+def onto_depth_grid(frame: Frame, *per_color_pixel: np.ndarray) -> tuple[np.ndarray, ...]:
+    """Per-pixel arrays of the frame's raw colour image (``frame.raw_color``: class ids, probabilities) carried
+    onto its depth grid by nearest-pixel sampling (the sampling maps are computed once for all of them); returned
+    as they are for frames whose colour needs no registration."""
     if frame.raw_color is None:
         return per_color_pixel
     map_x, map_y = color_maps(frame.depth, frame.intrinsics, frame.raw_color.camera)
-    arr = np.ascontiguousarray(per_color_pixel)
-    if arr.ndim == 3 and arr.shape[2] > 4:  # cv2.remap takes at most 4 channels at a time
-        return np.dstack([onto_depth_grid(frame, arr[..., i:i + 4]) for i in range(0, arr.shape[2], 4)])
-    out = cv2.remap(arr, map_x, map_y, cv2.INTER_NEAREST, borderMode=cv2.BORDER_REPLICATE)
-    return out.reshape(*frame.depth.shape, *arr.shape[2:])
+
+    def remap(arr: np.ndarray) -> np.ndarray:
+        out = cv2.remap(np.ascontiguousarray(arr), map_x, map_y, cv2.INTER_NEAREST, borderMode=cv2.BORDER_REPLICATE)
+        return out.reshape(*frame.depth.shape, *arr.shape[2:])
+
+    out = []
+    for arr in per_color_pixel:
+        if arr.ndim == 3 and arr.shape[2] > 4:  # cv2.remap takes at most 4 channels at a time
+            out.append(np.dstack([remap(arr[..., i:i + 4]) for i in range(0, arr.shape[2], 4)]))
+        else:
+            out.append(remap(arr))
+    return tuple(out)

@@ -179,8 +179,7 @@ class NetworkSegmenter:
 
     def segment_batch(self, frames: Sequence[Frame]) -> list[TopKProbs]:
         tops = self.predict_batch([f.rgb if f.raw_color is None else f.raw_color.image for f in frames])
-        return [TopKProbs(onto_depth_grid(f, t.labels), onto_depth_grid(f, t.probs)) for f, t in
-                zip(frames, tops, strict=True)]
+        return [TopKProbs(*onto_depth_grid(f, t.labels, t.probs)) for f, t in zip(frames, tops, strict=True)]
 
 
 def _onnx_session(model, shape: tuple[int, ...], cache_dir: Path | None, cache_key: str, threads: int | None):
