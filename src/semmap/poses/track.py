@@ -1,13 +1,11 @@
 """Pose trackers by name, and one call that tracks a whole dataset (what ``semmap track`` runs).
 
-``slam`` (the default of ``--poses slam``) is the feature SLAM (ORB, local map tracking, local BA, loop closure)
-whose every feature-tracked pose is refined by dense photometric + geometric alignment to its reference keyframe
-(half resolution), with dense relative-pose factors between keyframes in bundle adjustment and a dense fallback
-that carries tracking through views without features. It was chosen by measurement (benchmarks/bench_tracking.py,
-2 CPU cores, 640x480) as the most accurate tracker that runs at >= 15 frames/s: ~58 ms/frame and ATE ~3.7 cm on
-600 frames of 7-Scenes redkitchen (features alone: ~46 ms/frame, ~3.6 cm; ``odometry``: ~115 ms/frame, ~4.1 cm),
-and 2-4x more accurate than features alone on the simulated sequences (e.g. sim-loop ~0.5 cm against ~1.7 cm).
-``slam-features`` is the same SLAM without the per-frame dense refinement (the dense fallback stays on).
+``slam`` (the default of ``semmap track``) is the dense SLAM (:class:`~semmap.poses.slam.DenseSlam`): dense
+photometric + geometric odometry for every frame, ORB loop closure and relocalisation, a keyframe pose graph. It
+was chosen by measurement (``benchmarks/bench_tracking.py``, 2 CPU cores, 640x480): ATE 3.45 cm at 44 ms/frame on
+600 7-Scenes frames (``slam-orb`` 3.49 cm, ``slam-features`` 4.13 cm) and 4-30x more accurate than the feature
+SLAM on the simulated sequences (sim-loop 0.10 cm against 1.38 cm). ``slam-orb`` is the ORB-SLAM2-style feature
+SLAM with dense refinement of its poses, ``slam-features`` the same without it.
 """
 
 from __future__ import annotations
@@ -24,9 +22,9 @@ METHODS: tuple[str, ...] = ("slam", "slam-noloop", "slam-orb", "slam-features", 
 
 
 def make_tracker(method: str) -> PoseTracker:
-    """A fresh tracker: "slam" (feature SLAM with loop closure), "slam-noloop", "slam-features" (feature SLAM
-    without the per-frame dense refinement), "odometry" (dense RGB-D odometry), or the plain Open3D
-    frame-to-frame peers "open3d-f2f" (legacy) and "open3d-f2f-tensor"."""
+    """A fresh tracker: "slam" (dense SLAM with loop closure), "slam-noloop" (without it), "slam-orb" (ORB feature
+    SLAM with dense refinement), "slam-features" (ORB feature SLAM alone), "odometry" (dense RGB-D odometry), or
+    the plain Open3D frame-to-frame peers "open3d-f2f" (legacy) and "open3d-f2f-tensor"."""
     if method in ("slam", "slam-noloop", "slam-orb", "slam-features"):
         try:
             from semmap.poses.slam import DenseSlam, DenseSlamConfig, RgbdSlam, SlamConfig

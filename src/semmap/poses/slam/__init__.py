@@ -1,5 +1,6 @@
-"""Built-in feature-based RGB-D SLAM in the spirit of ORB-SLAM2 (ORB features, local map tracking, local bundle
-adjustment, loop closure and relocalisation with gtsam), exposed as the ``slam`` pose tracker."""
+"""Built-in RGB-D SLAM: the dense SLAM (``slam``: dense odometry, ORB loop closure and relocalisation, keyframe pose
+graph) and the feature SLAM in the spirit of ORB-SLAM2 (``slam-orb``: ORB features, local map tracking, local
+bundle adjustment, loop closure and relocalisation with gtsam)."""
 
 from semmap.poses.slam.config import SlamConfig
 from semmap.poses.slam.dense_slam import DenseSlam, DenseSlamConfig
