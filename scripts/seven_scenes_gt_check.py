@@ -6,7 +6,11 @@ depth residuals of both.
 moves away from it and leaves the two depth clouds closer than the ground truth does, the ground truth itself is
 off by that much; this bounds how low any tracker's ATE against it can meaningfully go.
 
-    python scripts/seven_scenes_gt_check.py [../shared/data/7scenes-redkitchen] [--gap 5] [--every 20]
+    python scripts/seven_scenes_gt_check.py [../shared/data/7scenes-redkitchen] [--gap 5] [--every 20] [--worst 5]
+
+``--gap 1 --every 1`` checks every consecutive pair; ``--worst N`` lists the N pairs ICP corrects most, with the
+ground truth's own step between the two frames (a glitch shows as a step far larger than its neighbours' that ICP
+takes back).
 """
 
 from __future__ import annotations
@@ -39,6 +43,7 @@ def main() -> None:
     ap.add_argument("dataset", nargs="?", type=Path, default=SHARED)
     ap.add_argument("--gap", type=int, default=5, help="frames between the two frames of a pair")
     ap.add_argument("--every", type=int, default=20, help="a pair starts every k-th frame")
+    ap.add_argument("--worst", type=int, default=5, help="list this many pairs with the largest ICP correction")
     args = ap.parse_args()
     frames = {f.index: f for f in open_dataset(args.dataset)}
     p2p = o3d.pipelines.registration.TransformationEstimationPointToPlane()
@@ -56,8 +61,12 @@ def main() -> None:
         at_gt = o3d.pipelines.registration.evaluate_registration(cb, ca, 2 * VOXEL, T_gt)
         at_icp = o3d.pipelines.registration.evaluate_registration(cb, ca, 2 * VOXEL, T)
         dist, angle = pose_change(T_gt, T)
-        rows.append((dist, angle, at_gt.inlier_rmse, at_icp.inlier_rmse, at_gt.fitness, at_icp.fitness))
+        step, _ = pose_change(np.eye(4), T_gt)
+        rows.append((dist, angle, at_gt.inlier_rmse, at_icp.inlier_rmse, at_gt.fitness, at_icp.fitness, i, step))
     r = np.array(rows)
+    worst = [{"frames": [int(row[6]), int(row[6]) + args.gap], "gt_step_mm": round(1e3 * row[7], 1),
+              "icp_moves_gt_by_mm": round(1e3 * row[0], 1), "depth_rmse_mm_gt": round(1e3 * row[2], 2),
+              "depth_rmse_mm_icp": round(1e3 * row[3], 2)} for row in r[np.argsort(-r[:, 0])[: args.worst]]]
     print(json.dumps({
         "pairs": len(r), "gap_frames": args.gap,
         "icp_moves_gt_by_mm": {"median": round(1e3 * float(np.median(r[:, 0])), 2),
@@ -69,6 +78,8 @@ def main() -> None:
         "inlier_share": {"ground_truth": round(float(np.median(r[:, 4])), 3),
                          "icp": round(float(np.median(r[:, 5])), 3)},
         "icp_better_in_share_of_pairs": round(float(np.mean(r[:, 3] < r[:, 2])), 3),
+        "gt_step_mm_median": round(1e3 * float(np.median(r[:, 7])), 1),
+        "worst_pairs": worst,
     }, indent=1))
 
 

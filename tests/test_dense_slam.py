@@ -66,6 +66,26 @@ def test_a_revisit_closes_an_accurate_loop(desk_frames):
         assert dist < 0.003 and angle < 0.2
 
 
+def test_keyframes_are_tied_to_older_keyframes_by_accurate_dense_edges(desk_frames):
+    """Besides the odometry chain, each keyframe is aligned to the keyframe before its predecessor; those edges
+    measure the true relative pose, and the pose graph they join keeps the trajectory accurate."""
+    slam = DenseSlam(DenseSlamConfig(loop_closure=False, covisible_edges=1))
+    for f in desk_frames:
+        slam.track(f)
+    traj = slam.trajectory()
+    skips = [(i, j, T) for i, j, T, _ in slam._edges if j - i == 2]
+    assert len(skips) >= len(slam.keyframes) - 3 >= 2
+    gt_kf = _gt(desk_frames, tuple(desk_frames[kf.frame].name for kf in slam.keyframes))
+    for i, j, T in skips:
+        dist, angle = pose_change(np.linalg.inv(gt_kf[i]) @ gt_kf[j], T)
+        assert dist < 0.003 and angle < 0.2
+    assert umeyama_ate(traj.poses, _gt(desk_frames, traj.names)) < 0.002
+    chain = DenseSlam(DenseSlamConfig(loop_closure=False, covisible_edges=0))
+    for f in desk_frames:
+        chain.track(f)
+    assert not [e for e in chain._edges if e[1] - e[0] != 1]
+
+
 def test_relocalises_after_the_sensor_goes_blind(desk_frames):
     slam = DenseSlam(DenseSlamConfig(loop_closure=False))
     for f in desk_frames[:20]:
@@ -92,5 +112,7 @@ def test_tracker_names_and_bad_settings():
         DenseSlamConfig(min_fitness=2.0)
     with pytest.raises(ConfigError, match="positive"):
         DenseSlamConfig(edge_sigma=(0.0, 0.01))
+    with pytest.raises(ConfigError, match="covisible_edges"):
+        DenseSlamConfig(covisible_edges=-1)
     with pytest.raises(ConfigError, match="DenseSlamConfig"):
         DenseSlam(config="fast")
