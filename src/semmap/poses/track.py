@@ -2,9 +2,9 @@
 
 ``slam`` (the default of ``semmap track``) is the dense SLAM (:class:`~semmap.poses.slam.DenseSlam`): dense
 photometric + geometric odometry for every frame, ORB loop closure and relocalisation, a keyframe pose graph. It
-was chosen by measurement (``benchmarks/bench_tracking.py``, 2 CPU cores, 640x480): ATE 3.45 cm at 44 ms/frame on
-600 7-Scenes frames (``slam-orb`` 3.49 cm, ``slam-features`` 4.13 cm) and 4-30x more accurate than the feature
-SLAM on the simulated sequences (sim-loop 0.10 cm against 1.38 cm). ``slam-orb`` is the ORB-SLAM2-style feature
+was chosen by measurement (``benchmarks/bench_tracking.py``, 2 CPU cores, 640x480; numbers in
+``docs/BENCHMARKS.md``): on 600 7-Scenes frames it is the most accurate of semmap's trackers, and on the simulated
+sequences 4-30x more accurate than the feature SLAM. ``slam-orb`` is the ORB-SLAM2-style feature
 SLAM with dense refinement of its poses, ``slam-features`` the same without it.
 """
 
