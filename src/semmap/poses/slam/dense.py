@@ -13,15 +13,14 @@ import cv2
 import numpy as np
 import open3d as o3d
 
+from semmap.poses.odometry import OdometryConfig
 from semmap.poses.slam import se3
 from semmap.poses.slam.config import SlamConfig
 from semmap.types import CameraIntrinsics
 
 _ODOMETRY = o3d.t.pipelines.odometry
-#: Open3D loss parameters: depth outlier cut-off and Huber widths (metres; intensity in [0, 1])
-DEPTH_OUTLIER_TRUNC = 0.07
-DEPTH_HUBER_DELTA = 0.05
-INTENSITY_HUBER_DELTA = 0.1
+#: Open3D loss parameters (depth outlier cut-off, Huber widths): the dense odometry's defaults, one definition
+_LOSS = OdometryConfig()
 
 
 @dataclass(frozen=True)
@@ -110,8 +109,8 @@ class DenseAligner:
                 for _ in range(iterations):
                     step = _ODOMETRY.compute_odometry_result_hybrid(
                         source.depth[level], target.depth[level], source.intensity[level], target.intensity[level],
-                        ddx, ddy, idx, idy, source.vertex[level], self._K[level], T, DEPTH_OUTLIER_TRUNC,
-                        DEPTH_HUBER_DELTA, INTENSITY_HUBER_DELTA)
+                        ddx, ddy, idx, idy, source.vertex[level], self._K[level], T,
+                        _LOSS.depth_outlier_trunc, _LOSS.depth_huber_delta, _LOSS.intensity_huber_delta)
                     T = step.transformation.to(o3d.core.Dtype.Float64).matmul(T)
                     fitness = float(step.fitness)
         except RuntimeError:  # a singular system ("tracking failed"), e.g. an image without valid depth
