@@ -125,13 +125,13 @@ def test_estimate_trajectory_runs_the_tracker(desk_frames):
 
 
 def test_dense_aligner_recovers_a_relative_pose(desk_frames):
-    from semmap.poses.slam.dense import DenseAligner
+    from semmap.poses.odometry import OdometryConfig
 
     f0, f6 = desk_frames[0], desk_frames[6]
     true = se3.inverse(f0.T_world_cam) @ f6.T_world_cam  # ~5 cm and ~4 degrees
     guess = se3.exp_update(np.array([0.01, -0.01, 0.005, 0.01, 0.01, -0.01])) @ true  # what features would give
     for scale in (1, 2):
-        aligner = DenseAligner(SlamConfig(dense_scale=scale), f0.intrinsics)
+        aligner = OdometryConfig(iterations=SlamConfig().dense_iterations).aligner(f0.intrinsics, scale)
         out = aligner.align(aligner.image(f6.rgb, f6.depth), aligner.image(f0.rgb, f0.depth), guess)
         assert out is not None and out.fitness > 0.5
         err = se3.inverse(true) @ out.T

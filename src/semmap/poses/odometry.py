@@ -1,28 +1,22 @@
-"""Dense RGB-D odometry (Open3D's tensor multi-scale photometric + geometric alignment) as a PoseTracker.
+"""Dense RGB-D odometry (multi-scale photometric + geometric alignment, Open3D's tensor odometry steps) as a
+PoseTracker.
 
-Each frame is aligned to a reference frame, starting from a constant-velocity prediction. The reference is
-a keyframe that is replaced once the camera has moved far enough from it (or every frame, with
+Each frame is aligned to a reference frame, starting from a constant-velocity prediction; each frame's image
+pyramids are built once (:mod:`semmap.poses.dense_align`), so a keyframe's serve every frame aligned to it.
+The reference is a keyframe that is replaced once the camera has moved far enough from it (or every frame, with
 ``reference="frame"``). A rejected alignment (low fitness, a non-finite or implausible jump) falls back to
 the motion model and is flagged in :attr:`DenseOdometry.fallbacks`.
 """
 
 from __future__ import annotations
 
-import re
 from dataclasses import dataclass
 
 import numpy as np
-import open3d as o3d
 
 from semmap.errors import ConfigError
-from semmap.poses.o3d_images import DEPTH_SCALE, tensor_intrinsics, tensor_rgbd
-from semmap.types import Frame, Trajectory, invert_pose, orthonormalize, pose_change
-
-_METHODS = {
-    "hybrid": o3d.t.pipelines.odometry.Method.Hybrid,
-    "intensity": o3d.t.pipelines.odometry.Method.Intensity,
-    "point_to_plane": o3d.t.pipelines.odometry.Method.PointToPlane,
-}
+from semmap.poses.dense_align import METHODS, DenseAligner, DenseImage
+from semmap.types import CameraIntrinsics, Frame, Trajectory, invert_pose, orthonormalize, pose_change
 
 
 @dataclass(frozen=True)
@@ -56,14 +50,20 @@ class OdometryConfig:
     max_jump_deg: float = 20.0
 
     def __post_init__(self) -> None:
-        if self.method not in _METHODS:
-            raise ConfigError(f"odometry method must be one of {', '.join(_METHODS)}, got {self.method!r}")
+        if self.method not in METHODS:
+            raise ConfigError(f"odometry method must be one of {', '.join(METHODS)}, got {self.method!r}")
         if self.reference not in ("keyframe", "frame"):
             raise ConfigError(f"odometry reference must be 'keyframe' or 'frame', got {self.reference!r}")
         if not self.iterations or any(int(i) < 1 for i in self.iterations):
             raise ConfigError(f"odometry iterations must be positive per level, got {self.iterations}")
         if not self.depth_max > 0:
             raise ConfigError(f"odometry depth_max must be positive, got {self.depth_max}")
+
+    def aligner(self, intrinsics: CameraIntrinsics, scale: int = 1) -> DenseAligner:
+        """The dense aligner these settings describe, for images of ``intrinsics`` subsampled by ``scale``."""
+        return DenseAligner(intrinsics, iterations=tuple(self.iterations), depth_max=self.depth_max,
+                            loss=(self.depth_outlier_trunc, self.depth_huber_delta, self.intensity_huber_delta),
+                            method=self.method, scale=scale)
 
 
 @dataclass(frozen=True)
@@ -81,7 +81,7 @@ class FrameReport:
 class Reference:
     """The frame the next one is aligned to."""
 
-    image: o3d.t.geometry.RGBDImage
+    image: DenseImage
     pose: np.ndarray
 
 
@@ -92,11 +92,7 @@ class DenseOdometry:
 
     def __init__(self, config: OdometryConfig | None = None) -> None:
         self.config = config or OdometryConfig()
-        c = self.config
-        self._criteria = [o3d.t.pipelines.odometry.OdometryConvergenceCriteria(int(i)) for i in c.iterations]
-        self._params = o3d.t.pipelines.odometry.OdometryLossParams(
-            c.depth_outlier_trunc, c.depth_huber_delta, c.intensity_huber_delta)
-        self._K: o3d.core.Tensor | None = None
+        self._aligner: DenseAligner | None = None
         self._ref: Reference | None = None
         self._stamps: list[float] = []
         self._poses: list[np.ndarray] = []
@@ -110,10 +106,11 @@ class DenseOdometry:
 
     def track(self, frame: Frame) -> np.ndarray:
         """Pose of ``frame`` (always one: a failed alignment falls back to the motion model)."""
-        image = tensor_rgbd(frame)
+        if self._aligner is None:
+            self._aligner = self.config.aligner(frame.intrinsics)
+        image = self._aligner.image(frame.rgb, frame.depth)
         name = frame.name or str(frame.index)
         if self._ref is None:
-            self._K = tensor_intrinsics(frame.intrinsics)
             pose = np.eye(4)
             self._set_reference(frame, image, pose)
             self._record(frame, name, pose, FrameReport(name, 1.0, 0.0, keyframe=True))
@@ -133,25 +130,20 @@ class DenseOdometry:
         self._record(frame, name, pose, FrameReport(name, fitness, rmse, reason, new_keyframe))
         return pose
 
-    def _align(self, image: o3d.t.geometry.RGBDImage, ref: Reference,
+    def _align(self, image: DenseImage, ref: Reference,
                predicted: np.ndarray) -> tuple[np.ndarray, float, float, str]:
         """(pose, fitness, inlier RMSE, why it is rejected or "") of ``image`` aligned to ``ref`` from a prediction."""
-        init = invert_pose(ref.pose) @ predicted
-        try:
-            result = o3d.t.pipelines.odometry.rgbd_odometry_multi_scale(
-                image, ref.image, self._K, o3d.core.Tensor(init), DEPTH_SCALE, self.config.depth_max,
-                self._criteria, _METHODS[self.config.method], self._params)
-        except RuntimeError as exc:  # Open3D raises on a singular system ("tracking failed")
-            return predicted, 0.0, float("nan"), f"Open3D failed: {_open3d_message(exc)}"
-        pose = _rigid(ref.pose @ result.transformation.numpy())
-        fitness = float(result.fitness)
-        return pose, fitness, float(result.inlier_rmse), self._reject(pose, predicted, fitness)
+        result = self._aligner.align(image, ref.image, invert_pose(ref.pose) @ predicted)
+        if result is None:  # a singular system ("tracking failed") or a non-finite result
+            return predicted, 0.0, float("nan"), "dense alignment failed (too little valid depth or texture)"
+        pose = _rigid(ref.pose @ result.T)
+        return pose, result.fitness, result.inlier_rmse, self._reject(pose, predicted, result.fitness)
 
-    def _set_reference(self, frame: Frame, image: o3d.t.geometry.RGBDImage, pose: np.ndarray) -> None:
+    def _set_reference(self, frame: Frame, image: DenseImage, pose: np.ndarray) -> None:
         """Make ``frame`` (about to be recorded at ``pose``) the keyframe the next frames are aligned to."""
         self._ref = Reference(image, pose)
 
-    def _recover(self, frame: Frame, image: o3d.t.geometry.RGBDImage, predicted: np.ndarray) -> np.ndarray | None:
+    def _recover(self, frame: Frame, image: DenseImage, predicted: np.ndarray) -> np.ndarray | None:
         """A pose for a frame whose alignment was rejected, or None for the motion-model fallback (a hook for
         trackers that can relocalise; the frame then becomes a keyframe)."""
         return None
@@ -195,12 +187,6 @@ class DenseOdometry:
     def trajectory(self) -> Trajectory:
         """Poses of every frame seen so far (odometry never revises them)."""
         return Trajectory(np.asarray(self._stamps), np.asarray(self._poses).reshape(-1, 4, 4), tuple(self._names))
-
-
-def _open3d_message(exc: Exception) -> str:
-    """The message of an Open3D error without colour codes and source location."""
-    text = re.sub(r"\x1b\[[0-9;]*m", "", str(exc)).strip()
-    return text.rsplit(": ", 1)[-1]
 
 
 def _rigid(T: np.ndarray) -> np.ndarray:

@@ -16,12 +16,13 @@ relative to that keyframe.
 from __future__ import annotations
 
 import logging
+from collections import OrderedDict
 from dataclasses import dataclass, field
 
 import numpy as np
-import open3d as o3d
 
 from semmap.errors import ConfigError
+from semmap.poses.dense_align import DenseImage
 from semmap.poses.odometry import DenseOdometry, FrameReport, OdometryConfig, Reference
 from semmap.poses.slam import se3
 from semmap.poses.slam.config import SlamConfig
@@ -36,6 +37,8 @@ log = logging.getLogger("semmap")
 #: the dense refinement of a PnP pose may move it at most this far (metres, degrees)
 POLISH_M = 0.1
 POLISH_DEG = 5.0
+#: keyframe image pyramids kept in memory (about 8 MB each at 640x480; older ones are rebuilt when needed)
+PYRAMID_CACHE = 8
 
 
 @dataclass(frozen=True)
@@ -88,7 +91,7 @@ class DenseSlamConfig:
 
 @dataclass
 class _Keyframe:
-    """A keyframe: the frame it is, its ORB features, its RGB-D image (for the dense refinement of loops), and its
+    """A keyframe: the frame it is, its ORB features, its colour and depth (for dense alignments to it), and its
     pose in the odometry's own frame (``raw``) and after pose-graph optimisation (``T_wc``)."""
 
     frame: int
@@ -96,7 +99,8 @@ class _Keyframe:
     T_wc: np.ndarray
     feats: FrameFeatures
     retrieval: np.ndarray
-    image: o3d.t.geometry.RGBDImage
+    rgb: np.ndarray
+    depth: np.ndarray
 
 
 @dataclass
@@ -130,9 +134,10 @@ class DenseSlam(DenseOdometry):
         self._cam: PinholeModel | None = None
         self._anchor: tuple[int, np.ndarray] | None = None  # (keyframe, T_kf_frame) of a relocalised frame
         self._cached: tuple[Frame, FrameFeatures] | None = None  # the last frame's features (reused as keyframe)
+        self._pyramids: OrderedDict[int, DenseImage] = OrderedDict()  # keyframe -> its pyramids (the newest used)
 
     # ------------------------------------------------------------------ hooks of DenseOdometry
-    def _set_reference(self, frame: Frame, image: o3d.t.geometry.RGBDImage, pose: np.ndarray) -> None:
+    def _set_reference(self, frame: Frame, image: DenseImage, pose: np.ndarray) -> None:
         super()._set_reference(frame, image, pose)
         self._add_keyframe(frame, image, pose)
 
@@ -140,7 +145,7 @@ class DenseSlam(DenseOdometry):
         super()._record(frame, name, pose, report)
         self._kf_of_frame.append(len(self.keyframes) - 1)
 
-    def _recover(self, frame: Frame, image: o3d.t.geometry.RGBDImage, predicted: np.ndarray) -> np.ndarray | None:
+    def _recover(self, frame: Frame, image: DenseImage, predicted: np.ndarray) -> np.ndarray | None:
         """Relocalise a frame the dense alignment rejected: PnP against the last keyframes and the most similar
         ones, refined densely; its pose in the odometry's frame, or None."""
         feats = self._features(frame)
@@ -172,7 +177,7 @@ class DenseSlam(DenseOdometry):
         self._cached = (frame, feats)
         return feats
 
-    def _add_keyframe(self, frame: Frame, image: o3d.t.geometry.RGBDImage, raw: np.ndarray) -> None:
+    def _add_keyframe(self, frame: Frame, image: DenseImage, raw: np.ndarray) -> None:
         cfg = self.slam_config
         feats = self._features(frame)
         if self.keyframes:
@@ -184,8 +189,9 @@ class DenseSlam(DenseOdometry):
             T_wc = raw.copy()
         self._anchor = None
         kf = _Keyframe(len(self._poses), raw.copy(), T_wc, feats,
-                       feats.desc[feats.strongest(cfg.retrieval_features)], image)
+                       feats.desc[feats.strongest(cfg.retrieval_features)], frame.rgb, frame.depth)
         self.keyframes.append(kf)
+        self._remember(len(self.keyframes) - 1, image)
         self.stats.keyframes += 1
         k = len(self.keyframes) - 1
         self._link_covisible(k)
@@ -198,7 +204,7 @@ class DenseSlam(DenseOdometry):
         next loop, or when the trajectory is asked for)."""
         kf = self.keyframes[k]
         for j in range(k - 2, max(-1, k - 2 - self.slam_config.covisible_edges), -1):
-            T_j_k = self._refine(kf.image, self.keyframes[j].image, se3.inverse(self.keyframes[j].raw) @ kf.raw)
+            T_j_k = self._refine(self._pyramid(k), self._pyramid(j), se3.inverse(self.keyframes[j].raw) @ kf.raw)
             if T_j_k is not None:
                 self._edges.append((j, k, T_j_k, 1.0))
                 self._unoptimised = True
@@ -218,7 +224,7 @@ class DenseSlam(DenseOdometry):
         order = np.argsort(-scores, kind="stable")[: cfg.loop_candidates]
         return [int(candidates[i]) for i in order if scores[i] >= cfg.min_inliers // 2]
 
-    def _register(self, feats: FrameFeatures, image: o3d.t.geometry.RGBDImage, k: int) -> np.ndarray | None:
+    def _register(self, feats: FrameFeatures, image: DenseImage, k: int) -> np.ndarray | None:
         """``T_kf_frame`` of a frame relative to keyframe ``k``: ORB matches, PnP + RANSAC on the keyframe's 3D
         keypoints, then dense alignment of the two images from there; None when either check fails."""
         cfg = self.slam_config
@@ -234,18 +240,31 @@ class DenseSlam(DenseOdometry):
                            cfg.features.ransac_reprojection_error, max(cfg.features.ransac_iterations, 300), seed=k)
         if found is None or int(found[1].sum()) < cfg.min_inliers:
             return None
-        T_kf_frame = self._refine(image, kf.image, se3.inverse(found[0]))
+        T_kf_frame = self._refine(image, self._pyramid(k), se3.inverse(found[0]))
         if T_kf_frame is None:
             return None
         # the alignment the other way round must land on the same pose, else one of them did not converge
-        back = self._refine(kf.image, image, se3.inverse(T_kf_frame))
+        back = self._refine(self._pyramid(k), image, se3.inverse(T_kf_frame))
         if back is None:
             return None
         dist, angle = pose_change(T_kf_frame, se3.inverse(back))
         return T_kf_frame if dist <= cfg.loop_consistency and angle <= cfg.loop_consistency_deg else None
 
-    def _refine(self, source: o3d.t.geometry.RGBDImage, target: o3d.t.geometry.RGBDImage,
-                T_init: np.ndarray) -> np.ndarray | None:
+    def _pyramid(self, k: int) -> DenseImage:
+        """Keyframe ``k``'s image pyramids (kept for the last few keyframes used, else rebuilt)."""
+        if k in self._pyramids:
+            self._pyramids.move_to_end(k)
+            return self._pyramids[k]
+        kf = self.keyframes[k]
+        return self._remember(k, self._aligner.image(kf.rgb, kf.depth))
+
+    def _remember(self, k: int, image: DenseImage) -> DenseImage:
+        self._pyramids[k] = image
+        while len(self._pyramids) > PYRAMID_CACHE:
+            self._pyramids.popitem(last=False)
+        return image
+
+    def _refine(self, source: DenseImage, target: DenseImage, T_init: np.ndarray) -> np.ndarray | None:
         """``T_target_source`` by dense alignment of two images from ``T_init`` (a PnP pose, which it should only
         polish), None when rejected or below ``min_fitness``."""
         T, fitness, _, reason = self._align(source, Reference(target, np.eye(4)), T_init)
@@ -261,7 +280,7 @@ class DenseSlam(DenseOdometry):
             return
         kf = self.keyframes[k]
         for j in self._rank(kf.feats, np.arange(k - cfg.loop_min_gap + 1)):
-            T_j_k = self._register(kf.feats, kf.image, j)
+            T_j_k = self._register(kf.feats, self._pyramid(k), j)
             if T_j_k is None:
                 continue
             dist, angle = pose_change(se3.inverse(self.keyframes[j].T_wc) @ kf.T_wc, T_j_k)

@@ -10,9 +10,10 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from semmap.errors import ConfigError, DatasetError
+from semmap.poses.dense_align import DenseAligner
+from semmap.poses.odometry import OdometryConfig
 from semmap.poses.slam import se3
 from semmap.poses.slam.config import SlamConfig
-from semmap.poses.slam.dense import DenseAligner
 from semmap.poses.slam.features import VIRTUAL_BASELINE, FrameFeatures, OrbExtractor
 from semmap.poses.slam.keyframes import create_keyframe, cull_landmarks, need_keyframe
 from semmap.poses.slam.loop_closure import LoopCloser
@@ -101,7 +102,8 @@ class RgbdSlam:
         self.ba = BundleAdjuster(self.cam, sigma, self.tracker.disp_sigma, cfg.ba_window, cfg.ba_iterations,
                                  anchor_sigma=anchor_sigma)
         if cfg.dense_fallback or cfg.dense_refine != "off":
-            self.dense = DenseAligner(cfg, intr)
+            dense = OdometryConfig(iterations=tuple(cfg.dense_iterations), depth_max=cfg.max_depth)
+            self.dense = dense.aligner(intr, cfg.dense_scale)
         self.loops = LoopCloser(self.map, self.tracker, cfg)
 
     def _check(self, frame: Frame) -> None:

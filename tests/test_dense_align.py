@@ -1,0 +1,64 @@
+"""Dense RGB-D alignment over cached image pyramids (the core of the dense odometry and SLAM)."""
+
+from __future__ import annotations
+
+import itertools
+
+import numpy as np
+import pytest
+
+from semmap.errors import ConfigError
+from semmap.poses.dense_align import METHODS, DenseAligner
+from semmap.poses.odometry import OdometryConfig
+from semmap.poses.slam import se3
+from semmap.types import Frame
+
+
+@pytest.fixture(scope="module")
+def desk_frames() -> list[Frame]:
+    from semmap.datasets.simulated import SimulatedDataset
+
+    ds = SimulatedDataset.default(scene_seed=0, trajectory="desk", frames=300)
+    return list(itertools.islice(iter(ds), 9))
+
+
+@pytest.mark.parametrize("method", METHODS)
+def test_every_cost_recovers_a_relative_pose_from_a_rough_guess(desk_frames, method):
+    f0, f8 = desk_frames[0], desk_frames[8]
+    true = se3.inverse(f0.T_world_cam) @ f8.T_world_cam
+    guess = se3.exp_update(np.array([0.01, -0.01, 0.005, 0.01, 0.01, -0.01])) @ true  # ~1.5 cm and ~1 degree off
+    aligner = OdometryConfig(method=method).aligner(f0.intrinsics)
+    out = aligner.align(aligner.image(f8.rgb, f8.depth), aligner.image(f0.rgb, f0.depth), guess)
+    assert out is not None and out.fitness > 0.5 and np.isfinite(out.inlier_rmse)
+    err = se3.inverse(true) @ out.T
+    assert np.linalg.norm(err[:3, 3]) < 2e-3
+    assert np.degrees(se3.rotation_angle(err)) < 0.1
+    assert np.allclose(out.T[:3, :3] @ out.T[:3, :3].T, np.eye(3), atol=1e-9)  # a rigid transform
+
+
+def test_a_target_prepared_once_serves_many_sources_unchanged(desk_frames):
+    aligner = OdometryConfig().aligner(desk_frames[0].intrinsics)
+    target = aligner.image(desk_frames[0].rgb, desk_frames[0].depth)
+    first = [aligner.align(aligner.image(f.rgb, f.depth), target, np.eye(4)).T for f in desk_frames[1:5]]
+    again = [aligner.align(aligner.image(f.rgb, f.depth), aligner.image(desk_frames[0].rgb, desk_frames[0].depth),
+                           np.eye(4)).T for f in desk_frames[1:5]]
+    assert np.allclose(first, again, atol=2e-4)  # Open3D sums in float32 over threads, in any order
+
+
+def test_depth_beyond_the_limit_or_invalid_is_ignored(desk_frames):
+    f = desk_frames[0]
+    aligner = OdometryConfig(depth_max=1.0).aligner(f.intrinsics)
+    depth = f.depth.copy()
+    depth[:10] = np.nan
+    image = aligner.image(f.rgb, depth)
+    d = image.depth[0].numpy()[..., 0]
+    assert np.isnan(d[:10]).all()
+    assert not (d > 1.0).any()
+
+
+@pytest.mark.parametrize("kwargs", [{"method": "icp"}, {"scale": 0}, {"iterations": ()}, {"iterations": (3, 0)},
+                                    {"depth_max": 0.0}])
+def test_bad_settings_are_refused_with_a_clear_error(desk_frames, kwargs):
+    args = {"iterations": (10, 5, 3), "depth_max": 4.0, "loss": (0.07, 0.05, 0.1)} | kwargs
+    with pytest.raises(ConfigError):
+        DenseAligner(desk_frames[0].intrinsics, **args)
