@@ -191,9 +191,9 @@ class DenseSlam(DenseOdometry):
         kf = _Keyframe(len(self._poses), raw.copy(), T_wc, feats,
                        feats.desc[feats.strongest(cfg.retrieval_features)], frame.rgb, frame.depth)
         self.keyframes.append(kf)
-        self._remember(len(self.keyframes) - 1, image)
         self.stats.keyframes += 1
         k = len(self.keyframes) - 1
+        self._remember(k, image)  # the odometry's reference from now on: its pyramids are needed right away
         self._link_covisible(k)
         if cfg.loop_closure:
             self._close_loop(k)
