@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from semmap.errors import ConfigError
-from semmap.poses.dense_align import METHODS, DenseAligner
+from semmap.poses.dense_align import METHODS, DenseAligner, grey
 from semmap.poses.odometry import OdometryConfig
 from semmap.poses.slam import se3
 from semmap.types import Frame
@@ -62,3 +62,12 @@ def test_bad_settings_are_refused_with_a_clear_error(desk_frames, kwargs):
     args = {"iterations": (10, 5, 3), "depth_max": 4.0, "loss": (0.07, 0.05, 0.1)} | kwargs
     with pytest.raises(ConfigError):
         DenseAligner(desk_frames[0].intrinsics, **args)
+
+
+def test_a_grey_image_prepares_the_same_pyramids_as_its_colour_one(desk_frames):
+    f = desk_frames[0]
+    aligner = OdometryConfig().aligner(f.intrinsics)
+    from_rgb, from_grey = aligner.image(f.rgb, f.depth), aligner.image(grey(f.rgb), f.depth)
+    assert grey(f.rgb).dtype == np.uint8 and grey(f.rgb).shape == f.rgb.shape[:2]
+    for a, b in zip(from_rgb.intensity, from_grey.intensity, strict=True):
+        assert np.array_equal(a.numpy(), b.numpy())

@@ -80,6 +80,11 @@ def _normal_map(vertex: np.ndarray) -> np.ndarray:
     return normals
 
 
+def grey(colour: np.ndarray) -> np.ndarray:
+    """uint8 grey image of an RGB one (a grey one as it is): all dense alignment uses of colour, a third the memory."""
+    return colour if colour.ndim == 2 else cv2.cvtColor(np.ascontiguousarray(colour), cv2.COLOR_RGB2GRAY)
+
+
 class DenseAligner:
     """Aligns RGB-D images of one camera by multi-scale Gauss-Newton, one Open3D ``compute_odometry_result_*``
     step at a time (coarse to fine) over pyramids built once per frame.
@@ -116,14 +121,15 @@ class DenseAligner:
             self._K.append(o3d.core.Tensor(K.copy(), dtype=o3d.core.Dtype.Float64))
             K[:2] /= 2
 
-    def image(self, rgb: np.ndarray, depth: np.ndarray) -> DenseImage:
-        """A frame's pyramids; depth in metres, 0 or NaN where invalid."""
+    def image(self, colour: np.ndarray, depth: np.ndarray) -> DenseImage:
+        """A frame's pyramids from its uint8 colour (RGB, or grey as :func:`grey` gives) and depth in metres (0 or
+        NaN where invalid)."""
         s = self.scale
         if s > 1:
             w, h = self.size
-            rgb = cv2.resize(rgb[: h * s, : w * s], (w, h), interpolation=cv2.INTER_AREA)
+            colour = cv2.resize(colour[: h * s, : w * s], (w, h), interpolation=cv2.INTER_AREA)
             depth = depth[: h * s : s, : w * s : s]
-        gray = cv2.cvtColor(np.ascontiguousarray(rgb), cv2.COLOR_RGB2GRAY).astype(np.float32) * (1.0 / 255.0)
+        gray = grey(colour).astype(np.float32) * (1.0 / 255.0)
         d = np.where((depth > 0) & (depth <= self.depth_max), depth, np.nan).astype(np.float32)
         depths, grays = [d], [gray]
         for _ in range(self.levels - 1):

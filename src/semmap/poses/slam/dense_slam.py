@@ -22,7 +22,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from semmap.errors import ConfigError
-from semmap.poses.dense_align import DenseImage
+from semmap.poses.dense_align import DenseImage, grey
 from semmap.poses.odometry import DenseOdometry, FrameReport, OdometryConfig, Reference
 from semmap.poses.slam import se3
 from semmap.poses.slam.config import SlamConfig
@@ -37,7 +37,8 @@ log = logging.getLogger("semmap")
 #: the dense refinement of a PnP pose may move it at most this far (metres, degrees)
 POLISH_M = 0.1
 POLISH_DEG = 5.0
-#: keyframe image pyramids kept in memory (about 8 MB each at 640x480; older ones are rebuilt when needed)
+#: keyframe image pyramids kept in memory (about 8 MB each at 640x480; older ones are rebuilt when needed from
+#: the 1.5 MB of grey image and depth every keyframe keeps)
 PYRAMID_CACHE = 8
 
 
@@ -91,7 +92,7 @@ class DenseSlamConfig:
 
 @dataclass
 class _Keyframe:
-    """A keyframe: the frame it is, its ORB features, its colour and depth (for dense alignments to it), and its
+    """A keyframe: the frame it is, its ORB features, its grey image and depth (for dense alignments to it), and its
     pose in the odometry's own frame (``raw``) and after pose-graph optimisation (``T_wc``)."""
 
     frame: int
@@ -99,7 +100,7 @@ class _Keyframe:
     T_wc: np.ndarray
     feats: FrameFeatures
     retrieval: np.ndarray
-    rgb: np.ndarray
+    grey: np.ndarray
     depth: np.ndarray
 
 
@@ -189,7 +190,7 @@ class DenseSlam(DenseOdometry):
             T_wc = raw.copy()
         self._anchor = None
         kf = _Keyframe(len(self._poses), raw.copy(), T_wc, feats,
-                       feats.desc[feats.strongest(cfg.retrieval_features)], frame.rgb, frame.depth)
+                       feats.desc[feats.strongest(cfg.retrieval_features)], grey(frame.rgb), frame.depth)
         self.keyframes.append(kf)
         self.stats.keyframes += 1
         k = len(self.keyframes) - 1
@@ -256,7 +257,7 @@ class DenseSlam(DenseOdometry):
             self._pyramids.move_to_end(k)
             return self._pyramids[k]
         kf = self.keyframes[k]
-        return self._remember(k, self._aligner.image(kf.rgb, kf.depth))
+        return self._remember(k, self._aligner.image(kf.grey, kf.depth))
 
     def _remember(self, k: int, image: DenseImage) -> DenseImage:
         self._pyramids[k] = image
