@@ -369,6 +369,17 @@ def orthonormalize(R: np.ndarray) -> np.ndarray:
     return U @ D @ Vt
 
 
+def snap_rigid(T: np.ndarray) -> np.ndarray:
+    """4x4 ``T`` with its rotation snapped back to the nearest proper one and the bottom row exact (chained
+    products drift, and Open3D works in float32); a non-finite ``T`` is returned as it is, for the caller to reject."""
+    if not np.isfinite(T).all():
+        return T
+    out = np.array(T, dtype=np.float64)
+    out[:3, :3] = orthonormalize(T[:3, :3])
+    out[3] = (0.0, 0.0, 0.0, 1.0)
+    return out
+
+
 def rotation_angle(R: np.ndarray) -> float:
     """Angle (radians) of a rotation matrix (or the rotation of a 4x4 transform), from atan2 of its skew and
     symmetric parts: exact for small angles and blind to slight non-orthonormality, where arccos of the trace

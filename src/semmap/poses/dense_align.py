@@ -15,7 +15,7 @@ import numpy as np
 import open3d as o3d
 
 from semmap.errors import ConfigError
-from semmap.types import CameraIntrinsics, orthonormalize
+from semmap.types import CameraIntrinsics, snap_rigid
 
 _ODOMETRY = o3d.t.pipelines.odometry
 #: Cost functions: photometric + geometric, photometric only, geometric only.
@@ -168,6 +168,4 @@ class DenseAligner:
         T_np = T.numpy().astype(np.float64)
         if not np.isfinite(T_np).all():
             return None
-        T_np[:3, :3] = orthonormalize(T_np[:3, :3])
-        T_np[3] = (0.0, 0.0, 0.0, 1.0)
-        return AlignResult(T_np, fitness, rmse)
+        return AlignResult(snap_rigid(T_np), fitness, rmse)

@@ -16,7 +16,7 @@ import numpy as np
 
 from semmap.errors import ConfigError
 from semmap.poses.dense_align import METHODS, DenseAligner, DenseImage
-from semmap.types import CameraIntrinsics, Frame, Trajectory, invert_pose, orthonormalize, pose_change
+from semmap.types import CameraIntrinsics, Frame, Trajectory, invert_pose, pose_change, snap_rigid
 
 
 @dataclass(frozen=True)
@@ -136,7 +136,7 @@ class DenseOdometry:
         result = self._aligner.align(image, ref.image, invert_pose(ref.pose) @ predicted)
         if result is None:  # a singular system ("tracking failed") or a non-finite result
             return predicted, 0.0, float("nan"), "dense alignment failed (too little valid depth or texture)"
-        pose = _rigid(ref.pose @ result.T)
+        pose = snap_rigid(ref.pose @ result.T)
         return pose, result.fitness, result.inlier_rmse, self._reject(pose, predicted, result.fitness)
 
     def _set_reference(self, frame: Frame, image: DenseImage, pose: np.ndarray) -> None:
@@ -153,7 +153,7 @@ class DenseOdometry:
         last = self._poses[-1]
         if not self.config.motion_model or len(self._poses) < 2:
             return last
-        return _rigid(last @ (invert_pose(self._poses[-2]) @ last))
+        return snap_rigid(last @ (invert_pose(self._poses[-2]) @ last))
 
     def _reject(self, pose: np.ndarray, predicted: np.ndarray, fitness: float) -> str:
         """Why an alignment result is not trusted ("" when it is)."""
@@ -187,14 +187,4 @@ class DenseOdometry:
     def trajectory(self) -> Trajectory:
         """Poses of every frame seen so far (odometry never revises them)."""
         return Trajectory(np.asarray(self._stamps), np.asarray(self._poses).reshape(-1, 4, 4), tuple(self._names))
-
-
-def _rigid(T: np.ndarray) -> np.ndarray:
-    """``T`` with its rotation snapped back to orthonormal (chained products drift, and Open3D works in float32)."""
-    if not np.isfinite(T).all():
-        return T
-    out = T.copy()
-    out[:3, :3] = orthonormalize(T[:3, :3])
-    out[3] = (0.0, 0.0, 0.0, 1.0)
-    return out
 

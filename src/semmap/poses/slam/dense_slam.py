@@ -241,11 +241,12 @@ class DenseSlam(DenseOdometry):
                            cfg.features.ransac_reprojection_error, max(cfg.features.ransac_iterations, 300), seed=k)
         if found is None or int(found[1].sum()) < cfg.min_inliers:
             return None
-        T_kf_frame = self._refine(image, self._pyramid(k), se3.inverse(found[0]))
+        kf_image = self._pyramid(k)
+        T_kf_frame = self._refine(image, kf_image, se3.inverse(found[0]))
         if T_kf_frame is None:
             return None
         # the alignment the other way round must land on the same pose, else one of them did not converge
-        back = self._refine(self._pyramid(k), image, se3.inverse(T_kf_frame))
+        back = self._refine(kf_image, image, se3.inverse(T_kf_frame))
         if back is None:
             return None
         dist, angle = pose_change(T_kf_frame, se3.inverse(back))
