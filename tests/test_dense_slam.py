@@ -90,6 +90,25 @@ def test_keyframes_are_tied_to_older_keyframes_by_accurate_dense_edges(desk_fram
     assert not [e for e in chain._edges if e[1] - e[0] != 1]
 
 
+def test_frames_between_keyframes_share_the_next_keyframes_correction(desk_frames):
+    """When the graph moves a keyframe, the frames aligned to the keyframe before it move by a growing part of
+    that correction, so the trajectory has no jump where the moved keyframe starts."""
+    slam = DenseSlam(DenseSlamConfig(loop_closure=False, covisible_edges=0))
+    for f in desk_frames[:40]:
+        slam.track(f)
+    before = slam.trajectory().poses
+    assert len(slam.keyframes) >= 3
+    first, second = slam.keyframes[1].frame, slam.keyframes[2].frame
+    assert second - first >= 3
+    shift = np.array([0.01, 0.0, 0.0])
+    slam.keyframes[2].T_wc = slam.keyframes[2].T_wc.copy()
+    slam.keyframes[2].T_wc[:3, 3] += shift  # as if the pose graph had moved keyframe 2 by 1 cm
+    moved = slam.trajectory().poses[:, :3, 3] - before[:, :3, 3]
+    assert np.allclose(moved[: first + 1], 0.0, atol=1e-12)  # keyframe 1 and everything before it stay
+    along = (np.arange(first, second + 1) - first) / (second - first)
+    assert np.allclose(moved[first : second + 1], along[:, None] * shift, atol=1e-9)
+
+
 def test_relocalises_after_the_sensor_goes_blind(desk_frames):
     slam = DenseSlam(DenseSlamConfig(loop_closure=False))
     for f in desk_frames[:20]:

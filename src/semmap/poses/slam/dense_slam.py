@@ -10,7 +10,7 @@ the pose graph is optimised: consecutive keyframes are tied by their odometry, e
 alignment to the keyframe before its predecessor (so no single step carries the chain alone), plus every loop.
 A frame the dense alignment rejects is relocalised against recent and similar keyframes by the same PnP check
 before the motion model is trusted. Every frame's final pose is its keyframe's optimised pose times its pose
-relative to that keyframe.
+relative to that keyframe, blended towards the next keyframe's correction for frames between the two.
 """
 
 from __future__ import annotations
@@ -30,7 +30,7 @@ from semmap.poses.slam.features import VIRTUAL_BASELINE, FrameFeatures, OrbExtra
 from semmap.poses.slam.matching import match_brute_force, nearest_owner_votes
 from semmap.poses.slam.optimisation import optimise_pose_graph
 from semmap.poses.slam.pose_solver import PinholeModel, pnp_ransac
-from semmap.types import CameraIntrinsics, Frame, Trajectory, pose_change
+from semmap.types import CameraIntrinsics, Frame, Trajectory, interpolate_pose, pose_change
 
 log = logging.getLogger("semmap")
 
@@ -96,6 +96,7 @@ class _Keyframe:
     pose in the odometry's own frame (``raw``) and after pose-graph optimisation (``T_wc``)."""
 
     frame: int
+    parent: int  # the keyframe its odometry edge ties it to (-1 for the first)
     raw: np.ndarray
     T_wc: np.ndarray
     feats: FrameFeatures
@@ -187,9 +188,9 @@ class DenseSlam(DenseOdometry):
             T_wc = self.keyframes[ref].T_wc @ rel
             self._edges.append((ref, len(self.keyframes), rel, 1.0))
         else:
-            T_wc = raw.copy()
+            ref, T_wc = -1, raw.copy()
         self._anchor = None
-        kf = _Keyframe(len(self._poses), raw.copy(), T_wc, feats,
+        kf = _Keyframe(len(self._poses), ref, raw.copy(), T_wc, feats,
                        feats.desc[feats.strongest(cfg.retrieval_features)], grey(frame.rgb), frame.depth)
         self.keyframes.append(kf)
         self.stats.keyframes += 1
@@ -310,7 +311,12 @@ class DenseSlam(DenseOdometry):
 
     # ------------------------------------------------------------------ output
     def trajectory(self) -> Trajectory:
-        """Every frame's pose: its keyframe's optimised pose times its odometry pose relative to that keyframe."""
+        """Every frame's pose: its keyframe's optimised pose times its odometry pose relative to that keyframe.
+
+        A frame between keyframes k and k+1 (aligned to k, like k+1 itself) carries part of the error the graph
+        found in the odometry step from k to k+1: it is blended from its pose through k towards its pose through
+        k+1 by how far along it lies (frame count), so the trajectory does not jump at keyframe k+1.
+        """
         if self._unoptimised:
             self._optimise()
         if not self._poses:
@@ -319,5 +325,13 @@ class DenseSlam(DenseOdometry):
         ref = np.asarray(self._kf_of_frame)
         kf_raw = np.array([kf.raw for kf in self.keyframes])
         kf_opt = np.array([kf.T_wc for kf in self.keyframes])
-        poses = kf_opt[ref] @ se3.inverse(kf_raw[ref]) @ raw
+        correction = kf_opt @ se3.inverse(kf_raw)
+        poses = correction[ref] @ raw
+        start = np.array([kf.frame for kf in self.keyframes])
+        for i in np.flatnonzero(ref + 1 < len(self.keyframes)):
+            k = ref[i]
+            after = self.keyframes[k + 1]
+            if after.parent == k and start[k] < i < after.frame:
+                alpha = (i - start[k]) / (after.frame - start[k])
+                poses[i] = interpolate_pose(poses[i], correction[k + 1] @ raw[i], alpha)
         return Trajectory(np.asarray(self._stamps), poses, tuple(self._names))
