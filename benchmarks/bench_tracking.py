@@ -138,7 +138,9 @@ def main() -> None:
             row = {"bench": "tracking", "sequence": sequence, "method": method, "frames": len(frames),
                    "ate_rmse_m": round(metrics["ate_rmse_m"], 5), "rpe_trans_m": round(metrics["rpe_trans_m"], 5),
                    "ms_per_frame": round(ms, 1), "rpe_rot_deg": round(metrics["rpe_rot_deg"], 4),
-                   "ate_max_m": round(metrics["ate_max_m"], 5), "tracked": len(est), "matched": metrics["matched"],
+                   "ate_max_m": round(metrics["ate_max_m"], 5),
+                   "sim3_scale": round(metrics["sim3_scale"], 4), "ate_sim3_m": round(metrics["ate_sim3_rmse_m"], 5),
+                   "tracked": len(est), "matched": metrics["matched"],
                    **_extra(tracker)}
             rows.append(row)
             print(json.dumps(row), flush=True)

@@ -153,6 +153,21 @@ def test_ate_of_rigid_perturbation_is_zero_after_alignment():
     assert ate_without_alignment(gt, est)["ate_rmse_m"] > 0.1
 
 
+def test_sim3_scale_reveals_a_trajectory_too_long_by_a_known_factor():
+    """A trajectory 4 % too long (depth calibrated 4 % off) keeps an SE(3) ATE, a Sim(3) ATE of zero, and the
+    scale that maps it back onto the ground truth; a rigidly moved copy has scale 1."""
+    gt = _trajectory(60)
+    rng = np.random.default_rng(5)
+    G = make_pose(_random_rotation(rng), rng.normal(size=3))
+    longer = gt.poses.copy()
+    longer[:, :3, 3] *= 1.04
+    result = evaluate_trajectory(gt, Trajectory(gt.timestamps, np.array([G @ T for T in longer])))
+    assert result["sim3_scale"] == pytest.approx(1 / 1.04, rel=1e-6)
+    assert result["ate_sim3_rmse_m"] < 1e-6 < 1e-3 < result["ate_rmse_m"]
+    rigid = evaluate_trajectory(gt, Trajectory(gt.timestamps, np.array([G @ T for T in gt.poses])))
+    assert rigid["sim3_scale"] == pytest.approx(1.0, rel=1e-9)
+
+
 def test_ate_without_alignment_equals_translation_offset():
     gt = _trajectory(30)
     offset = np.array([0.03, -0.04, 0.0])  # 5 cm

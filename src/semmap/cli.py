@@ -326,7 +326,7 @@ def track(
         from semmap.eval.trajectory import evaluate_trajectory, plot_trajectories
 
         scores = evaluate_trajectory(gt, est)
-        summary.update({k: scores[k] for k in ("ate_rmse_m", "rpe_trans_m", "matched")})
+        summary.update({k: scores[k] for k in ("ate_rmse_m", "rpe_trans_m", "sim3_scale", "matched")})
         if plot is not None:
             plot_trajectories(plot, gt, {method: est})
     elif plot is not None:

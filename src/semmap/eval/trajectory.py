@@ -53,16 +53,18 @@ def synchronize(gt: Trajectory, est: Trajectory, max_time_diff: float = 0.02
     return ref_s, est_s
 
 
-def align(ref: PoseTrajectory3D, est: PoseTrajectory3D) -> tuple[PoseTrajectory3D, np.ndarray]:
-    """Copy of ``est`` moved onto ``ref`` by the SE(3) Umeyama fit of its positions (no scale), and the fit."""
+def align(ref: PoseTrajectory3D, est: PoseTrajectory3D, *, with_scale: bool = False
+          ) -> tuple[PoseTrajectory3D, np.ndarray]:
+    """Copy of ``est`` moved onto ``ref`` by the SE(3) Umeyama fit of its positions (Sim(3) ``with_scale``: the
+    fit's 4x4 then has the scale in its rotation block), and the fit."""
     aligned = copy.deepcopy(est)
     try:
-        R, t, _ = aligned.align(ref, correct_scale=False)
+        R, t, scale = aligned.align(ref, correct_scale=with_scale)
     except GeometryException as exc:
         raise ConfigError(f"cannot align the estimated trajectory to the ground truth: {exc} "
                           f"(does the camera move?)") from None
     T = np.eye(4)
-    T[:3, :3], T[:3, 3] = R, t
+    T[:3, :3], T[:3, 3] = (scale if with_scale else 1.0) * R, t
     return aligned, T
 
 
@@ -80,10 +82,15 @@ def _rpe(ref: PoseTrajectory3D, est: PoseTrajectory3D, relation: metrics.PoseRel
 
 def evaluate_trajectory(gt: Trajectory, est: Trajectory, *, max_time_diff: float = 0.02) -> dict:
     """ATE (after SE(3) alignment, metres: rmse/mean/median/max) and RPE over one frame (rmse/mean, metres and
-    degrees, also per second of motion) of ``est`` against ``gt``, with the number of matched poses."""
+    degrees, also per second of motion) of ``est`` against ``gt``, with the number of matched poses.
+
+    ``sim3_scale`` and ``ate_sim3_rmse_m`` come from a Sim(3) fit instead: an RGB-D tracker's trajectory has the
+    metric scale of its depth, so a scale away from 1 says the depth calibration and the ground truth disagree.
+    """
     ref, est_s = synchronize(gt, est, max_time_diff)
     aligned, T_align = align(ref, est_s)
     ate = _ape(ref, aligned)
+    scaled, T_sim3 = align(ref, est_s, with_scale=True)
     rpe_t = _rpe(ref, est_s, metrics.PoseRelation.translation_part)
     rpe_r = _rpe(ref, est_s, metrics.PoseRelation.rotation_angle_deg)
     dt = float(np.median(np.diff(ref.timestamps)))
@@ -96,6 +103,8 @@ def evaluate_trajectory(gt: Trajectory, est: Trajectory, *, max_time_diff: float
         "ate_mean_m": float(ate.get_statistic(stat.mean)),
         "ate_median_m": float(ate.get_statistic(stat.median)),
         "ate_max_m": float(ate.get_statistic(stat.max)),
+        "sim3_scale": float(np.cbrt(np.linalg.det(T_sim3[:3, :3]))),
+        "ate_sim3_rmse_m": float(_ape(ref, scaled).get_statistic(stat.rmse)),
         "rpe_trans_m": float(rpe_t.get_statistic(stat.rmse)),
         "rpe_trans_mean_m": float(rpe_t.get_statistic(stat.mean)),
         "rpe_rot_deg": float(rpe_r.get_statistic(stat.rmse)),
