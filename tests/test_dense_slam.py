@@ -41,6 +41,11 @@ def test_tracks_the_simulated_desk_to_a_millimetre(desk_frames):
     assert np.allclose(traj.poses[0], np.eye(4))
     assert umeyama_ate(traj.poses, _gt(desk_frames, traj.names)) < 0.002
     assert slam.stats.keyframes >= 3 and len(slam.keyframes) == slam.stats.keyframes
+    for kf in slam.keyframes:  # kept compressed, and given back exactly for rebuilding the pyramids
+        depth = desk_frames[kf.frame].depth
+        assert np.array_equal(kf.depth.unpack(), depth, equal_nan=True)
+        assert kf.depth.unpack().dtype == depth.dtype and kf.grey.unpack().shape == depth.shape
+        assert kf.grey.nbytes + kf.depth.nbytes < 0.4 * (depth.nbytes + depth.size)
 
 
 def test_a_revisit_closes_an_accurate_loop(desk_frames, monkeypatch):

