@@ -4,8 +4,8 @@ For each depth focal length given, the colour camera's focal length is scaled wi
 depth pixels as with the fitted registration), colour is registered again, and
 
 - frame pairs (i, i+gap) are aligned from the ground-truth relative pose by each dense cost (photometric only,
-  geometric only, hybrid): the summed length of the translations found over that of the ground truth's, and how
-  far the photometric and geometric translations lie apart (median, mm);
+  geometric only, hybrid): the summed length of the translations found over that of the ground truth's, the same
+  for the rotation angles, and how far the photometric and geometric translations lie apart (median, mm);
 - with ``--slam`` the whole sequence is tracked by ``slam``: ATE after SE(3) alignment, the Sim(3) scale that maps
   the estimate onto the ground truth, and the ATE after that Sim(3) alignment.
 
@@ -33,7 +33,7 @@ from semmap.poses.dense_align import METHODS
 from semmap.poses.file import trajectory_of_dataset
 from semmap.poses.odometry import OdometryConfig
 from semmap.poses.slam import DenseSlam
-from semmap.types import Frame, invert_pose
+from semmap.types import Frame, invert_pose, orthonormalize, rotation_angle
 
 SHARED = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "7scenes-redkitchen"
 
@@ -54,25 +54,31 @@ def with_depth_focal(frames: list[Frame], focal: float) -> list[Frame]:
     return out
 
 
-def pair_lengths(frames: list[Frame], gap: int, every: int) -> dict:
-    """Summed translation length of each dense cost over that of the ground truth, on pairs (i, i+gap)."""
+def pair_motion(frames: list[Frame], gap: int, every: int) -> dict:
+    """Summed translation length and rotation angle of each dense cost over the ground truth's, on pairs
+    (i, i+gap)."""
     aligners = {m: OdometryConfig(method=m).aligner(frames[0].intrinsics) for m in METHODS}
     found: dict[str, list] = {m: [] for m in METHODS}
     truth = []
     for i in range(0, len(frames) - gap, every):
         a, b = frames[i], frames[i + gap]
         T_gt = invert_pose(b.T_world_cam) @ a.T_world_cam  # a's camera in b's
-        truth.append(T_gt[:3, 3])
+        T_gt[:3, :3] = orthonormalize(T_gt[:3, :3])  # 7-Scenes rotations are off orthonormal by up to 3e-4
+        truth.append(T_gt)
         for m, aligner in aligners.items():
             result = aligner.align(aligner.image(a.rgb, a.depth), aligner.image(b.rgb, b.depth), T_gt)
-            found[m].append(None if result is None else result.T[:3, 3])
-    truth_len = np.linalg.norm(np.array(truth), axis=1)
+            found[m].append(None if result is None else result.T)
+    truth_len = np.array([np.linalg.norm(T[:3, 3]) for T in truth])
+    truth_angle = np.array([rotation_angle(T[:3, :3]) for T in truth])
     row = {"pairs": len(truth)}
-    for m, ts in found.items():
-        ok = [k for k, t in enumerate(ts) if t is not None]
-        row[f"length_ratio_{m}"] = round(float(sum(np.linalg.norm(ts[k]) for k in ok) / truth_len[ok].sum()), 4)
-    apart = [np.linalg.norm(p - g) for p, g in zip(found["intensity"], found["point_to_plane"], strict=True)
-             if p is not None and g is not None]
+    for m, Ts in found.items():
+        ok = [k for k, T in enumerate(Ts) if T is not None]
+        length = sum(np.linalg.norm(Ts[k][:3, 3]) for k in ok)
+        angle = sum(rotation_angle(Ts[k][:3, :3]) for k in ok)
+        row[f"length_ratio_{m}"] = round(float(length / truth_len[ok].sum()), 4)
+        row[f"angle_ratio_{m}"] = round(float(angle / truth_angle[ok].sum()), 4)
+    pairs = zip(found["intensity"], found["point_to_plane"], strict=True)
+    apart = [np.linalg.norm(p[:3, 3] - g[:3, 3]) for p, g in pairs if p is not None and g is not None]
     row["photometric_vs_geometric_mm"] = round(1e3 * float(np.median(apart)), 1)
     return row
 
@@ -89,7 +95,7 @@ def main() -> None:
     gt = trajectory_of_dataset(frames)
     for focal in (float(v) for v in args.focals.split(",")):
         moved = with_depth_focal(frames, focal)
-        row = {"depth_focal_px": focal, **pair_lengths(moved, args.gap, args.every)}
+        row = {"depth_focal_px": focal, **pair_motion(moved, args.gap, args.every)}
         if args.slam:
             scores = evaluate_trajectory(gt, estimate_trajectory(DenseSlam(), moved))
             row |= {"slam_ate_m": round(scores["ate_rmse_m"], 5), "slam_sim3_scale": round(scores["sim3_scale"], 4),
