@@ -57,11 +57,29 @@ def test_depth_beyond_the_limit_or_invalid_is_ignored(desk_frames):
 
 
 @pytest.mark.parametrize("kwargs", [{"method": "icp"}, {"scale": 0}, {"iterations": ()}, {"iterations": (3, 0)},
-                                    {"depth_max": 0.0}])
+                                    {"depth_max": 0.0}, {"robust_iterations": (1, 1)},
+                                    {"robust_iterations": (0, -1, 2)}, {"robust_intensity_huber": 0.0}])
 def test_bad_settings_are_refused_with_a_clear_error(desk_frames, kwargs):
     args = {"iterations": (10, 5, 3), "depth_max": 4.0, "loss": (0.07, 0.05, 0.1)} | kwargs
     with pytest.raises(ConfigError):
         DenseAligner(desk_frames[0].intrinsics, **args)
+
+
+def test_robust_steps_follow_each_levels_plain_steps_with_the_narrow_intensity_width(desk_frames, monkeypatch):
+    """Coarse to fine, each level runs its plain steps (wide intensity Huber width) and then its robust ones (narrow
+    width); the config's defaults reach the aligner."""
+    cfg = OdometryConfig(iterations=(2, 1, 1), robust_iterations=(0, 2, 1), robust_intensity_huber_delta=0.03)
+    aligner = cfg.aligner(desk_frames[0].intrinsics)
+    calls = []
+    step = DenseAligner._step
+    monkeypatch.setattr(DenseAligner, "_step", lambda self, s, t, level, T, loss: calls.append((level, loss[2]))
+                        or step(self, s, t, level, T, loss))
+    f0, f1 = desk_frames[0], desk_frames[1]
+    assert aligner.align(aligner.image(f1.rgb, f1.depth), aligner.image(f0.rgb, f0.depth), np.eye(4)) is not None
+    wide, narrow = cfg.intensity_huber_delta, 0.03
+    assert calls == [(2, wide), (2, wide), (1, wide), (1, narrow), (1, narrow), (0, wide), (0, narrow)]
+    with pytest.raises(ConfigError):
+        OdometryConfig(iterations=(10, 5, 0), robust_iterations=())
 
 
 def test_a_grey_image_prepares_the_same_pyramids_as_its_colour_one(desk_frames):

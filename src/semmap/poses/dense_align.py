@@ -92,21 +92,31 @@ class DenseAligner:
     ``scale`` > 1 subsamples the images first (2: a quarter of the pixels, about 4x faster, less accurate);
     ``iterations`` are per pyramid level, coarse to fine; depth beyond ``depth_max`` metres is ignored; ``loss``
     holds Open3D's loss parameters (depth outlier cut-off, depth and intensity Huber widths: metres, and
-    intensity in [0, 1]). :meth:`semmap.poses.odometry.OdometryConfig.aligner` builds one from a config.
+    intensity in [0, 1]). ``robust_iterations`` (per level, after that level's ``iterations``) use the narrower
+    intensity Huber width ``robust_intensity_huber``: the wide one brings the images together from a rough guess,
+    the narrow one then stops view-dependent brightness (highlights, exposure, occlusions) from pulling the pose.
+    :meth:`semmap.poses.odometry.OdometryConfig.aligner` builds one from a config.
     """
 
     def __init__(self, intrinsics: CameraIntrinsics, *, iterations: tuple[int, ...], depth_max: float,
-                 loss: tuple[float, float, float], method: str = "hybrid", scale: int = 1) -> None:
+                 loss: tuple[float, float, float], method: str = "hybrid", scale: int = 1,
+                 robust_iterations: tuple[int, ...] = (), robust_intensity_huber: float = 0.02) -> None:
         if method not in METHODS:
             raise ConfigError(f"dense alignment method must be one of {', '.join(METHODS)}, got {method!r}")
-        if int(scale) < 1 or not iterations or any(int(i) < 1 for i in iterations) or not depth_max > 0:
-            raise ConfigError(f"dense alignment needs scale >= 1, positive iterations per level and a positive "
-                              f"depth_max, got scale={scale!r}, iterations={iterations!r}, depth_max={depth_max!r}")
+        robust = tuple(int(i) for i in robust_iterations) or (0,) * len(iterations)
+        if (int(scale) < 1 or not iterations or len(robust) != len(iterations) or min(robust) < 0
+                or any(int(i) < 0 or int(i) + r < 1 for i, r in zip(iterations, robust, strict=True))
+                or not depth_max > 0 or not robust_intensity_huber > 0):
+            raise ConfigError(f"dense alignment needs scale >= 1, iterations per level (plain + robust at least 1, "
+                              f"robust ones as many levels), a positive depth_max and robust Huber width, got "
+                              f"scale={scale!r}, iterations={iterations!r}, robust_iterations={robust_iterations!r}, "
+                              f"depth_max={depth_max!r}, robust_intensity_huber={robust_intensity_huber!r}")
         s = int(scale)
         self.scale = s
         self.method = method
         self.depth_max = float(depth_max)
         self.loss = tuple(float(v) for v in loss)
+        self.robust_loss = (*self.loss[:2], float(robust_intensity_huber))
         K = intrinsics.K.astype(np.float64).copy()
         if s > 1:
             # colour is area-averaged (new pixel i covers old pixels s*i .. s*i+s-1), depth is subsampled at s*i
@@ -115,6 +125,7 @@ class DenseAligner:
             K[:2, 2] -= 0.5 * (1.0 - 1.0 / s)
         self.size = (intrinsics.width // s, intrinsics.height // s)
         self.iterations = [int(i) for i in iterations]  # coarse to fine
+        self.robust_iterations = list(robust)
         self.levels = len(self.iterations)
         self._K = []  # finest first; a coarser level keeps pixel 2i of the finer one, so K halves exactly
         for _ in range(self.levels):
@@ -137,8 +148,9 @@ class DenseAligner:
             grays.append(cv2.pyrDown(grays[-1]))
         return DenseImage(depths, grays, self._K)
 
-    def _step(self, source: DenseImage, target: DenseImage, level: int, T: o3d.core.Tensor):
-        trunc, depth_huber, intensity_huber = self.loss
+    def _step(self, source: DenseImage, target: DenseImage, level: int, T: o3d.core.Tensor,
+              loss: tuple[float, float, float]):
+        trunc, depth_huber, intensity_huber = loss
         K = self._K[level]
         if self.method == "point_to_plane":
             return _ODOMETRY.compute_odometry_result_point_to_plane(
@@ -157,10 +169,11 @@ class DenseAligner:
         e.g. an image without valid depth) or the result is not finite."""
         T = o3d.core.Tensor(np.ascontiguousarray(T_init, np.float64))
         fitness, rmse = 0.0, float("nan")
+        schedule = zip(range(self.levels - 1, -1, -1), self.iterations, self.robust_iterations, strict=True)
         try:
-            for level, iterations in zip(range(self.levels - 1, -1, -1), self.iterations, strict=True):
-                for _ in range(iterations):
-                    step = self._step(source, target, level, T)
+            for level, plain, robust in schedule:
+                for loss in (self.loss,) * plain + (self.robust_loss,) * robust:
+                    step = self._step(source, target, level, T, loss)
                     T = step.transformation.to(o3d.core.Dtype.Float64).matmul(T)
                     fitness, rmse = float(step.fitness), float(step.inlier_rmse)
         except RuntimeError:

@@ -102,7 +102,8 @@ class RgbdSlam:
         self.ba = BundleAdjuster(self.cam, sigma, self.tracker.disp_sigma, cfg.ba_window, cfg.ba_iterations,
                                  anchor_sigma=anchor_sigma)
         if cfg.dense_fallback or cfg.dense_refine != "off":
-            dense = OdometryConfig(iterations=tuple(cfg.dense_iterations), depth_max=cfg.max_depth)
+            dense = OdometryConfig(iterations=tuple(cfg.dense_iterations), robust_iterations=(),
+                                   depth_max=cfg.max_depth)
             self.dense = dense.aligner(intr, cfg.dense_scale)
         self.loops = LoopCloser(self.map, self.tracker, cfg)
 
