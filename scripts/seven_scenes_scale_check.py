@@ -4,8 +4,14 @@ For each depth focal length given, the colour camera's focal length is scaled wi
 depth pixels as with the fitted registration), colour is registered again, and
 
 - frame pairs (i, i+gap) are aligned from the ground-truth relative pose by each dense cost (photometric only,
-  geometric only, hybrid): the summed length of the translations found over that of the ground truth's, the same
-  for the rotation angles, and how far the photometric and geometric translations lie apart (median, mm);
+  geometric only, hybrid; photometric and hybrid also without the robust steps, ``_wide``): the summed length
+  of the translations found over that of the ground truth's, the same for the rotation angles, and how far the
+  photometric and geometric translations lie apart (median, mm);
+- SIFT features matched in the registered colour of frame pairs (i, i+8) are compared with where the depth
+  camera model puts them under the geometric (point-to-plane) alignment: the median over pairs of the fitted
+  ratio of the features' displacements to the predicted ones (1: colour moves as the depth geometry says);
+- depth clouds of frame pairs (i, i+30) are aligned by point-to-plane ICP: the mean residual of points within
+  1 cm, a geometric, ground-truth-free sign of how well the focal length fits (a wrong one bends the views);
 - with ``--slam`` the whole sequence is tracked by ``slam``: ATE after SE(3) alignment, the Sim(3) scale that maps
   the estimate onto the ground truth, and the ATE after that Sim(3) alignment.
 
@@ -23,7 +29,10 @@ import dataclasses
 import json
 from pathlib import Path
 
+import cv2
 import numpy as np
+import open3d as o3d
+from seven_scenes_gt_check import cloud
 
 from semmap.datasets import open_dataset
 from semmap.eval.trajectory import evaluate_trajectory
@@ -58,7 +67,10 @@ def pair_motion(frames: list[Frame], gap: int, every: int) -> dict:
     """Summed translation length and rotation angle of each dense cost over the ground truth's, on pairs
     (i, i+gap)."""
     aligners = {m: OdometryConfig(method=m).aligner(frames[0].intrinsics) for m in METHODS}
-    found: dict[str, list] = {m: [] for m in METHODS}
+    for m in ("hybrid", "intensity"):  # without the robust steps (the intensity Huber width stays wide)
+        wide = OdometryConfig(method=m, iterations=(10, 5, 3), robust_iterations=())
+        aligners[f"{m}_wide"] = wide.aligner(frames[0].intrinsics)
+    found: dict[str, list] = {m: [] for m in aligners}
     truth = []
     for i in range(0, len(frames) - gap, every):
         a, b = frames[i], frames[i + gap]
@@ -83,6 +95,54 @@ def pair_motion(frames: list[Frame], gap: int, every: int) -> dict:
     return row
 
 
+def colour_flow_ratio(frames: list[Frame], gap: int = 8, every: int = 10) -> float:
+    """Median over pairs of how far SIFT features move in the registered colour images over how far the depth
+    camera model moves them under the point-to-plane alignment (started from the ground truth)."""
+    aligner = OdometryConfig(method="point_to_plane").aligner(frames[0].intrinsics)
+    K = frames[0].intrinsics.K
+    sift, matcher = cv2.SIFT_create(2000), cv2.BFMatcher()
+    ratios = []
+    for i in range(0, len(frames) - gap, every):
+        a, b = frames[i], frames[i + gap]
+        T = invert_pose(b.T_world_cam) @ a.T_world_cam
+        T[:3, :3] = orthonormalize(T[:3, :3])
+        result = aligner.align(aligner.image(a.rgb, a.depth), aligner.image(b.rgb, b.depth), T)
+        T = T if result is None else result.T
+        ka, da = sift.detectAndCompute(cv2.cvtColor(a.rgb, cv2.COLOR_RGB2GRAY), None)
+        kb, db = sift.detectAndCompute(cv2.cvtColor(b.rgb, cv2.COLOR_RGB2GRAY), None)
+        if da is None or db is None or len(db) < 2:
+            continue
+        pairs = [m for m, n in matcher.knnMatch(da, db, k=2) if m.distance < 0.7 * n.distance]
+        src = np.array([ka[m.queryIdx].pt for m in pairs]).reshape(-1, 2)
+        dst = np.array([kb[m.trainIdx].pt for m in pairs]).reshape(-1, 2)
+        col, row = np.round(src).astype(int).T
+        z = a.depth[np.clip(row, 0, a.depth.shape[0] - 1), np.clip(col, 0, a.depth.shape[1] - 1)]
+        ok = np.isfinite(z) & (z > 0.3) & (z < 3.5)
+        rays = np.linalg.solve(K, np.column_stack([src, np.ones(len(src))]).T).T
+        moved = (rays * z[:, None]) @ T[:3, :3].T + T[:3, 3]
+        predicted = (moved @ K.T)[:, :2] / moved[:, 2:3] - src
+        measured = dst - src
+        ok &= (np.linalg.norm(predicted, axis=1) > 5) & (np.linalg.norm(measured - predicted, axis=1) < 15)
+        if ok.sum() >= 30:
+            P, F = predicted[ok], measured[ok]
+            ratios.append(float((P * F).sum() / (P * P).sum()))
+    return float(np.median(ratios)) if ratios else float("nan")
+
+
+def icp_residual(frames: list[Frame], gap: int = 30, every: int = 10) -> float:
+    """Mean residual (metres) of depth points within 1 cm after point-to-plane ICP of pairs (i, i+gap)."""
+    residuals = []
+    for i in range(0, len(frames) - gap, every):
+        a, b = frames[i], frames[i + gap]
+        T = invert_pose(b.T_world_cam) @ a.T_world_cam
+        T[:3, :3] = orthonormalize(T[:3, :3])
+        ca, cb = cloud(a), cloud(b)
+        T = o3d.pipelines.registration.registration_icp(
+            ca, cb, 0.05, T, o3d.pipelines.registration.TransformationEstimationPointToPlane()).transformation
+        residuals.append(o3d.pipelines.registration.evaluate_registration(ca, cb, 0.01, T).inlier_rmse)
+    return float(np.mean(residuals))
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("dataset", nargs="?", type=Path, default=SHARED)
@@ -95,7 +155,9 @@ def main() -> None:
     gt = trajectory_of_dataset(frames)
     for focal in (float(v) for v in args.focals.split(",")):
         moved = with_depth_focal(frames, focal)
-        row = {"depth_focal_px": focal, **pair_motion(moved, args.gap, args.every)}
+        row = {"depth_focal_px": focal, **pair_motion(moved, args.gap, args.every),
+               "colour_flow_vs_depth": round(colour_flow_ratio(moved), 4),
+               "icp_residual_mm": round(1e3 * icp_residual(moved), 3)}
         if args.slam:
             scores = evaluate_trajectory(gt, estimate_trajectory(DenseSlam(), moved))
             row |= {"slam_ate_m": round(scores["ate_rmse_m"], 5), "slam_sim3_scale": round(scores["sim3_scale"], 4),
