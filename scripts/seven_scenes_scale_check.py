@@ -63,6 +63,14 @@ def with_depth_focal(frames: list[Frame], focal: float) -> list[Frame]:
     return out
 
 
+def relative_truth(a: Frame, b: Frame) -> np.ndarray:
+    """Frame ``a``'s camera in frame ``b``'s by the ground truth, rotation re-orthonormalised (7-Scenes rotations
+    are off orthonormal by up to 3e-4)."""
+    T = invert_pose(b.T_world_cam) @ a.T_world_cam
+    T[:3, :3] = orthonormalize(T[:3, :3])
+    return T
+
+
 def pair_motion(frames: list[Frame], gap: int, every: int) -> dict:
     """Summed translation length and rotation angle of each dense cost over the ground truth's, on pairs
     (i, i+gap)."""
@@ -74,8 +82,7 @@ def pair_motion(frames: list[Frame], gap: int, every: int) -> dict:
     truth = []
     for i in range(0, len(frames) - gap, every):
         a, b = frames[i], frames[i + gap]
-        T_gt = invert_pose(b.T_world_cam) @ a.T_world_cam  # a's camera in b's
-        T_gt[:3, :3] = orthonormalize(T_gt[:3, :3])  # 7-Scenes rotations are off orthonormal by up to 3e-4
+        T_gt = relative_truth(a, b)
         truth.append(T_gt)
         for m, aligner in aligners.items():
             result = aligner.align(aligner.image(a.rgb, a.depth), aligner.image(b.rgb, b.depth), T_gt)
@@ -104,8 +111,7 @@ def colour_flow_ratio(frames: list[Frame], gap: int = 8, every: int = 10) -> flo
     ratios = []
     for i in range(0, len(frames) - gap, every):
         a, b = frames[i], frames[i + gap]
-        T = invert_pose(b.T_world_cam) @ a.T_world_cam
-        T[:3, :3] = orthonormalize(T[:3, :3])
+        T = relative_truth(a, b)
         result = aligner.align(aligner.image(a.rgb, a.depth), aligner.image(b.rgb, b.depth), T)
         T = T if result is None else result.T
         ka, da = sift.detectAndCompute(cv2.cvtColor(a.rgb, cv2.COLOR_RGB2GRAY), None)
@@ -134,8 +140,7 @@ def icp_residual(frames: list[Frame], gap: int = 30, every: int = 10) -> float:
     residuals = []
     for i in range(0, len(frames) - gap, every):
         a, b = frames[i], frames[i + gap]
-        T = invert_pose(b.T_world_cam) @ a.T_world_cam
-        T[:3, :3] = orthonormalize(T[:3, :3])
+        T = relative_truth(a, b)
         ca, cb = cloud(a), cloud(b)
         T = o3d.pipelines.registration.registration_icp(
             ca, cb, 0.05, T, o3d.pipelines.registration.TransformationEstimationPointToPlane()).transformation

@@ -85,6 +85,19 @@ def grey(colour: np.ndarray) -> np.ndarray:
     return colour if colour.ndim == 2 else cv2.cvtColor(np.ascontiguousarray(colour), cv2.COLOR_RGB2GRAY)
 
 
+def check_schedule(iterations: tuple[int, ...], robust_iterations: tuple[int, ...]) -> tuple[list[int], list[int]]:
+    """Plain and robust Gauss-Newton steps per pyramid level, coarse to fine (no robust ones: empty), as lists;
+    ConfigError unless both count every level and each level gets at least one step."""
+    plain = [int(i) for i in iterations]
+    robust = [int(i) for i in robust_iterations] or [0] * len(plain)
+    if not plain or len(robust) != len(plain) or any(p < 0 or r < 0 or p + r < 1
+                                                     for p, r in zip(plain, robust, strict=True)):
+        raise ConfigError(f"dense alignment needs a plain and a robust step count per pyramid level (robust ones may "
+                          f"be left out), at least one step per level in all, got iterations={iterations!r}, "
+                          f"robust_iterations={robust_iterations!r}")
+    return plain, robust
+
+
 class DenseAligner:
     """Aligns RGB-D images of one camera by multi-scale Gauss-Newton, one Open3D ``compute_odometry_result_*``
     step at a time (coarse to fine) over pyramids built once per frame.
@@ -103,14 +116,11 @@ class DenseAligner:
                  robust_iterations: tuple[int, ...] = (), robust_intensity_huber: float = 0.02) -> None:
         if method not in METHODS:
             raise ConfigError(f"dense alignment method must be one of {', '.join(METHODS)}, got {method!r}")
-        robust = tuple(int(i) for i in robust_iterations) or (0,) * len(iterations)
-        if (int(scale) < 1 or not iterations or len(robust) != len(iterations) or min(robust) < 0
-                or any(int(i) < 0 or int(i) + r < 1 for i, r in zip(iterations, robust, strict=True))
-                or not depth_max > 0 or not robust_intensity_huber > 0):
-            raise ConfigError(f"dense alignment needs scale >= 1, iterations per level (plain + robust at least 1, "
-                              f"robust ones as many levels), a positive depth_max and robust Huber width, got "
-                              f"scale={scale!r}, iterations={iterations!r}, robust_iterations={robust_iterations!r}, "
-                              f"depth_max={depth_max!r}, robust_intensity_huber={robust_intensity_huber!r}")
+        plain, robust = check_schedule(iterations, robust_iterations)
+        if int(scale) < 1 or not depth_max > 0 or not robust_intensity_huber > 0:
+            raise ConfigError(f"dense alignment needs scale >= 1, a positive depth_max and robust Huber width, got "
+                              f"scale={scale!r}, depth_max={depth_max!r}, "
+                              f"robust_intensity_huber={robust_intensity_huber!r}")
         s = int(scale)
         self.scale = s
         self.method = method
@@ -124,8 +134,7 @@ class DenseAligner:
             K[:2] /= s
             K[:2, 2] -= 0.5 * (1.0 - 1.0 / s)
         self.size = (intrinsics.width // s, intrinsics.height // s)
-        self.iterations = [int(i) for i in iterations]  # coarse to fine
-        self.robust_iterations = list(robust)
+        self.iterations, self.robust_iterations = plain, robust  # coarse to fine
         self.levels = len(self.iterations)
         self._K = []  # finest first; a coarser level keeps pixel 2i of the finer one, so K halves exactly
         for _ in range(self.levels):

@@ -15,7 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from semmap.errors import ConfigError
-from semmap.poses.dense_align import METHODS, DenseAligner, DenseImage
+from semmap.poses.dense_align import METHODS, DenseAligner, DenseImage, check_schedule
 from semmap.types import CameraIntrinsics, Frame, Trajectory, invert_pose, pose_change, snap_rigid
 
 
@@ -61,12 +61,7 @@ class OdometryConfig:
             raise ConfigError(f"odometry method must be one of {', '.join(METHODS)}, got {self.method!r}")
         if self.reference not in ("keyframe", "frame"):
             raise ConfigError(f"odometry reference must be 'keyframe' or 'frame', got {self.reference!r}")
-        robust = tuple(self.robust_iterations) or (0,) * len(self.iterations)
-        if (not self.iterations or len(robust) != len(self.iterations)
-                or any(int(i) < 0 or int(r) < 0 or int(i) + int(r) < 1
-                       for i, r in zip(self.iterations, robust, strict=True))):
-            raise ConfigError(f"odometry iterations and robust_iterations need one count per level, at least one "
-                              f"step per level in all, got {self.iterations} and {self.robust_iterations}")
+        check_schedule(self.iterations, self.robust_iterations)  # here already, not at the first frame
         if not self.depth_max > 0:
             raise ConfigError(f"odometry depth_max must be positive, got {self.depth_max}")
 
