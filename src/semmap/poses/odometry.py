@@ -1,5 +1,4 @@
-"""Dense RGB-D odometry (multi-scale photometric + geometric alignment, Open3D's tensor odometry steps) as a
-PoseTracker.
+"""Dense RGB-D odometry (multi-scale photometric + geometric Gauss-Newton alignment) as a PoseTracker.
 
 Each frame is aligned to a reference frame, starting from a constant-velocity prediction; each frame's image
 pyramids are built once (:mod:`semmap.poses.dense_align`), so a keyframe's serve every frame aligned to it.
@@ -23,7 +22,7 @@ from semmap.types import CameraIntrinsics, Frame, Trajectory, invert_pose, pose_
 class OdometryConfig:
     """Settings of :class:`DenseOdometry`; the defaults are the variant that measured best (see the benchmark)."""
 
-    #: Open3D cost: "hybrid" (photometric + geometric), "intensity" or "point_to_plane".
+    #: Cost: "hybrid" (photometric + geometric), "intensity" or "point_to_plane".
     method: str = "hybrid"
     #: Gauss-Newton iterations per pyramid level, coarse to fine, with the wide intensity Huber width
     #: (``intensity_huber_delta``) ...
@@ -35,9 +34,11 @@ class OdometryConfig:
     #: three more half-resolution steps (see DESIGN). Empty: none.
     robust_iterations: tuple[int, ...] = (0, 3, 2)
     robust_intensity_huber_delta: float = 0.02
+    #: Weight of the depth residual (metres) against the intensity one (in [0, 1]) in the hybrid cost.
+    depth_weight: float = 2.0
     #: Depth beyond this (metres) is ignored.
     depth_max: float = 4.0
-    #: Open3D loss parameters: depth outlier cut-off and Huber widths (metres, intensity in [0, 1]).
+    #: Loss parameters: depth outlier cut-off and Huber widths (metres, intensity in [0, 1]).
     depth_outlier_trunc: float = 0.07
     depth_huber_delta: float = 0.05
     intensity_huber_delta: float = 0.1
@@ -70,7 +71,7 @@ class OdometryConfig:
         return DenseAligner(intrinsics, iterations=tuple(self.iterations), depth_max=self.depth_max,
                             loss=(self.depth_outlier_trunc, self.depth_huber_delta, self.intensity_huber_delta),
                             method=self.method, scale=scale, robust_iterations=tuple(self.robust_iterations),
-                            robust_intensity_huber=self.robust_intensity_huber_delta)
+                            robust_intensity_huber=self.robust_intensity_huber_delta, depth_weight=self.depth_weight)
 
 
 @dataclass(frozen=True)
