@@ -30,9 +30,10 @@ class OdometryConfig:
     #: ... then these per level with the narrow one. The wide width converges from the motion model's guess; the
     #: narrow one (about twice the robust spread of 7-Scenes' intensity residuals) then keeps view-dependent
     #: brightness from biasing the pose: with the wide width alone 7-Scenes rotations came out 5 % short of the
-    #: ground truth's and the ATE 3.02 cm; with (0, 3, 2) at 0.02 it is 2.7 cm, the simulations unchanged, for
-    #: three more half-resolution steps (see DESIGN). Empty: none.
-    robust_iterations: tuple[int, ...] = (0, 3, 2)
+    #: ground truth's and the ATE 3.02 cm; with robust steps at 0.02 it is 2.5-2.7 cm, the simulations unchanged.
+    #: Two full-resolution steps in all: a third measured no better and cost a fifth of the frame time (see
+    #: DESIGN). Empty: none.
+    robust_iterations: tuple[int, ...] = (0, 3, 1)
     robust_intensity_huber_delta: float = 0.02
     #: Weight of the depth residual (metres) against the intensity one (in [0, 1]) in the hybrid cost.
     depth_weight: float = 2.0
