@@ -5,9 +5,8 @@ reads of the target, per-pixel image gradients, and sums that do not depend on t
 gives the same pose on every run. A tracker aligns many frames to one keyframe, so each frame is prepared once
 (:meth:`DenseAligner.image`) and a target keeps its gradients.
 
-Open3D's tensor odometry steps did this before (see DESIGN); its Sobel gradients are not divided by their weight
-(8), which scales the image terms against the depth term's ``-1`` and slows convergence, and its sums change with
-thread timing. Same frames, same settings: about half the pose error on the simulated sequences.
+Open3D's tensor odometry steps did this before (see DESIGN); they read the target at the nearest pixel and their
+sums change with thread timing. Same frames, same settings: about half the pose error on the simulated sequences.
 """
 
 from __future__ import annotations
