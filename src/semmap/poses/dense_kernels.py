@@ -29,6 +29,17 @@ def _bilinear(img, u0, v0, a, b):
 
 
 @nb.njit(cache=True, inline="always")
+def _warp(src_vertex, y, x, T):
+    """Source pixel (y, x)'s point moved by ``T`` into the target camera; z = -1 where the source has no depth."""
+    sx, sy, sz = src_vertex[y, x, 0], src_vertex[y, x, 1], src_vertex[y, x, 2]
+    if not sz > 0.0:
+        return 0.0, 0.0, -1.0
+    return (T[0, 0] * sx + T[0, 1] * sy + T[0, 2] * sz + T[0, 3],
+            T[1, 0] * sx + T[1, 1] * sy + T[1, 2] * sz + T[1, 3],
+            T[2, 0] * sx + T[2, 1] * sy + T[2, 2] * sz + T[2, 3])
+
+
+@nb.njit(cache=True, inline="always")
 def _accumulate(row, p0, p1, p2, g0, g1, g2, r, delta):
     """Add one Huber-weighted residual ``r`` with point gradient ``g`` at warped point ``p`` to a row's sums."""
     j0 = p1 * g2 - p2 * g1
@@ -91,13 +102,8 @@ def photometric_geometric_system(src_vertex, src_intensity, tgt_depth, tgt_inten
     for y in nb.prange(H):
         row = np.zeros(SYSTEM_SIZE)
         for x in range(W):
-            sx, sy, sz = src_vertex[y, x, 0], src_vertex[y, x, 1], src_vertex[y, x, 2]
-            if not sz > 0.0:
-                continue
-            px = T[0, 0] * sx + T[0, 1] * sy + T[0, 2] * sz + T[0, 3]
-            py = T[1, 0] * sx + T[1, 1] * sy + T[1, 2] * sz + T[1, 3]
-            pz = T[2, 0] * sx + T[2, 1] * sy + T[2, 2] * sz + T[2, 3]
-            if not pz > 0.0:
+            px, py, pz = _warp(src_vertex, y, x, T)
+            if not pz > 0.0:  # no source depth, or behind the target camera
                 continue
             iz = 1.0 / pz
             u = fx * px * iz + cx
@@ -136,13 +142,8 @@ def point_to_plane_system(src_vertex, tgt_vertex, tgt_normal, K, T, distance_tru
     for y in nb.prange(H):
         row = np.zeros(SYSTEM_SIZE)
         for x in range(W):
-            sx, sy, sz = src_vertex[y, x, 0], src_vertex[y, x, 1], src_vertex[y, x, 2]
-            if not sz > 0.0:
-                continue
-            px = T[0, 0] * sx + T[0, 1] * sy + T[0, 2] * sz + T[0, 3]
-            py = T[1, 0] * sx + T[1, 1] * sy + T[1, 2] * sz + T[1, 3]
-            pz = T[2, 0] * sx + T[2, 1] * sy + T[2, 2] * sz + T[2, 3]
-            if not pz > 0.0:
+            px, py, pz = _warp(src_vertex, y, x, T)
+            if not pz > 0.0:  # no source depth, or behind the target camera
                 continue
             u = math.floor(fx * px / pz + cx + 0.5)
             v = math.floor(fy * py / pz + cy + 0.5)
