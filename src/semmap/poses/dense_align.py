@@ -200,14 +200,15 @@ class DenseAligner:
         fitness, rmse = 0.0, float("nan")
         schedule = zip(range(self.levels - 1, -1, -1), self.iterations, self.robust_iterations, strict=True)
         for level, plain, robust in schedule:
-            for i, loss in enumerate((self.loss,) * plain + (self.robust_loss,) * robust):
-                out = self._step(source, target, level, T, loss)
+            i = 0
+            while i < plain + robust:
+                out = self._step(source, target, level, T, self.loss if i < plain else self.robust_loss)
                 if out is None:
                     return None
                 moved = np.abs(out[0] - T).max()
                 T, fitness, rmse = out
-                if moved < CONVERGED and i < plain:
-                    break
+                # a converged plain step ends the level's plain steps; its robust ones still run
+                i = plain if moved < CONVERGED and i < plain else i + 1
         if not np.isfinite(T).all():
             return None
         return AlignResult(snap_rigid(T), fitness, rmse)
