@@ -21,7 +21,8 @@ from semmap.poses.dense_kernels import increment, photometric_geometric_system, 
 from semmap.types import CameraIntrinsics, snap_rigid
 
 #: A plain step that changes the pose by less than this (largest matrix entry: metres, or radians for small
-#: rotations) ends its level's plain steps early; the robust ones still run.
+#: rotations) ends its pyramid level early, robust steps included: running those after convergence measured the same
+#: ATEs and cost 10-12 ms per frame on the simulated loop (see DESIGN).
 CONVERGED = 1e-4
 #: Cost functions: photometric + geometric, photometric only, geometric only.
 METHODS = ("hybrid", "intensity", "point_to_plane")
@@ -200,15 +201,14 @@ class DenseAligner:
         fitness, rmse = 0.0, float("nan")
         schedule = zip(range(self.levels - 1, -1, -1), self.iterations, self.robust_iterations, strict=True)
         for level, plain, robust in schedule:
-            i = 0
-            while i < plain + robust:
-                out = self._step(source, target, level, T, self.loss if i < plain else self.robust_loss)
+            for i, loss in enumerate((self.loss,) * plain + (self.robust_loss,) * robust):
+                out = self._step(source, target, level, T, loss)
                 if out is None:
                     return None
                 moved = np.abs(out[0] - T).max()
                 T, fitness, rmse = out
-                # a converged plain step ends the level's plain steps; its robust ones still run
-                i = plain if moved < CONVERGED and i < plain else i + 1
+                if moved < CONVERGED and i < plain:  # converged: the level ends here
+                    break
         if not np.isfinite(T).all():
             return None
         return AlignResult(snap_rigid(T), fitness, rmse)
