@@ -1,5 +1,5 @@
 """Do a 7-Scenes sequence's colour and depth images come from the same instant? Counts the frames whose colour
-or depth file repeats the previous frame's exactly (a stream that delivered no new image), and lists the frames
+or depth image repeats the previous frame's exactly (a stream that delivered no new image), and lists the frames
 where only one of the two repeats.
 
 The Kinect's colour and depth streams are not synchronised; a recorder pairing the latest image of each repeats
@@ -21,46 +21,67 @@ from __future__ import annotations
 
 import argparse
 import json
+from collections import deque
 from pathlib import Path
 
-import cv2
 import numpy as np
 
 from semmap.datasets import open_dataset
-from semmap.datasets.sevenscenes import find_frames
 from semmap.eval.registration import edge_misalignment
 from semmap.geometry import register_color
+from semmap.types import Frame
 
 SHARED = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "7scenes-redkitchen"
+OFFSETS = (-1, 0, 1)
 
 
-def repeats(paths: list[Path]) -> np.ndarray:
-    """Per frame, whether its image file decodes to exactly the previous frame's image (False for the first)."""
-    out = np.zeros(len(paths), bool)
-    previous = None
-    for i, path in enumerate(paths):
-        image = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
-        if image is None:
-            raise SystemExit(f"{path}: cannot read the image")
-        out[i] = previous is not None and previous.shape == image.shape and np.array_equal(previous, image)
-        previous = image
+def _colour(frame: Frame) -> np.ndarray:
+    """The colour image as the camera took it (the raw one where the reader registered colour)."""
+    return frame.rgb if frame.raw_color is None else frame.raw_color.image
+
+
+def _pairing(window: list[Frame], centre: int) -> list[float]:
+    """Mean distance from ``window[centre]``'s depth outlines to the colour edges of the previous, its own and the
+    next frame's raw colour, registered at its depth (NaN where the window has no such frame)."""
+    frame = window[centre]
+    out = []
+    for offset in OFFSETS:
+        j = centre + offset
+        if 0 <= j < len(window):
+            raw = window[j].raw_color
+            registered = register_color(raw.image, frame.depth, frame.intrinsics, raw.camera)
+            out.append(edge_misalignment(registered, frame.depth))
+        else:
+            out.append(float("nan"))
     return out
 
 
-def pairing_distances(sequence: Path, stride: int) -> np.ndarray:
-    """(frames, 3): mean distance from frame i's depth outlines to the colour edges of frame i-1, i, i+1's raw colour
-    image registered at frame i's depth (NaN where that frame does not exist or is not evaluated)."""
-    frames = list(open_dataset(sequence, "7scenes"))
-    if not frames or frames[0].raw_color is None:
-        raise SystemExit(f"{sequence}: colour is not registered for this camera, so there is no pairing to test")
-    out = np.full((len(frames), 3), np.nan)
-    for i in range(0, len(frames), stride):
-        depth = frames[i].depth
-        for k, j in enumerate((i - 1, i, i + 1)):
-            if 0 <= j < len(frames):
-                raw = frames[j].raw_color
-                out[i, k] = edge_misalignment(register_color(raw.image, depth, frames[i].intrinsics, raw.camera), depth)
-    return out
+def scan(sequence: Path, stride: int) -> tuple[list[str], np.ndarray, np.ndarray, np.ndarray | None]:
+    """One pass over the sequence, three frames in memory: frame names, colour and depth repeats (the image equals
+    the previous frame's exactly), and per frame the pairing distances of :func:`_pairing` for every ``stride``-th
+    frame (NaN rows elsewhere; None when the reader does not register this camera's colour)."""
+    names: list[str] = []
+    colour: list[bool] = []
+    depth: list[bool] = []
+    distances: list[list[float]] = []
+    window: deque[Frame] = deque(maxlen=3)  # frames i-1, i, i+1 once full
+    registered = True
+    for frame in open_dataset(sequence, "7scenes"):
+        previous = window[-1] if window else None
+        names.append(frame.name or str(frame.index))
+        colour.append(previous is not None and np.array_equal(_colour(previous), _colour(frame)))
+        depth.append(previous is not None and np.array_equal(previous.depth, frame.depth))
+        registered = registered and frame.raw_color is not None
+        window.append(frame)
+        i = len(names) - 2  # the frame whose next one just arrived
+        if registered and i >= 0:
+            distances.append(_pairing(list(window), len(window) - 2) if i % stride == 0 else [np.nan] * 3)
+    if not names:
+        raise SystemExit(f"{sequence}: no frames")
+    if registered:  # the last frame has no next one
+        distances.append(_pairing(list(window), len(window) - 1) if (len(names) - 1) % stride == 0
+                         else [np.nan] * 3)
+    return names, np.array(colour), np.array(depth), np.array(distances) if registered else None
 
 
 def main() -> None:
@@ -68,29 +89,26 @@ def main() -> None:
     parser.add_argument("sequence", nargs="?", default=str(SHARED), help="7-Scenes sequence folder")
     parser.add_argument("--stride", type=int, default=1, help="test the pairing on every k-th frame")
     args = parser.parse_args()
-    refs = find_frames(Path(args.sequence))
-    if not refs:
-        raise SystemExit(f"{args.sequence}: no frame-N.color.* files")
-    colour = repeats([r.color for r in refs])
-    depth = repeats([r.sibling(".depth.png") for r in refs])
+    names, colour, depth, distances = scan(Path(args.sequence), max(1, args.stride))
     shift = np.cumsum(depth.astype(int) - colour.astype(int))
-    names = [r.name for r in refs]
-    print(f"{len(refs)} frames: depth repeats {int(depth.sum())}, colour repeats {int(colour.sum())}, "
+    print(f"{len(names)} frames: depth repeats {int(depth.sum())}, colour repeats {int(colour.sum())}, "
           f"both {int((depth & colour).sum())}")
     print("depth only:", ", ".join(names[i] for i in np.flatnonzero(depth & ~colour)) or "none")
     print("colour only:", ", ".join(names[i] for i in np.flatnonzero(colour & ~depth)) or "none")
     print(f"frames whose streams are shifted against the first frame's pairing: {int((shift != 0).sum())}")
-    distances = pairing_distances(Path(args.sequence), max(1, args.stride))
-    fresh = ~colour & ~depth  # both images new: the pairing is what is tested
     pairing = {}
-    for label, chosen in (("in_sync", fresh & (shift == 0)), ("shifted", fresh & (shift != 0))):
-        rows = distances[chosen & ~np.isnan(distances).any(axis=1)]
-        pairing[label] = {"frames": len(rows), **{f"offset_{o:+d}_px": round(float(rows[:, k].mean()), 3)
-                                                   for k, o in enumerate((-1, 0, 1))}} if len(rows) else {"frames": 0}
-        if len(rows):
-            print(f"{label:8s} ({len(rows)} frames): depth outline to colour edge of frame i-1 / i / i+1: "
-                  + " / ".join(f"{d:.2f}" for d in rows.mean(axis=0)) + " px")
-    print(json.dumps({"check": "7scenes-streams", "frames": len(refs), "depth_repeats": int(depth.sum()),
+    if distances is None:
+        print("colour is not registered for this camera: the pairing is not tested")
+    else:
+        fresh = ~colour & ~depth  # both images new: the pairing is what is tested
+        for label, chosen in (("in_sync", fresh & (shift == 0)), ("shifted", fresh & (shift != 0))):
+            rows = distances[chosen & ~np.isnan(distances).any(axis=1)]
+            pairing[label] = {"frames": len(rows), **{f"offset_{o:+d}_px": round(float(rows[:, k].mean()), 3)
+                                                       for k, o in enumerate(OFFSETS)}} if len(rows) else {"frames": 0}
+            if len(rows):
+                print(f"{label:8s} ({len(rows)} frames): depth outline to colour edge of frame i-1 / i / i+1: "
+                      + " / ".join(f"{d:.2f}" for d in rows.mean(axis=0)) + " px")
+    print(json.dumps({"check": "7scenes-streams", "frames": len(names), "depth_repeats": int(depth.sum()),
                       "colour_repeats": int(colour.sum()), "both": int((depth & colour).sum()),
                       "depth_only": int((depth & ~colour).sum()), "colour_only": int((colour & ~depth).sum()),
                       "shifted_frames": int((shift != 0).sum()), "pairing_edge_distance": pairing}))
