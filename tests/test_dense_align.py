@@ -110,15 +110,21 @@ def test_bad_settings_are_refused_with_a_clear_error(desk_frames, kwargs):
         DenseAligner(desk_frames[0].intrinsics, **args)
 
 
+def _record_steps(monkeypatch) -> list[tuple[int, float]]:
+    """(pyramid level, intensity Huber width) of every Gauss-Newton step the aligner takes from now on."""
+    calls = []
+    step = DenseAligner._step
+    monkeypatch.setattr(DenseAligner, "_step", lambda self, s, t, level, T, loss: calls.append((level, loss[2]))
+                        or step(self, s, t, level, T, loss))
+    return calls
+
+
 def test_robust_steps_follow_each_levels_plain_steps_with_the_narrow_intensity_width(desk_frames, monkeypatch):
     """Coarse to fine, each level runs its plain steps (wide intensity Huber width) and then its robust ones (narrow
     width); the config's defaults reach the aligner."""
     cfg = OdometryConfig(iterations=(2, 1, 1), robust_iterations=(0, 2, 1), robust_intensity_huber_delta=0.03)
     aligner = cfg.aligner(desk_frames[0].intrinsics)
-    calls = []
-    step = DenseAligner._step
-    monkeypatch.setattr(DenseAligner, "_step", lambda self, s, t, level, T, loss: calls.append((level, loss[2]))
-                        or step(self, s, t, level, T, loss))
+    calls = _record_steps(monkeypatch)
     f0, f1 = desk_frames[0], desk_frames[1]
     assert aligner.align(aligner.image(f1.rgb, f1.depth), aligner.image(f0.rgb, f0.depth), np.eye(4)) is not None
     wide, narrow = cfg.intensity_huber_delta, 0.03
@@ -132,10 +138,7 @@ def test_a_converged_plain_step_ends_its_level(desk_frames, monkeypatch):
     ends there, its remaining plain and robust steps skipped (they would not move the pose)."""
     cfg = OdometryConfig(iterations=(3, 3), robust_iterations=(2, 1))
     aligner = cfg.aligner(desk_frames[0].intrinsics)
-    calls = []
-    step = DenseAligner._step
-    monkeypatch.setattr(DenseAligner, "_step", lambda self, s, t, level, T, loss: calls.append((level, loss[2]))
-                        or step(self, s, t, level, T, loss))
+    calls = _record_steps(monkeypatch)
     image = aligner.image(desk_frames[0].rgb, desk_frames[0].depth)
     out = aligner.align(image, image, np.eye(4))
     assert out is not None and np.allclose(out.T, np.eye(4), atol=1e-6)
