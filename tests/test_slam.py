@@ -15,7 +15,7 @@ from semmap.poses.base import PoseTracker, estimate_trajectory
 from semmap.poses.slam import RgbdSlam, SlamConfig, se3
 from semmap.poses.slam.optimisation import optimise_pose_graph
 from semmap.poses.slam.pose_solver import PinholeModel, pnp_ransac, refine_pose
-from semmap.types import CameraIntrinsics, Frame
+from semmap.types import CameraIntrinsics, Frame, snap_rigid
 
 CAM = PinholeModel(525.0, 525.0, 319.5, 239.5, 0.08 * 525.0)
 
@@ -64,7 +64,7 @@ def test_pose_graph_with_a_loop_edge_removes_injected_drift():
     for k in range(n):  # a circle of radius 2 m, camera looking at the centre
         a = 2 * np.pi * k / n
         R = cv2.Rodrigues(np.array([0.0, -a, 0.0]))[0]
-        true.append(se3.orthonormalise(np.block([[R, np.array([[2 * np.sin(a)], [0.0], [2 * np.cos(a)]])],
+        true.append(snap_rigid(np.block([[R, np.array([[2 * np.sin(a)], [0.0], [2 * np.cos(a)]])],
                                                  [np.zeros((1, 3)), np.ones((1, 1))]])))
     true = np.array(true)
     drift = se3.exp_update(np.array([0.0, 0.004, 0.0, 0.01, 0.0, 0.0]))  # per-step bias

@@ -12,6 +12,7 @@ from gtsam.symbol_shorthand import L, X
 from semmap.poses.slam import se3
 from semmap.poses.slam.pose_solver import CHI2_MONO, CHI2_STEREO, PinholeModel
 from semmap.poses.slam.world_map import SlamMap
+from semmap.types import snap_rigid
 
 
 def _huber(base: gtsam.noiseModel.Base, chi2: float) -> gtsam.noiseModel.Base:
@@ -191,11 +192,11 @@ def optimise_pose_graph(poses: np.ndarray, edges: list[tuple[int, int, np.ndarra
     graph = gtsam.NonlinearFactorGraph()
     values = gtsam.Values()
     for i, T in enumerate(poses):
-        values.insert(X(i), gtsam.Pose3(se3.orthonormalise(T)))
+        values.insert(X(i), gtsam.Pose3(snap_rigid(T)))
     graph.add(gtsam.PriorFactorPose3(X(fixed), gtsam.Pose3(poses[fixed]), gtsam.noiseModel.Isotropic.Sigma(6, 1e-6)))
     for i, j, T_ij, weight in edges:
         sd = np.repeat(np.asarray(sigmas, np.float64), 3) / np.sqrt(max(weight, 1e-6))
-        graph.add(gtsam.BetweenFactorPose3(X(i), X(j), gtsam.Pose3(se3.orthonormalise(T_ij)),
+        graph.add(gtsam.BetweenFactorPose3(X(i), X(j), gtsam.Pose3(snap_rigid(T_ij)),
                                            gtsam.noiseModel.Diagonal.Sigmas(sd)))
     params = gtsam.LevenbergMarquardtParams()
     params.setMaxIterations(iterations)

@@ -9,6 +9,7 @@ import cv2
 import numpy as np
 
 from semmap.poses.slam import se3
+from semmap.types import snap_rigid
 
 #: chi-square 95% thresholds for 2 (pixel) and 3 (pixel + virtual stereo) degrees of freedom
 CHI2_MONO = 5.991
@@ -128,4 +129,4 @@ def refine_pose(T_cw: np.ndarray, pts_w: np.ndarray, uv: np.ndarray, ur: np.ndar
         inlier = front & (chi2 < thr)
         if rnd == rounds - 2:
             hub = np.full(n, np.inf)  # last round without the robust kernel, on inliers only
-    return se3.orthonormalise(T), inlier
+    return snap_rigid(T), inlier

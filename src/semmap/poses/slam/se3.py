@@ -5,9 +5,9 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from semmap.types import orthonormalize, rotation_angle
+from semmap.types import rotation_angle
 
-__all__ = ["exp_update", "from_rvec", "inverse", "orthonormalise", "rotation_angle", "to_rvec", "transform"]
+__all__ = ["exp_update", "from_rvec", "inverse", "rotation_angle", "to_rvec", "transform"]
 
 
 def inverse(T: np.ndarray) -> np.ndarray:
@@ -46,9 +46,3 @@ def to_rvec(T: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return cv2.Rodrigues(np.ascontiguousarray(T[:3, :3]))[0], T[:3, 3].reshape(3, 1).copy()
 
 
-def orthonormalise(T: np.ndarray) -> np.ndarray:
-    """``T`` with the nearest proper rotation in its upper-left block (guards against drift from repeated
-    products)."""
-    out = np.array(T, np.float64)
-    out[:3, :3] = orthonormalize(T[:3, :3])
-    return out
