@@ -1,7 +1,9 @@
-"""Does the 7-Scenes depth calibration (f = 585 px) give motion the length of the ground truth's?
+"""Does the 7-Scenes depth calibration (f = 585 px, no depth distortion) give motion the length of the ground truth's?
 
-For each depth focal length given, the colour camera's focal length is scaled with it (so colour lands on the same
-depth pixels as with the fitted registration), colour is registered again, and
+For each depth focal length given (and each radial depth factor k: depth scaled by 1 + k r^2, r^2 = 1 at the
+image corners, the shape of a Kinect's depth distortion), the colour camera's focal length is scaled with the
+depth one (so colour lands on the same depth pixels as with the fitted registration), colour is registered
+again, and
 
 - frame pairs (i, i+gap) are aligned from the ground-truth relative pose by each dense cost (photometric only,
   geometric only, hybrid; photometric and hybrid also without the robust steps, ``_wide``): the summed length
@@ -19,13 +21,14 @@ An RGB-D tracker's trajectory has the metric scale of its depth camera model, so
 costs that disagree about how far the camera moved, point at a calibration that does not match the ground truth.
 
     python scripts/seven_scenes_scale_check.py [../shared/data/7scenes-redkitchen] [--focals 575,585,595,605]
-        [--gap 15] [--every 5] [--slam]
+        [--radials 0] [--gap 15] [--every 5] [--slam]
 """
 
 from __future__ import annotations
 
 import argparse
 import dataclasses
+import itertools
 import json
 from pathlib import Path
 
@@ -47,8 +50,9 @@ from semmap.types import Frame, invert_pose, orthonormalize, rotation_angle
 SHARED = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "7scenes-redkitchen"
 
 
-def with_depth_focal(frames: list[Frame], focal: float) -> list[Frame]:
-    """The frames as if the depth camera had focal length ``focal``, colour registered again for it."""
+def with_depth_model(frames: list[Frame], focal: float, radial: float = 0.0) -> list[Frame]:
+    """The frames as if the depth camera had focal length ``focal`` and its depth were off by the factor
+    1 + ``radial`` r^2 (r^2 = 1 at the corners), colour registered again for it."""
     out = []
     for f in frames:
         if f.raw_color is None:
@@ -58,8 +62,15 @@ def with_depth_focal(frames: list[Frame], focal: float) -> list[Frame]:
         cam = dataclasses.replace(f.intrinsics, fx=focal, fy=f.intrinsics.fy * ratio)
         colour_cam = dataclasses.replace(f.raw_color.camera, fx=f.raw_color.camera.fx * ratio,
                                          fy=f.raw_color.camera.fy * ratio)
-        rgb = register_color(f.raw_color.image, f.depth, cam, colour_cam)
-        out.append(dataclasses.replace(f, intrinsics=cam, rgb=rgb))
+        depth = f.depth
+        if radial:
+            h, w = depth.shape
+            x = ((np.arange(w) - cam.cx) / cam.fx) ** 2
+            y = ((np.arange(h) - cam.cy) / cam.fy) ** 2
+            r2 = (y[:, None] + x[None, :]) / (max(x[0], x[-1]) + max(y[0], y[-1]))
+            depth = (depth * (1.0 + radial * r2)).astype(depth.dtype)
+        rgb = register_color(f.raw_color.image, depth, cam, colour_cam)
+        out.append(dataclasses.replace(f, intrinsics=cam, depth=depth, rgb=rgb))
     return out
 
 
@@ -152,15 +163,16 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("dataset", nargs="?", type=Path, default=SHARED)
     ap.add_argument("--focals", default="575,585,595,605", help="depth focal lengths to try (pixels)")
+    ap.add_argument("--radials", default="0", help="radial depth factors k to try at each focal length")
     ap.add_argument("--gap", type=int, default=15, help="frames between the two frames of a pair")
     ap.add_argument("--every", type=int, default=5, help="a pair starts every k-th frame")
     ap.add_argument("--slam", action="store_true", help="also track the whole sequence with slam")
     args = ap.parse_args()
     frames = [f for f in open_dataset(args.dataset) if f.T_world_cam is not None]
     gt = trajectory_of_dataset(frames)
-    for focal in (float(v) for v in args.focals.split(",")):
-        moved = with_depth_focal(frames, focal)
-        row = {"depth_focal_px": focal, **pair_motion(moved, args.gap, args.every),
+    for focal, radial in itertools.product(*(map(float, v.split(",")) for v in (args.focals, args.radials))):
+        moved = with_depth_model(frames, focal, radial)
+        row = {"depth_focal_px": focal, "depth_radial": radial, **pair_motion(moved, args.gap, args.every),
                "colour_flow_vs_depth": round(colour_flow_ratio(moved), 4),
                "icp_residual_mm": round(1e3 * icp_residual(moved), 3)}
         if args.slam:
