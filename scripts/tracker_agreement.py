@@ -1,12 +1,14 @@
-"""How much of the trackers' error against the ground truth they share: per-tracker ATE, ATE between trackers, and
-the ATE of their averaged trajectories.
+"""How much of the trackers' error against the ground truth they share: per-tracker ATE, ATE between trackers, the
+part of the error each pair has in common, and the ATE of averaged trajectories.
 
-    python scripts/tracker_agreement.py [DATASET] [--methods slam,slam-orb,odometry]
+    python scripts/tracker_agreement.py [DATASET] [--methods slam,slam-orb,odometry,slam-features,open3d-f2f]
 
-If the trackers erred independently, averaging their trajectories would cut the ATE roughly as their mutual
-disagreement allows; an average that scores no better than its members means the error they leave against the
-ground truth is common to all of them (the ground truth's own, or the sensor's), not any one tracker's.
-Averaging: translations by their mean, rotations by the nearest rotation to their sum (chordal mean).
+Read each tracker's error as a vector over the frames: a common part c plus its own part. Two trackers with ATEs
+a and b that lie d apart then share |c|^2 ~ (a^2 + b^2 - d^2) / 2 (their errors' dot product; exact when their own
+parts are independent). Trackers with unrelated costs that still share most of their error against the ground
+truth point at an error of the ground truth, or of the sensor, not of any one tracker. Averaged trajectories
+(translations by their mean, rotations by the nearest rotation to their sum) show the same directly: own parts
+average out, the common part stays.
 """
 
 from __future__ import annotations
@@ -26,6 +28,9 @@ from semmap.poses.file import trajectory_of_dataset
 from semmap.poses.track import METHODS, make_tracker
 from semmap.types import Trajectory, orthonormalize
 
+#: `slam-features` (ORB features, PnP, bundle adjustment) and `open3d-f2f` (Open3D's code) share no cost or code with
+#: the dense trackers; `slam-orb` refines its feature poses with the dense aligner.
+DEFAULT_METHODS = "slam,slam-orb,odometry,slam-features,open3d-f2f"
 SHARED = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "7scenes-redkitchen"
 
 
@@ -48,7 +53,7 @@ def ate_cm(reference: Trajectory, estimate: Trajectory) -> float:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("dataset", nargs="?", type=Path, default=SHARED)
-    ap.add_argument("--methods", default="slam,slam-orb,odometry", help=f"two or more of {', '.join(METHODS)}")
+    ap.add_argument("--methods", default=DEFAULT_METHODS, help=f"two or more of {', '.join(METHODS)}")
     args = ap.parse_args()
     methods = args.methods.split(",")
     unknown = sorted(set(methods) - set(METHODS))
@@ -58,19 +63,22 @@ def main() -> None:
     if not frames:
         raise SystemExit(f"{args.dataset}: no frames with a ground-truth pose")
     gt = trajectory_of_dataset(frames)
-    estimates = {}
+    estimates, ates = {}, {}
     for method in methods:
         start = time.perf_counter()
         estimates[method] = estimate_trajectory(make_tracker(method), frames)
         ms = 1e3 * (time.perf_counter() - start) / len(frames)
-        print(json.dumps({"method": method, "ate_cm": ate_cm(gt, estimates[method]), "ms_per_frame": round(ms)}),
-              flush=True)
+        ates[method] = ate_cm(gt, estimates[method])
+        print(json.dumps({"method": method, "ate_cm": ates[method], "ms_per_frame": round(ms)}), flush=True)
     for a, b in itertools.combinations(methods, 2):
-        print(json.dumps({"between": [a, b], "ate_cm": ate_cm(estimates[a], estimates[b])}), flush=True)
-    for size in range(2, len(methods) + 1):
-        for group in itertools.combinations(methods, size):
-            mean = chordal_mean([estimates[m] for m in group])
-            print(json.dumps({"average_of": list(group), "ate_cm": ate_cm(gt, mean)}), flush=True)
+        apart = ate_cm(estimates[a], estimates[b])
+        shared = (ates[a] ** 2 + ates[b] ** 2 - apart ** 2) / 2
+        print(json.dumps({"between": [a, b], "ate_cm": apart, "shared_cm": round(float(np.sqrt(max(shared, 0.0))), 2),
+                          "correlation": round(shared / (ates[a] * ates[b]), 2)}), flush=True)
+    groups = list(itertools.combinations(methods, 2)) + ([tuple(methods)] if len(methods) > 2 else [])
+    for group in groups:
+        mean = chordal_mean([estimates[m] for m in group])
+        print(json.dumps({"average_of": list(group), "ate_cm": ate_cm(gt, mean)}), flush=True)
 
 
 if __name__ == "__main__":
