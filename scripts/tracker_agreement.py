@@ -47,7 +47,7 @@ def chordal_mean(trajectories: list[Trajectory]) -> Trajectory:
 
 def ate_cm(reference: Trajectory, estimate: Trajectory) -> float:
     """ATE RMSE (cm) after SE(3) alignment."""
-    return round(100 * evaluate_trajectory(reference, estimate)["ate_rmse_m"], 3)
+    return 100 * evaluate_trajectory(reference, estimate)["ate_rmse_m"]
 
 
 def main() -> None:
@@ -69,16 +69,17 @@ def main() -> None:
         estimates[method] = estimate_trajectory(make_tracker(method), frames)
         ms = 1e3 * (time.perf_counter() - start) / len(frames)
         ates[method] = ate_cm(gt, estimates[method])
-        print(json.dumps({"method": method, "ate_cm": ates[method], "ms_per_frame": round(ms)}), flush=True)
+        print(json.dumps({"method": method, "ate_cm": round(ates[method], 3), "ms_per_frame": round(ms)}), flush=True)
     for a, b in itertools.combinations(methods, 2):
         apart = ate_cm(estimates[a], estimates[b])
         shared = (ates[a] ** 2 + ates[b] ** 2 - apart ** 2) / 2
-        print(json.dumps({"between": [a, b], "ate_cm": apart, "shared_cm": round(float(np.sqrt(max(shared, 0.0))), 2),
+        print(json.dumps({"between": [a, b], "ate_cm": round(apart, 3),
+                          "shared_cm": round(float(np.sqrt(max(shared, 0.0))), 2),
                           "correlation": round(shared / (ates[a] * ates[b]), 2)}), flush=True)
     groups = list(itertools.combinations(methods, 2)) + ([tuple(methods)] if len(methods) > 2 else [])
     for group in groups:
         mean = chordal_mean([estimates[m] for m in group])
-        print(json.dumps({"average_of": list(group), "ate_cm": ate_cm(gt, mean)}), flush=True)
+        print(json.dumps({"average_of": list(group), "ate_cm": round(ate_cm(gt, mean), 3)}), flush=True)
 
 
 if __name__ == "__main__":
