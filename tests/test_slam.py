@@ -65,7 +65,7 @@ def test_pose_graph_with_a_loop_edge_removes_injected_drift():
         a = 2 * np.pi * k / n
         R = cv2.Rodrigues(np.array([0.0, -a, 0.0]))[0]
         true.append(snap_rigid(np.block([[R, np.array([[2 * np.sin(a)], [0.0], [2 * np.cos(a)]])],
-                                                 [np.zeros((1, 3)), np.ones((1, 1))]])))
+                                         [np.zeros((1, 3)), np.ones((1, 1))]])))
     true = np.array(true)
     drift = se3.exp_update(np.array([0.0, 0.004, 0.0, 0.01, 0.0, 0.0]))  # per-step bias
     odo = [se3.inverse(true[k]) @ true[k + 1] @ drift for k in range(n - 1)]

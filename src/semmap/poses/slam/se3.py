@@ -44,5 +44,3 @@ def from_rvec(rvec: np.ndarray, tvec: np.ndarray) -> np.ndarray:
 def to_rvec(T: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """OpenCV's (rvec, tvec) of a 4x4 transform."""
     return cv2.Rodrigues(np.ascontiguousarray(T[:3, :3]))[0], T[:3, 3].reshape(3, 1).copy()
-
-
