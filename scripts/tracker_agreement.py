@@ -2,6 +2,7 @@
 part of the error each pair has in common, and the ATE of averaged trajectories.
 
     python scripts/tracker_agreement.py [DATASET] [--methods slam,slam-orb,odometry,slam-features,open3d-f2f]
+        [--plot errors.png]
 
 Read each tracker's error as a vector over the frames: a common part c plus its own part. Two trackers with ATEs
 a and b that lie d apart then share |c|^2 ~ (a^2 + b^2 - d^2) / 2 (their errors' dot product; exact when their own
@@ -10,7 +11,8 @@ truth point at an error of the ground truth, or of the sensor, not of any one tr
 (translations by their mean, rotations by the nearest rotation to their sum) show the same directly: own parts
 average out, the common part stays. Each tracker's ATE is also given with a fixed offset in the camera's frame fitted
 to the ground truth: a common part caused by the ground truth describing another point of the sensor would vanish
-with the same offset for every tracker; the offset shared by all is fitted too.
+with the same offset for every tracker. The offset shared by all is fitted too, and each tracker's offset fitted on
+one half of the frames is tried on the other half.
 """
 
 from __future__ import annotations
@@ -77,10 +79,55 @@ def ates_with_camera_offset(reference: Trajectory, estimates: list[Trajectory]) 
     return rmse, 100 * fit.x[-3:]
 
 
+def offset_transfer(reference: Trajectory, estimate: Trajectory) -> list[list[float]]:
+    """A camera offset fitted on one half of the frames, applied to the other half: [ATE without, ATE with] (cm) of
+    the second half with the first half's offset, then the other way round. An offset that is a property of the
+    sensor carries over; one that only absorbs a slow error does not."""
+    n = len(estimate) // 2
+    out = []
+    for fit, test in ((slice(0, n), slice(n, None)), (slice(n, None), slice(0, n))):
+        _, b = ates_with_camera_offset(part(reference, fit), [part(estimate, fit)])
+        moved = part(estimate, test)
+        poses = moved.poses.copy()
+        poses[:, :3, 3] += poses[:, :3, :3] @ (b / 100)
+        shifted = Trajectory(moved.timestamps, poses, moved.names)
+        out.append([round(ate_cm(part(reference, test), moved), 3), round(ate_cm(part(reference, test), shifted), 3)])
+    return out
+
+
+def part(trajectory: Trajectory, frames: slice) -> Trajectory:
+    """The poses of ``frames`` only."""
+    return Trajectory(trajectory.timestamps[frames], trajectory.poses[frames], trajectory.names[frames])
+
+
+def plot_errors(reference: Trajectory, estimates: dict[str, Trajectory], path: Path) -> None:
+    """Each tracker's position error against the ground truth (after its SE(3) alignment) over the frames, one panel
+    per world axis: errors the trackers share show as curves of one shape."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    g = reference.poses[:, :3, 3]
+    fig = Figure(figsize=(12, 8), layout="constrained")
+    axes = fig.subplots(3, 1, sharex=True)
+    for name, estimate in estimates.items():
+        p = estimate.poses[:, :3, 3]
+        R, t, _ = umeyama_alignment(p.T, g.T)
+        for axis, values in zip(axes, (p @ R.T + t - g).T, strict=True):
+            axis.plot(100 * values, lw=1, label=name)
+    for axis, label in zip(axes, "xyz", strict=True):
+        axis.set_ylabel(f"error {label} (cm)")
+        axis.grid(alpha=0.3)
+    axes[0].legend(ncol=len(estimates), fontsize="small")
+    axes[-1].set_xlabel("frame")
+    axes[0].set_title("position error against the ground truth, each tracker aligned by SE(3)")
+    FigureCanvasAgg(fig).print_png(str(path))
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("dataset", nargs="?", type=Path, default=SHARED)
     ap.add_argument("--methods", default=DEFAULT_METHODS, help=f"two or more of {', '.join(METHODS)}")
+    ap.add_argument("--plot", type=Path, help="also plot each tracker's error over the frames to this PNG")
     args = ap.parse_args()
     methods = args.methods.split(",")
     unknown = sorted(set(methods) - set(METHODS))
@@ -99,7 +146,8 @@ def main() -> None:
         [offset_ate], offset = ates_with_camera_offset(gt, [estimates[method]])
         print(json.dumps({"method": method, "ate_cm": round(ates[method], 3), "ms_per_frame": round(ms),
                           "ate_with_camera_offset_cm": round(offset_ate, 3),
-                          "camera_offset_cm": [round(float(v), 2) for v in offset]}), flush=True)
+                          "camera_offset_cm": [round(float(v), 2) for v in offset],
+                          "offset_from_other_half_cm": offset_transfer(gt, estimates[method])}), flush=True)
     offset_ates, offset = ates_with_camera_offset(gt, [estimates[m] for m in methods])
     print(json.dumps({"one_camera_offset_for_all_cm": [round(float(v), 2) for v in offset],
                       "ate_cm": {m: round(a, 3) for m, a in zip(methods, offset_ates, strict=True)}}), flush=True)
@@ -109,6 +157,8 @@ def main() -> None:
         print(json.dumps({"between": [a, b], "ate_cm": round(apart, 3),
                           "shared_cm": round(float(np.sqrt(max(shared, 0.0))), 2),
                           "correlation": round(shared / (ates[a] * ates[b]), 2)}), flush=True)
+    if args.plot:
+        plot_errors(gt, estimates, args.plot)
     groups = list(itertools.combinations(methods, 2)) + ([tuple(methods)] if len(methods) > 2 else [])
     for group in groups:
         mean = chordal_mean([estimates[m] for m in group])
