@@ -61,7 +61,8 @@ def ates_with_camera_offset(reference: Trajectory, estimates: list[Trajectory]) 
     """ATE RMSE (cm) of each estimate when, besides each one's SE(3) alignment, one fixed offset b in the camera's
     own frame, shared by all, is fitted (positions p_i + R_i b), and that offset (cm). If the ground truth described
     another point of the sensor than the depth camera's centre (the colour camera's, say), the same b would help
-    every tracker. Joint nonlinear least squares, started from Umeyama alignments and b = 0."""
+    every tracker. The estimates hold the reference's frames, in order. Joint nonlinear least squares, started
+    from Umeyama alignments and b = 0."""
     g = reference.poses[:, :3, 3]
     starts = [umeyama_alignment(e.poses[:, :3, 3].T, g.T) for e in estimates]
     x0 = np.concatenate([np.r_[Rotation.from_matrix(R).as_rotvec(), t] for R, t, _ in starts] + [np.zeros(3)])
