@@ -15,6 +15,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+from evo.core.geometry import umeyama_alignment
 
 from semmap.poses.slam import RgbdSlam, SlamConfig
 from semmap.types import CameraIntrinsics, Frame
@@ -47,22 +48,10 @@ def load_frames(spec: str, frames: int, max_frames: int | None, cache: Path | No
     return out
 
 
-def umeyama_se3(src: np.ndarray, dst: np.ndarray) -> np.ndarray:
-    """Rigid transform (no scale) that best maps points ``src`` onto ``dst`` (least squares)."""
-    ms, md = src.mean(0), dst.mean(0)
-    U, _, Vt = np.linalg.svd((dst - md).T @ (src - ms))
-    S = np.eye(3)
-    S[2, 2] = np.sign(np.linalg.det(U @ Vt))
-    T = np.eye(4)
-    T[:3, :3] = U @ S @ Vt
-    T[:3, 3] = md - T[:3, :3] @ ms
-    return T
-
-
 def ate_rmse(est: np.ndarray, gt: np.ndarray) -> float:
     """Absolute trajectory error (RMSE, metres) after SE(3) alignment of the estimate to ground truth."""
-    A = umeyama_se3(est[:, :3, 3], gt[:, :3, 3])
-    aligned = est[:, :3, 3] @ A[:3, :3].T + A[:3, 3]
+    R, t, _ = umeyama_alignment(est[:, :3, 3].T, gt[:, :3, 3].T)
+    aligned = est[:, :3, 3] @ R.T + t
     return float(np.sqrt(((aligned - gt[:, :3, 3]) ** 2).sum(1).mean()))
 
 
