@@ -18,7 +18,7 @@ import numpy as np
 from evo.core.geometry import umeyama_alignment
 
 from semmap.poses.slam import RgbdSlam, SlamConfig
-from semmap.types import CameraIntrinsics, Frame
+from semmap.types import CameraIntrinsics, Frame, rotation_angle
 
 
 def load_frames(spec: str, frames: int, max_frames: int | None, cache: Path | None) -> list[Frame]:
@@ -61,7 +61,7 @@ def rpe(est: np.ndarray, gt: np.ndarray, delta: int) -> tuple[float, float]:
         return np.linalg.inv(P[:-delta]) @ P[delta:]
     E = np.linalg.inv(rel(gt)) @ rel(est)
     t = np.linalg.norm(E[:, :3, 3], axis=1)
-    ang = np.degrees(np.arccos(np.clip((np.trace(E[:, :3, :3], axis1=1, axis2=2) - 1) / 2, -1, 1)))
+    ang = np.degrees([rotation_angle(e) for e in E])  # atan2: blind to the ground truth's slight non-orthonormality
     return float(np.sqrt((t**2).mean())), float(np.sqrt((ang**2).mean()))
 
 
