@@ -29,6 +29,32 @@ def desk_frames() -> list[Frame]:
     return list(itertools.islice(iter(ds), 40))
 
 
+# ------------------------------------------------------------------------------------------ features
+@pytest.mark.parametrize("level", [1, 3, 5, 7])
+def test_coarse_level_keypoints_map_to_their_full_resolution_position(level):
+    """A blob found on an ORB pyramid level (built like OpenCV's: each level a linear resize of the one before
+    to the rounded size) is reported where it lies in the full image, not at the level position times s^l."""
+    from semmap.poses.slam.features import OrbExtractor
+
+    cfg = SlamConfig()
+    intr = CameraIntrinsics(640, 480, 525.0, 525.0, 319.5, 239.5)
+    x0, y0 = 517.3, 401.8  # bottom right, where the nominal scale is furthest off
+    yy, xx = np.mgrid[0:480, 0:640]
+    image = np.exp(-((xx - x0) ** 2 + (yy - y0) ** 2) / (2 * 12.0**2)).astype(np.float32)
+    for k in range(1, level + 1):
+        s = cfg.scale_factor ** k
+        size = (int(np.floor(640 / s + 0.5)), int(np.floor(480 / s + 0.5)))
+        image = cv2.resize(image, size, interpolation=cv2.INTER_LINEAR)
+    weight = image**4  # the blob's peak, away from its tails cut by the image border
+    ly, lx = np.mgrid[0:image.shape[0], 0:image.shape[1]]
+    centre_on_level = np.array([(weight * lx).sum(), (weight * ly).sum()]) / weight.sum()
+    reported = centre_on_level[None] * cfg.scale_factor**level  # what OpenCV's ORB returns as the keypoint
+    mapped = OrbExtractor(cfg, intr)._level_to_image(reported, np.array([level], np.int32))[0]
+    assert np.abs(mapped - [x0, y0]).max() < 0.05
+    if level >= 3:
+        assert np.abs(reported[0] - [x0, y0]).max() > 0.3  # the uncorrected position is off
+
+
 # ------------------------------------------------------------------------------------------ PnP
 def test_pnp_ransac_and_refinement_recover_a_known_pose_despite_outliers():
     rng = np.random.default_rng(0)

@@ -74,6 +74,7 @@ class OrbExtractor:
             return FrameFeatures.empty()
         uv = np.array([k.pt for k in kps], np.float64)
         octave = np.array([k.octave for k in kps], np.int32)
+        uv = self._level_to_image(uv, octave)
         response = np.array([k.response for k in kps], np.float32)
         if self.config.subpixel:
             uv = self._subpixel(gray, uv, octave)
@@ -106,6 +107,22 @@ class OrbExtractor:
         # keypoints ranked by (rank within cell capped at per_cell, then response): cells fill evenly first
         key = np.lexsort((-resp, np.minimum(rank, per_cell)))
         return [kps[i] for i in key[:n]]
+
+    def _level_to_image(self, uv: np.ndarray, octave: np.ndarray) -> np.ndarray:
+        """Full-resolution pixel positions of keypoints found on coarser pyramid levels.
+
+        OpenCV reports a level-``l`` keypoint as its level position times the nominal scale s^l, which ignores
+        pixel centres and the rounded level size: up to 1.3 px off at level 7, and off by a different amount
+        at each level, so a landmark seen at another level than it was made at gets a biased observation.
+        Each level is a resize of the full image to ``round(size / s^l)``, so a level pixel centre x lies at
+        (x + 0.5) * size / level_size - 0.5."""
+        s = self.config.scale_factor ** octave.astype(np.float64)
+        w, h = self.cam.width, self.cam.height
+        wl, hl = np.floor(w / s + 0.5), np.floor(h / s + 0.5)
+        out = np.empty_like(uv)
+        out[:, 0] = (uv[:, 0] / s + 0.5) * (w / wl) - 0.5
+        out[:, 1] = (uv[:, 1] / s + 0.5) * (h / hl) - 0.5
+        return out
 
     def _subpixel(self, gray: np.ndarray, uv: np.ndarray, octave: np.ndarray) -> np.ndarray:
         """Keypoints of the finer pyramid levels moved to the sub-pixel corner position (FAST corners sit on
