@@ -116,13 +116,10 @@ class OrbExtractor:
         at each level, so a landmark seen at another level than it was made at gets a biased observation.
         Each level is a resize of the full image to ``round(size / s^l)``, so a level pixel centre x lies at
         (x + 0.5) * size / level_size - 0.5."""
-        s = self.config.scale_factor ** octave.astype(np.float64)
-        w, h = self.cam.width, self.cam.height
-        wl, hl = np.floor(w / s + 0.5), np.floor(h / s + 0.5)
-        out = np.empty_like(uv)
-        out[:, 0] = (uv[:, 0] / s + 0.5) * (w / wl) - 0.5
-        out[:, 1] = (uv[:, 1] / s + 0.5) * (h / hl) - 0.5
-        return out
+        s = self.config.scale_factor ** octave.astype(np.float64)[:, None]
+        size = np.array([self.cam.width, self.cam.height], np.float64)
+        level_size = np.floor(size / s + 0.5)
+        return (uv / s + 0.5) * (size / level_size) - 0.5
 
     def _subpixel(self, gray: np.ndarray, uv: np.ndarray, octave: np.ndarray) -> np.ndarray:
         """Keypoints of the finer pyramid levels moved to the sub-pixel corner position (FAST corners sit on
