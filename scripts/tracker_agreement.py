@@ -63,8 +63,8 @@ def ates_with_camera_offset(reference: Trajectory, estimates: list[Trajectory]) 
     another point of the sensor than the depth camera's centre (the colour camera's, say), the same b would help
     every tracker. The estimates hold the reference's frames, in order. Joint nonlinear least squares, started
     from Umeyama alignments and b = 0."""
-    g = reference.poses[:, :3, 3]
-    starts = [umeyama_alignment(e.poses[:, :3, 3].T, g.T) for e in estimates]
+    g = reference.positions
+    starts = [umeyama_alignment(e.positions.T, g.T) for e in estimates]
     x0 = np.concatenate([np.r_[Rotation.from_matrix(R).as_rotvec(), t] for R, t, _ in starts] + [np.zeros(3)])
 
     def positions(x: np.ndarray) -> list[np.ndarray]:
@@ -72,7 +72,7 @@ def ates_with_camera_offset(reference: Trajectory, estimates: list[Trajectory]) 
         out = []
         for k, e in enumerate(estimates):
             R, t = Rotation.from_rotvec(x[6 * k: 6 * k + 3]).as_matrix(), x[6 * k + 3: 6 * k + 6]
-            out.append((e.poses[:, :3, 3] + e.poses[:, :3, :3] @ b) @ R.T + t)
+            out.append((e.positions + e.poses[:, :3, :3] @ b) @ R.T + t)
         return out
 
     fit = least_squares(lambda x: np.concatenate([(q - g).ravel() for q in positions(x)]), x0)
@@ -107,11 +107,11 @@ def plot_errors(reference: Trajectory, estimates: dict[str, Trajectory], path: P
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
 
-    g = reference.poses[:, :3, 3]
+    g = reference.positions
     fig = Figure(figsize=(12, 8), layout="constrained")
     axes = fig.subplots(3, 1, sharex=True)
     for name, estimate in estimates.items():
-        p = estimate.poses[:, :3, 3]
+        p = estimate.positions
         R, t, _ = umeyama_alignment(p.T, g.T)
         for axis, values in zip(axes, (p @ R.T + t - g).T, strict=True):
             axis.plot(100 * values, lw=1, label=name)

@@ -114,8 +114,8 @@ class OrbExtractor:
         OpenCV reports a level-``l`` keypoint as its level position times the nominal scale s^l, which ignores
         pixel centres and the rounded level size: up to 1.3 px off at level 7, and off by a different amount
         at each level, so a landmark seen at another level than it was made at gets a biased observation.
-        Each level is a resize of the full image to ``round(size / s^l)``, so a level pixel centre x lies at
-        (x + 0.5) * size / level_size - 0.5."""
+        Each level is the one before resized to ``round(size / s^l)``; the pixel-centre mappings of those
+        resizes compose, so a level pixel centre x lies at (x + 0.5) * size / level_size - 0.5."""
         s = self.config.scale_factor ** octave.astype(np.float64)[:, None]
         size = np.array([self.cam.width, self.cam.height], np.float64)
         level_size = np.floor(size / s + 0.5)
