@@ -1,5 +1,6 @@
 """The math behind the diagnostic scripts whose findings DESIGN.md quotes: the camera-offset fit and pose
-averaging of ``scripts/tracker_agreement.py`` and the RPE of ``scripts/slam_check.py``."""
+averaging of ``scripts/tracker_agreement.py``, the RPE of ``scripts/slam_check.py``, and the pose-list reading,
+colour-camera move and rotation comparison of ``scripts/seven_scenes_sfm_reference.py``."""
 
 from __future__ import annotations
 
@@ -10,6 +11,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
+from semmap.errors import FormatError
 from semmap.types import Trajectory
 
 SCRIPTS = Path(__file__).resolve().parents[1] / "scripts"
@@ -104,3 +106,69 @@ def test_slam_check_rpe_reads_slightly_non_orthonormal_ground_truth_as_still() -
     turned[:, :3, 3] = np.einsum("nij,nj->ni", spin, est[:, :3, 3])
     _, angle_deg = rpe(turned, gt, 5)
     assert angle_deg == pytest.approx(np.degrees(0.05), rel=1e-3)
+
+
+@pytest.fixture(scope="module")
+def sfm_reference():
+    return _script("seven_scenes_sfm_reference")
+
+
+def _pose_list_line(sequence: str, frame: int, T_world_cam: np.ndarray) -> str:
+    """One line of a COLMAP-convention pose list (world-to-camera, quaternion w first), as Brachmann et al. store
+    their 7-Scenes pseudo ground truth."""
+    R, t = T_world_cam[:3, :3].T, -T_world_cam[:3, :3].T @ T_world_cam[:3, 3]
+    x, y, z, w = Rotation.from_matrix(R).as_quat()
+    return f"{sequence}/frame-{frame:06d}.color.png {w} {x} {y} {z} {t[0]} {t[1]} {t[2]} 525.505"
+
+
+def test_sfm_reference_reads_a_pose_list_back_to_the_colour_cameras_trajectory(sfm_reference, tmp_path) -> None:
+    depth = _walk(90)
+    colour = sfm_reference.to_color_camera(depth)
+    # the colour camera sits beside the depth camera: positions move by R_i @ (-t), as the calibration says
+    offset = -np.asarray(sfm_reference.SEVEN_SCENES_COLOR_CAMERA.t_color_depth)
+    np.testing.assert_allclose(colour.positions, depth.positions + depth.poses[:, :3, :3] @ offset, atol=1e-12)
+    world = np.eye(4)
+    world[:3, :3] = Rotation.from_rotvec([0.3, -0.2, 1.0]).as_matrix()
+    world[:3, 3] = [1.0, 2.0, -0.5]
+    lines = [_pose_list_line("seq-02", 5, np.eye(4))]  # another sequence's line is skipped
+    lines += [_pose_list_line("seq-01", i, world @ T) for i, T in enumerate(colour.poses) if i != 7]  # frame 7 lost
+    path = tmp_path / "redkitchen_train.txt"
+    path.write_text("\n".join(lines[::-1]) + "\n")  # the published files are not in frame order
+    sfm = sfm_reference.as_trajectory(sfm_reference.read_pose_list(path, "seq-01"))
+    assert len(sfm) == 89 and sfm.names[7] == "frame-000008"
+    sfm, estimate = sfm_reference.common_frames(sfm, colour)
+    assert len(estimate) == 89
+    np.testing.assert_allclose(sfm.poses, world @ estimate.poses, atol=1e-9)
+    assert sfm_reference.rotation_disagreement_deg(sfm, estimate, 5) < 1e-6
+    scores = sfm_reference.evaluate_trajectory(sfm, estimate)
+    assert scores["ate_rmse_m"] < 1e-9
+    assert scores["sim3_scale"] == pytest.approx(1.0)
+
+
+def test_sfm_reference_rotation_disagreement_measures_a_known_drift(sfm_reference) -> None:
+    ref = _walk(60)
+    spin = Rotation.from_rotvec(np.outer(0.002 * np.arange(60), [0, 1, 0])).as_matrix()
+    drifting = ref.poses.copy()
+    drifting[:, :3, :3] = spin @ ref.poses[:, :3, :3]  # a heading drifting by 0.002 rad a frame
+    est = Trajectory(ref.timestamps, drifting, ref.names)
+    assert sfm_reference.rotation_disagreement_deg(ref, est, 5) == pytest.approx(np.degrees(0.01), rel=0.02)
+    assert sfm_reference.rotation_disagreement_deg(ref, est, 30) == pytest.approx(np.degrees(0.06), rel=0.02)
+
+
+@pytest.mark.parametrize(("line", "message"), [
+    ("seq-01/frame-000001.color.png 0.9 0.0 0.0 0.0 1 2 3 525", "quaternion norm"),
+    ("seq-01/frame-000001.color.png 1 0 0 0 1 2", "expected 'name qw qx qy qz tx ty tz"),
+    ("seq-01/frame-000001.color.png 1 0 0 zero 1 2 3", "not all numbers"),
+])
+def test_sfm_reference_names_the_file_and_line_of_a_bad_pose(sfm_reference, tmp_path, line, message) -> None:
+    path = tmp_path / "pgt.txt"
+    path.write_text("seq-01/frame-000000.color.png 1 0 0 0 0 0 0 525\n" + line + "\n")
+    with pytest.raises(FormatError, match=f"pgt.txt:2: .*{message}"):
+        sfm_reference.read_pose_list(path, "seq-01")
+
+
+def test_sfm_reference_says_when_the_sequence_is_not_in_the_file(sfm_reference, tmp_path) -> None:
+    path = tmp_path / "pgt.txt"
+    path.write_text("seq-03/frame-000000.color.png 1 0 0 0 0 0 0 525\n")
+    with pytest.raises(FormatError, match="no poses of sequence 'seq-01'"):
+        sfm_reference.read_pose_list(path, "seq-01")
