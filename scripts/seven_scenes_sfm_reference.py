@@ -52,8 +52,12 @@ def read_pose_list(path: Path, sequence: str) -> dict[int, np.ndarray]:
     """Camera-to-world poses by frame number of ``sequence``'s lines in a COLMAP-convention pose list (``name qw qx
     qy qz tx ty tz [f]``, ``p_cam = R p_world + t``); other sequences' lines are skipped. A malformed line of the
     sequence is a :class:`FormatError` naming the file and line."""
+    try:
+        text = Path(path).read_text()
+    except (OSError, UnicodeDecodeError) as exc:
+        raise FormatError(f"{path}: cannot read the pose list: {exc}") from None
     poses: dict[int, np.ndarray] = {}
-    for number, line in enumerate(Path(path).read_text().splitlines(), start=1):
+    for number, line in enumerate(text.splitlines(), start=1):
         fields = line.split()
         if not fields or fields[0].startswith("#"):
             continue
@@ -167,7 +171,10 @@ def main() -> None:
     unknown = sorted(set(methods) - set(METHODS))
     if unknown:
         raise SystemExit(f"--methods: unknown {', '.join(unknown)}; known: {', '.join(METHODS)}")
-    sfm_all = as_trajectory(read_pose_list(args.pgt, args.sequence))
+    try:
+        sfm_all = as_trajectory(read_pose_list(args.pgt, args.sequence))
+    except FormatError as exc:
+        raise SystemExit(str(exc)) from None
     frames = [f for f in open_dataset(args.dataset) if f.T_world_cam is not None]
     if not frames:
         raise SystemExit(f"{args.dataset}: no frames with a ground-truth pose")

@@ -172,3 +172,8 @@ def test_sfm_reference_says_when_the_sequence_is_not_in_the_file(sfm_reference, 
     path.write_text("seq-03/frame-000000.color.png 1 0 0 0 0 0 0 525\n")
     with pytest.raises(FormatError, match="no poses of sequence 'seq-01'"):
         sfm_reference.read_pose_list(path, "seq-01")
+
+
+def test_sfm_reference_says_when_the_file_cannot_be_read(sfm_reference, tmp_path) -> None:
+    with pytest.raises(FormatError, match=r"missing\.txt: cannot read the pose list"):
+        sfm_reference.read_pose_list(tmp_path / "missing.txt", "seq-01")
