@@ -30,12 +30,11 @@ import time
 from pathlib import Path
 
 import numpy as np
-from evo.core.geometry import umeyama_alignment
 
 from semmap.datasets import open_dataset
 from semmap.datasets.sevenscenes import FRAME_RATE, SEVEN_SCENES_COLOR_CAMERA
 from semmap.errors import FormatError
-from semmap.eval.trajectory import evaluate_trajectory
+from semmap.eval.trajectory import evaluate_trajectory, plot_position_errors
 from semmap.io.trajectory import read_trajectory, write_trajectory
 from semmap.poses.base import estimate_trajectory
 from semmap.poses.file import trajectory_of_dataset
@@ -133,31 +132,6 @@ def trajectory_of(method: str, frames: list, folder: Path | None) -> Trajectory:
     return trajectory
 
 
-def plot_errors(reference: Trajectory, estimates: dict[str, Trajectory], path: Path) -> None:
-    """Each trajectory's position error against ``reference`` after its Sim(3) alignment, one panel per world
-    axis."""
-    from matplotlib.backends.backend_agg import FigureCanvasAgg
-    from matplotlib.figure import Figure
-
-    g = reference.positions
-    fig = Figure(figsize=(12, 8), layout="constrained")
-    axes = fig.subplots(3, 1, sharex=True)
-    frames = np.round(reference.timestamps * FRAME_RATE)
-    for name, estimate in estimates.items():
-        p = estimate.positions
-        R, t, s = umeyama_alignment(p.T, g.T, True)
-        style = {"color": "black", "lw": 1.5} if name == "D-SLAM ground truth" else {"lw": 1}
-        for axis, values in zip(axes, (s * p @ R.T + t - g).T, strict=True):
-            axis.plot(frames, 100 * values, label=name, **style)
-    for axis, label in zip(axes, "xyz", strict=True):
-        axis.set_ylabel(f"error {label} (cm)")
-        axis.grid(alpha=0.3)
-    axes[0].legend(ncol=len(estimates), fontsize="small")
-    axes[-1].set_xlabel("frame")
-    axes[0].set_title("position error against the SfM pseudo ground truth (Brachmann et al. 2021), Sim(3) aligned")
-    FigureCanvasAgg(fig).print_png(str(path))
-
-
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("pgt", type=Path, help="SfM pose file, e.g. pgt/sfm/7scenes/redkitchen_train.txt")
@@ -209,7 +183,9 @@ def main() -> None:
         print(json.dumps({"rotation_disagreement_deg": {"frames": span, "order": labels, "matrix": matrix}}),
               flush=True)
     if args.plot:
-        plot_errors(sfm, colour, args.plot)
+        plot_position_errors(args.plot, sfm, colour, with_scale=True, highlight="D-SLAM ground truth",
+                             title="position error against the SfM pseudo ground truth (Brachmann et al. 2021), "
+                                   "Sim(3) aligned")
 
 
 if __name__ == "__main__":

@@ -29,7 +29,7 @@ from scipy.optimize import least_squares
 from scipy.spatial.transform import Rotation
 
 from semmap.datasets import open_dataset
-from semmap.eval.trajectory import evaluate_trajectory
+from semmap.eval.trajectory import evaluate_trajectory, plot_position_errors
 from semmap.poses.base import estimate_trajectory
 from semmap.poses.file import trajectory_of_dataset
 from semmap.poses.track import METHODS, make_tracker
@@ -101,29 +101,6 @@ def part(trajectory: Trajectory, frames: slice) -> Trajectory:
     return Trajectory(trajectory.timestamps[frames], trajectory.poses[frames], trajectory.names[frames])
 
 
-def plot_errors(reference: Trajectory, estimates: dict[str, Trajectory], path: Path) -> None:
-    """Each tracker's position error against the ground truth (after its SE(3) alignment) over the frames, one panel
-    per world axis: errors the trackers share show as curves of one shape."""
-    from matplotlib.backends.backend_agg import FigureCanvasAgg
-    from matplotlib.figure import Figure
-
-    g = reference.positions
-    fig = Figure(figsize=(12, 8), layout="constrained")
-    axes = fig.subplots(3, 1, sharex=True)
-    for name, estimate in estimates.items():
-        p = estimate.positions
-        R, t, _ = umeyama_alignment(p.T, g.T)
-        for axis, values in zip(axes, (p @ R.T + t - g).T, strict=True):
-            axis.plot(100 * values, lw=1, label=name)
-    for axis, label in zip(axes, "xyz", strict=True):
-        axis.set_ylabel(f"error {label} (cm)")
-        axis.grid(alpha=0.3)
-    axes[0].legend(ncol=len(estimates), fontsize="small")
-    axes[-1].set_xlabel("frame")
-    axes[0].set_title("position error against the ground truth, each tracker aligned by SE(3)")
-    FigureCanvasAgg(fig).print_png(str(path))
-
-
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("dataset", nargs="?", type=Path, default=SHARED)
@@ -159,7 +136,8 @@ def main() -> None:
                           "shared_cm": round(float(np.sqrt(max(shared, 0.0))), 2),
                           "correlation": round(shared / (ates[a] * ates[b]), 2)}), flush=True)
     if args.plot:
-        plot_errors(gt, estimates, args.plot)
+        plot_position_errors(args.plot, gt, estimates,
+                             title="position error against the ground truth, each tracker aligned by SE(3)")
     groups = list(itertools.combinations(methods, 2)) + ([tuple(methods)] if len(methods) > 2 else [])
     for group in groups:
         mean = chordal_mean([estimates[m] for m in group])

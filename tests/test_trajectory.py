@@ -8,7 +8,12 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from semmap.errors import ConfigError, FormatError
-from semmap.eval.trajectory import ate_without_alignment, evaluate_trajectory, plot_trajectories
+from semmap.eval.trajectory import (
+    ate_without_alignment,
+    evaluate_trajectory,
+    plot_position_errors,
+    plot_trajectories,
+)
 from semmap.io.trajectory import clean_poses, orthonormalize, read_trajectory, write_trajectory
 from semmap.poses.file import TrajectoryPoses, trajectory_of_dataset
 from semmap.poses.track import make_tracker
@@ -208,6 +213,18 @@ def test_plot_trajectories_writes_png(tmp_path):
     est.poses[:, :3, 3] += 0.01 * np.sin(np.arange(40))[:, None]
     path = plot_trajectories(tmp_path / "plot.png", gt, {"wobbly": est}, title="test")
     assert path.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_plot_position_errors_writes_png_and_refuses_other_frames(tmp_path):
+    gt = _trajectory(40)
+    est = Trajectory(gt.timestamps, gt.poses.copy())
+    est.poses[:, :3, 3] *= 1.05
+    path = plot_position_errors(tmp_path / "errors.png", gt, {"gt": gt, "scaled": est}, with_scale=True,
+                                highlight="gt", title="test")
+    assert path.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    short = Trajectory(gt.timestamps[:20], gt.poses[:20])
+    with pytest.raises(ConfigError, match="short: 20 poses, the reference has 40"):
+        plot_position_errors(tmp_path / "bad.png", gt, {"short": short})
 
 
 # --------------------------------------------------------------------------------------------------

@@ -175,3 +175,37 @@ def plot_trajectories(path: str | Path, gt: Trajectory, estimates: dict[str, Tra
     buffer = io.BytesIO()
     fig.savefig(buffer, format="png")
     return write_bytes_atomic(path, buffer.getvalue())
+
+
+def plot_position_errors(path: str | Path, reference: Trajectory, estimates: dict[str, Trajectory], *,
+                         with_scale: bool = False, title: str = "", highlight: str | None = None) -> Path:
+    """PNG of each estimate's position error against ``reference`` over the frames, one panel per world axis, after
+    its own SE(3) (or Sim(3) ``with_scale``) Umeyama fit: errors that several trajectories share show as curves of
+    one shape. Trajectories hold the reference's frames, in order; ``highlight`` is drawn in black. Written
+    atomically."""
+    from evo.core.geometry import umeyama_alignment
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    g = reference.positions
+    fig = Figure(figsize=(12, 8), layout="constrained")
+    FigureCanvasAgg(fig)
+    axes = fig.subplots(3, 1, sharex=True)
+    for name, estimate in estimates.items():
+        if len(estimate) != len(reference):
+            raise ConfigError(f"{name}: {len(estimate)} poses, the reference has {len(reference)}")
+        p = estimate.positions
+        R, t, s = umeyama_alignment(p.T, g.T, with_scale)
+        style = {"color": "black", "lw": 1.5} if name == highlight else {"lw": 1}
+        for axis, values in zip(axes, (s * p @ R.T + t - g).T, strict=True):
+            axis.plot(100 * values, label=name, **style)
+    for axis, label in zip(axes, "xyz", strict=True):
+        axis.set_ylabel(f"error {label} (cm)")
+        axis.grid(alpha=0.3)
+    axes[0].legend(ncol=max(len(estimates), 1), fontsize="small")
+    axes[-1].set_xlabel("frame")
+    if title:
+        axes[0].set_title(title)
+    buffer = io.BytesIO()
+    fig.savefig(buffer, format="png")
+    return write_bytes_atomic(path, buffer.getvalue())
