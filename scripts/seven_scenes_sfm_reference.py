@@ -15,7 +15,7 @@ where both are trusted to some accuracy, their disagreement bounds it.
 Trackers estimate the depth camera; its poses are moved to the colour camera with the offset that the reader's
 colour registration uses (``SEVEN_SCENES_COLOR_CAMERA``, fitted on image edges, no ground truth). SfM has no scale
 of its own, so the Sim(3)-aligned ATE is the fair one against it; the SE(3) one is printed too. Printed, one JSON
-line each: the D-SLAM ground truth against SfM; each tracker against both references, with its ratio to
+line each: the D-SLAM ground truth against SfM; each tracker against both references, then its ratios to
 ``open3d-f2f``; and the RMS disagreement of relative rotations over 5 and 30 frames between every two of them
 (rotation angles need no alignment and no scale). ``--trajectories DIR`` reads ``DIR/METHOD.txt`` (TUM, as
 ``semmap track`` writes) where it exists and writes the trajectories it had to track there.
@@ -44,6 +44,7 @@ from semmap.types import Trajectory, invert_pose, make_pose, quat_xyzw_to_rot, r
 DEFAULT_METHODS = "slam,slam-orb,odometry,slam-features,open3d-f2f"
 SHARED = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "7scenes-redkitchen"
 PEER = "open3d-f2f"
+DSLAM = "D-SLAM ground truth"
 LINE = re.compile(r"^(?P<seq>[^/\s]+)/frame-(?P<frame>\d+)\.color\.\w+$")
 
 
@@ -154,27 +155,27 @@ def main() -> None:
         raise SystemExit(f"{args.dataset}: no frames with a ground-truth pose")
     if args.trajectories:
         args.trajectories.mkdir(parents=True, exist_ok=True)
-    depth_poses = {"D-SLAM ground truth": trajectory_of_dataset(frames)}
+    depth_poses = {DSLAM: trajectory_of_dataset(frames)}
     depth_poses.update({m: trajectory_of(m, frames, args.trajectories) for m in methods})
     names = list(depth_poses)
     sfm, *moved = common_frames(sfm_all, *(to_color_camera(t) for t in depth_poses.values()))
     colour = dict(zip(names, moved, strict=True))
-    dslam = colour["D-SLAM ground truth"]
+    dslam = colour[DSLAM]
     print(json.dumps({"sequence": args.sequence, "frames": len(sfm), "sfm_poses_in_file": len(sfm_all),
                       "dataset_frames": len(frames)}), flush=True)
     scores = {}
     for name in names:
         against_sfm = evaluate_trajectory(sfm, colour[name])
-        scores[name] = {"ate_dslam_cm": round(100 * evaluate_trajectory(dslam, colour[name])["ate_rmse_m"], 3),
-                        "ate_sfm_cm": round(100 * against_sfm["ate_rmse_m"], 3),
-                        "ate_sfm_sim3_cm": round(100 * against_sfm["ate_sim3_rmse_m"], 3),
-                        "sim3_scale_to_sfm": round(against_sfm["sim3_scale"], 4)}
-    for name in names:
-        line = {"trajectory": name, **scores[name]}
-        if PEER in scores and name != "D-SLAM ground truth":
-            line["ratio_to_" + PEER] = {key: round(scores[name][key] / scores[PEER][key], 3)
-                                        for key in ("ate_dslam_cm", "ate_sfm_cm", "ate_sfm_sim3_cm")}
-        print(json.dumps(line), flush=True)
+        scores[name] = {"ate_dslam_cm": 100 * evaluate_trajectory(dslam, colour[name])["ate_rmse_m"],
+                        "ate_sfm_cm": 100 * against_sfm["ate_rmse_m"],
+                        "ate_sfm_sim3_cm": 100 * against_sfm["ate_sim3_rmse_m"]}
+        scale = against_sfm["sim3_scale"]
+        print(json.dumps({"trajectory": name, **{k: round(v, 3) for k, v in scores[name].items()},
+                          "sim3_scale_to_sfm": round(scale, 4)}), flush=True)
+    if PEER in scores:  # ratios from unrounded ATEs, rounded only when printed
+        for name in names[1:]:
+            print(json.dumps({"trajectory": name, "ratio_to_" + PEER: {
+                key: round(value / scores[PEER][key], 3) for key, value in scores[name].items()}}), flush=True)
     everything = {"SfM pseudo ground truth": sfm, **colour}
     for span in (5, 30):
         labels = list(everything)
@@ -183,7 +184,7 @@ def main() -> None:
         print(json.dumps({"rotation_disagreement_deg": {"frames": span, "order": labels, "matrix": matrix}}),
               flush=True)
     if args.plot:
-        plot_position_errors(args.plot, sfm, colour, with_scale=True, highlight="D-SLAM ground truth",
+        plot_position_errors(args.plot, sfm, colour, with_scale=True, highlight=DSLAM,
                              title="position error against the SfM pseudo ground truth (Brachmann et al. 2021), "
                                    "Sim(3) aligned")
 
