@@ -1,4 +1,4 @@
-"""Wiring of one mapping run: dataset -> poses -> semantics -> semantic OctoMap -> files and report.
+"""Wiring of one mapping run: dataset -> poses -> semantics -> maps -> files and report.
 
 ``Mapper.integrate`` is the per-frame algorithm; ``Pipeline.run`` is the orchestration (open, integrate every
 frame with a progress bar, write outputs).  This module and ``cli.py`` are the only places that wire stages.
@@ -23,18 +23,12 @@ from semmap.eval.report_md import write_report_md
 from semmap.eval.semantic import confusion, evaluate_2d, evaluate_map_3d
 from semmap.geometry import backproject_world
 from semmap.io.atomic import write_text_atomic
-from semmap.io.native import save_map
-from semmap.io.octomap_files import write_bt, write_ot
-from semmap.maps.semantic_octomap import (
-    InsertStats,
-    OccupancyParams,
-    SemanticOctoMap,
-    SemanticParams,
-    compile_kernels,
-)
+from semmap.keys import coords_to_keys
+from semmap.maps.base import SemanticMap
+from semmap.maps.registry import compile_kernels, get_map
 from semmap.perception.base import Segmenter
 from semmap.perception.schedule import Scheduler, SegmentationSchedule, with_semantics
-from semmap.types import Frame, LabelSet, TopKProbs, Trajectory, muted_grey
+from semmap.types import Frame, LabelSet, MapCloud, MapKind, Observation, TopKProbs, Trajectory, muted_grey
 from semmap.viz.preview import CEILING_MARGIN, perspective, side_by_side, top_down, up_vector, write_png
 
 log = logging.getLogger("semmap")
@@ -47,15 +41,18 @@ DENSE_CLOUD_BYTES_PER_POINT = 15
 
 
 class Mapper:
-    """Integrates frames into a semantic OctoMap: back-project, transform, attach colour and class sets, insert."""
+    """Integrates frames into maps: back-project, transform, attach colour and class sets, hand to every map."""
 
-    def __init__(self, octomap: SemanticOctoMap, *, min_depth: float, max_depth: float, pixel_stride: int = 1):
-        self.octomap = octomap
+    def __init__(self, maps: list[SemanticMap], *, min_depth: float, max_depth: float, pixel_stride: int = 1):
+        if not maps:
+            raise ConfigError("a mapping run needs at least one map")
+        self.maps = maps
         self.min_depth, self.max_depth, self.pixel_stride = min_depth, max_depth, pixel_stride
         self.points_integrated = 0
 
-    def integrate(self, frame: Frame, T_world_cam: np.ndarray, semantics: TopKProbs | None) -> InsertStats:
-        """Insert one frame seen from ``T_world_cam`` with optional per-pixel class sets (H, W, k)."""
+    def integrate(self, frame: Frame, T_world_cam: np.ndarray, semantics: TopKProbs | None) -> dict[str, float]:
+        """Integrate one frame seen from ``T_world_cam`` with optional per-pixel class sets (H, W, k) into every
+        map; returns milliseconds per step (the first map's steps by name, the others' as ``kind:step``)."""
         t0 = time.perf_counter()
         # valid depth pixels to world points (paper eq. 7, then the camera pose)
         points_world, pixels = backproject_world(frame.depth, frame.intrinsics, T_world_cam,
@@ -67,12 +64,15 @@ class Mapper:
         if semantics is not None:
             flat = semantics.reshape_flat()
             point_sem = TopKProbs(np.take(flat.labels, pixels, axis=0), np.take(flat.probs, pixels, axis=0))
-        backproject_ms = (time.perf_counter() - t0) * 1e3
-        # ray-cast free space, update occupancy, colour and semantics (origin = camera centre)
-        stats = self.octomap.insert_points(points_world, T_world_cam[:3, 3], colors=colors, semantics=point_sem)
-        stats.ms = {"backproject": backproject_ms, **stats.ms}
+        obs = Observation(points_world, np.asarray(T_world_cam, np.float64)[:3, 3].copy(), colors, point_sem,
+                          frame_index=frame.index)
+        ms = {"backproject": (time.perf_counter() - t0) * 1e3}
+        # each map fuses the same observation (the OctoMap ray-casts free space from the camera centre)
+        for i, m in enumerate(self.maps):
+            steps = m.integrate(obs)
+            ms.update(steps if i == 0 else {f"{m.kind.value}:{k}": v for k, v in steps.items()})
         self.points_integrated += len(points_world)
-        return stats
+        return ms
 
 
 def semantics_for(frame: Frame, source: SemanticSource, *, segmenter: Segmenter | None,
@@ -131,13 +131,22 @@ class FramePoses:
 
 @dataclass
 class RunResult:
-    """What a run produced: the map, where files went, the report dict."""
+    """What a run produced: the maps (the first is the primary one the report's top level describes), where
+    files went, the report dict."""
 
-    octomap: SemanticOctoMap
+    maps: list[SemanticMap]
     out_dir: Path
     report: dict
     files: dict[str, Path] = field(default_factory=dict)
     poses: list[np.ndarray] = field(default_factory=list)
+
+    def map_of(self, kind: MapKind) -> SemanticMap | None:
+        return next((m for m in self.maps if m.kind == kind), None)
+
+    @property
+    def octomap(self):
+        """The semantic OctoMap of the run, if one was built."""
+        return self.map_of(MapKind.OCTOMAP)
 
 
 class Pipeline:
@@ -161,22 +170,23 @@ class Pipeline:
         self._conf2d = None
         dataset = self._open()
         label_set = self._label_set(dataset)
-        startup_s = compile_kernels()  # keeps numba's first-use compilation out of the per-frame timings
-        octomap = self._make_map(label_set)
-        mapper = Mapper(octomap, min_depth=self.config.mapping.min_depth, max_depth=self.config.mapping.max_depth,
+        kinds = self._map_kinds()
+        startup_s = compile_kernels(kinds)  # keeps numba's first-use compilation out of the per-frame timings
+        maps = [get_map(kind, self.config, label_set) for kind in kinds]
+        mapper = Mapper(maps, min_depth=self.config.mapping.min_depth, max_depth=self.config.mapping.max_depth,
                         pixel_stride=self.config.mapping.pixel_stride)
         pose_of = self._pose_source(dataset)
         timings, poses, no_pose = self._integrate_all(dataset, mapper, label_set, pose_of)
-        files, sizes, tree_counts = self._write_outputs(octomap, poses)
-        report = self._report(dataset, mapper, timings, poses, no_pose, sizes, tree_counts)
+        files, sizes = self._write_outputs(maps, poses)
+        report = self._report(dataset, mapper, timings, poses, no_pose, sizes)
         report["startup_s"] = round(startup_s, 3)
         report.update(self._trajectory_outputs(pose_of, files))
-        report.update(self._evaluate(octomap))
+        report.update(self._evaluate(maps[0]))
         out = self.config.output.out
         write_text_atomic(out / "report.json", json.dumps(report, indent=2))
         write_report_md(out / "report.md", report, title=self.title)
         files["report"], files["report_md"] = out / "report.json", out / "report.md"
-        return RunResult(octomap, out, report, files, poses)
+        return RunResult(maps, out, report, files, poses)
 
     # ---------------------------------------------------------------- steps
     def _open(self) -> Dataset:
@@ -198,12 +208,9 @@ class Pipeline:
             return LabelSet.generic(FALLBACK_CLASSES)
         return None
 
-    def _make_map(self, label_set: LabelSet | None) -> SemanticOctoMap:
-        m, s = self.config.mapping, self.config.semantics
-        return SemanticOctoMap(
-            m.resolution, label_set=label_set, max_range=m.max_range,
-            occupancy=OccupancyParams(m.prob_hit, m.prob_miss, m.clamp_min, m.clamp_max),
-            semantics=SemanticParams(s.k, s.lam, s.max_confidence))
+    def _map_kinds(self) -> list[MapKind]:
+        """The maps this run builds, the primary one first."""
+        return [MapKind.OCTOMAP]
 
     def _pose_source(self, dataset: Dataset) -> FramePoses:
         """Where each frame's pose comes from: ground truth, a trajectory file, or a tracker run over the
@@ -268,8 +275,7 @@ class Pipeline:
                 self._segmented += 1
                 if frame.labels is not None:
                     self._score_segmentation(sem, frame.labels, len(label_set))
-            stats = mapper.integrate(frame, T, sem)
-            for name, ms in stats.ms.items():
+            for name, ms in mapper.integrate(frame, T, sem).items():
                 timings[name] += ms
             poses.append(T)
         if not poses:
@@ -298,75 +304,67 @@ class Pipeline:
         conf = confusion(sem.labels[..., 0], gt_labels, num_classes)
         self._conf2d = conf if self._conf2d is None else self._conf2d + conf
 
-    def _evaluate(self, octomap: SemanticOctoMap) -> dict:
+    def _evaluate(self, primary: SemanticMap) -> dict:
         """Accuracy against ground truth when there is any: 3D voxels, and the segmenter per pixel."""
         out: dict = {}
-        if octomap.label_set is None:
+        if primary.label_set is None:
             return out
         if self._conf2d is not None:
-            out.update(evaluate_2d(self._conf2d, octomap.label_set, self.segmenter.name))
+            out.update(evaluate_2d(self._conf2d, primary.label_set, self.segmenter.name))
         if self.ground_truth is not None:
-            gt_keys, gt_labels = self.ground_truth(octomap.resolution)
-            vox = octomap.voxels()
-            out.update(evaluate_map_3d(vox.keys, vox.labels[:, 0], gt_keys, gt_labels, octomap.label_set))
+            gt_keys, gt_labels = self.ground_truth(primary.resolution)
+            cloud = primary.cloud()
+            out.update(evaluate_map_3d(coords_to_keys(cloud.centers, cloud.resolution), cloud.labels, gt_keys,
+                                       gt_labels, primary.label_set))
         return out
 
-    def _write_outputs(self, octomap: SemanticOctoMap, poses: list[np.ndarray]):
+    def _write_outputs(self, maps: list[SemanticMap], poses: list[np.ndarray]):
+        """Every map's files, the preview of the primary map and the configuration."""
         out = self.config.output.out
         out.mkdir(parents=True, exist_ok=True)
-        tree = octomap.tree(color_mode=self.config.output.color_mode.value)
-        files = {"ot": out / "map.ot", "bt": out / "map.bt", "native": out / "map.semmap"}
-        sizes = {
-            "map.ot": write_ot(files["ot"], tree, octomap.resolution, color=True),
-            "map.bt": write_bt(files["bt"], tree, octomap.resolution, float(octomap.occupancy.threshold_log)),
-            "map.semmap": save_map(files["native"], octomap),
-        }
-        leaf = tree.is_leaf
-        occ = octomap.is_occupied(tree.values)
-        tree_counts = {"occupied_leaves": int((leaf & occ).sum()), "free_leaves": int((leaf & ~occ).sum()),
-                       "nodes": len(tree)}
+        sizes: dict[str, int] = {}
+        for m in maps:
+            sizes.update(m.save(out))
+        files = {name: out / name for name in sizes}
         if self.config.output.preview:
             files["preview"] = out / "preview.png"
-            sizes["preview.png"] = write_png(files["preview"], render_preview(octomap, poses))
+            sizes["preview.png"] = write_png(files["preview"], render_preview(maps[0].cloud(), maps[0].label_set,
+                                                                              poses))
         write_text_atomic(out / "config.json", self.config.to_json())
         files["config"] = out / "config.json"
-        return files, sizes, tree_counts
+        return files, sizes
 
     def _report(self, dataset: Dataset, mapper: Mapper, timings: dict, poses: list, no_pose: list,
-                sizes: dict, tree_counts: dict) -> dict:
+                sizes: dict) -> dict:
         n = len(poses)
-        octomap = mapper.octomap
+        primary = mapper.maps[0]
         ms = {k: round(v / n, 3) for k, v in timings.items()}
         ms["total"] = round(sum(ms.values()), 3)
         return {
             "dataset": str(self.config.input.dataset),
-            "resolution": octomap.resolution,
+            "resolution": primary.resolution,
             "frames_used": n,
             "frames_skipped": len(dataset.skipped) + len(no_pose),
             "skipped": [{"name": s.name, "path": s.path, "reason": s.reason} for s in dataset.skipped]
             + [{"name": name, "path": "", "reason": "no pose"} for name in no_pose],
-            **tree_counts,
-            "occupied_voxels": octomap.num_occupied,
-            "free_voxels": octomap.num_free,
-            "bytes_in_memory": octomap.memory_bytes,
-            "bytes_per_voxel_in_memory": round(octomap.memory_bytes / max(octomap.num_leaves, 1), 2),
+            **primary.describe(),
             "bytes_on_disk": sizes,
             "dense_point_cloud_bytes": mapper.points_integrated * DENSE_CLOUD_BYTES_PER_POINT,
             "points_integrated": mapper.points_integrated,
             "ms_per_frame": ms,
-            "label_set": None if octomap.label_set is None else len(octomap.label_set),
-            **self._semantics_summary(octomap),
+            "label_set": None if primary.label_set is None else len(primary.label_set),
+            **self._semantics_summary(primary),
         }
 
-    def _semantics_summary(self, octomap: SemanticOctoMap) -> dict:
+    def _semantics_summary(self, primary: SemanticMap) -> dict:
         """Segmenter, frames segmented and occupied voxels per most probable class (classes with voxels)."""
         out: dict = {}
         if self.segmenter is not None:
             out["segmenter"] = self.segmenter.name
             out["frames_segmented"] = self._segmented
-        if octomap.label_set is not None:
-            top = octomap.voxels().labels[:, 0]
-            names = octomap.label_set.names
+        if primary.label_set is not None:
+            top = primary.cloud().labels
+            names = primary.label_set.names
             counts = np.bincount(top[top < len(names)].astype(np.int64), minlength=len(names))
             order = np.argsort(-counts, kind="stable")
             out["voxels_per_class"] = {names[i]: int(counts[i]) for i in order if counts[i] > 0}
@@ -374,26 +372,26 @@ class Pipeline:
         return out
 
 
-def render_preview(octomap: SemanticOctoMap, poses: list[np.ndarray]) -> np.ndarray:
-    """Top-down views of the occupied voxels: class colours (grey where unclassified) and observed RGB."""
-    vox = octomap.voxels()
+def render_preview(cloud: MapCloud, label_set: LabelSet | None, poses: list[np.ndarray]) -> np.ndarray:
+    """Top-down views of a map's voxels or points: class colours (grey where unclassified) and observed RGB."""
     up = up_vector(poses)
     cam_h = max(float(np.asarray(T)[:3, 3] @ up) for T in poses) if poses else None
     cut = None if cam_h is None else cam_h + CEILING_MARGIN
-    views = [top_down(vox.centers, vox.colors, octomap.resolution, up=up, max_height=cut)]
+    res = cloud.resolution
+    views = [top_down(cloud.centers, cloud.colors, res, up=up, max_height=cut)]
     titles = ["colour (top-down)"]
-    if octomap.label_set is not None:
-        top = vox.labels[:, 0]
-        ok = (top < len(octomap.label_set)) & (top != 0)  # no class, or unknown / background: observed grey
-        class_colors = muted_grey(vox.colors)
-        class_colors[ok] = octomap.label_set.colors[top[ok]]
-        views.insert(0, top_down(vox.centers, class_colors, octomap.resolution, up=up, max_height=cut))
+    if label_set is not None:
+        top = cloud.labels
+        ok = (top < len(label_set)) & (top != 0)  # no class, or unknown / background: observed grey
+        class_colors = muted_grey(cloud.colors)
+        class_colors[ok] = label_set.colors[top[ok]]
+        views.insert(0, top_down(cloud.centers, class_colors, res, up=up, max_height=cut))
         titles.insert(0, "classes (top-down)")
-        views.append(perspective(vox.centers, class_colors, octomap.resolution, up=up, max_height=cut,
+        views.append(perspective(cloud.centers, class_colors, res, up=up, max_height=cut,
                                  width=views[0].shape[1], height=views[0].shape[0]))
         titles.append("classes (perspective)")
     else:
-        views.append(perspective(vox.centers, vox.colors, octomap.resolution, up=up, max_height=cut,
+        views.append(perspective(cloud.centers, cloud.colors, res, up=up, max_height=cut,
                                  width=views[0].shape[1], height=views[0].shape[0]))
         titles.append("colour (perspective)")
     return side_by_side(views, titles)

@@ -9,6 +9,7 @@ from __future__ import annotations
 import json
 from collections.abc import Sequence
 from dataclasses import dataclass, field
+from enum import Enum
 from pathlib import Path
 
 import numpy as np
@@ -330,6 +331,65 @@ class Frame:
         from dataclasses import replace
 
         return replace(self, **changes)
+
+
+# --------------------------------------------------------------------------------------------------
+# Maps
+# --------------------------------------------------------------------------------------------------
+class MapKind(str, Enum):
+    """The maps ``semmap run --maps`` builds (see :mod:`semmap.maps.base`)."""
+
+    OCTOMAP = "octomap"  # semantic OctoMap: occupancy + free space + top-k fusion (maps.semantic_octomap)
+    VOXELGRID = "voxelgrid"  # dense-K semantic voxel grid (maps.voxel_grid)
+    POINTS = "points"  # fine voxel-filtered semantic point map (maps.point_map)
+
+
+@dataclass(frozen=True)
+class Observation:
+    """One frame's evidence as every map integrates it: world points with the colour, class distribution,
+    normal and instance of their pixel, and the sensor origin the rays start from.
+
+    ``semantics`` is None on frames that were not segmented (they still add geometry and colour);
+    ``normals`` is filled only when a map asks for them (``needs_normals``).
+    """
+
+    points_world: np.ndarray  # (N, 3) float32 metres, world frame
+    origin: np.ndarray  # (3,) float64 sensor centre in the world frame
+    colors: np.ndarray  # (N, 3) uint8
+    semantics: TopKProbs | None = None  # (N, k) per-point class distribution
+    normals: np.ndarray | None = None  # (N, 3) float32 unit normals, world frame, facing the sensor
+    instances: np.ndarray | None = None  # (N,) int32 instance id of each point's pixel, 0 = none
+    frame_index: int = 0
+    keyframe: bool = True  # the camera moved enough since the last keyframe (maps may update only then)
+
+    def __post_init__(self) -> None:
+        n = self.points_world.shape[0]
+        if self.points_world.ndim != 2 or self.points_world.shape[1] != 3:
+            raise ConfigError(f"observation points must be (N, 3), got {self.points_world.shape}")
+        for what, arr, tail in (("colours", self.colors, (3,)), ("normals", self.normals, (3,)),
+                                ("instances", self.instances, ())):
+            if arr is not None and arr.shape != (n, *tail):
+                raise ConfigError(f"observation {what} must be {(n, *tail)}, got {arr.shape}")
+        if self.semantics is not None and self.semantics.labels.shape[0] != n:
+            raise ConfigError(f"observation class sets cover {self.semantics.labels.shape[0]} points, not {n}")
+
+    def __len__(self) -> int:
+        return int(self.points_world.shape[0])
+
+
+@dataclass(frozen=True)
+class MapCloud:
+    """A map's occupied voxels or points as flat arrays (for evaluation, previews, viewers and PLY files)."""
+
+    centers: np.ndarray  # (M, 3) float64 metres, world frame
+    colors: np.ndarray  # (M, 3) uint8 mean observed colour (grey where never coloured)
+    labels: np.ndarray  # (M,) uint16 most probable class, EMPTY_LABEL where none
+    confidence: np.ndarray  # (M,) float32 probability of that class (0 where none)
+    resolution: float  # voxel edge, or the filter cell of a point map (metres)
+    normals: np.ndarray | None = None  # (M, 3) float32 where the map keeps normals
+
+    def __len__(self) -> int:
+        return int(self.centers.shape[0])
 
 
 # --------------------------------------------------------------------------------------------------

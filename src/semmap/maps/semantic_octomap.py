@@ -13,6 +13,7 @@ import logging
 import math
 import time
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numba as nb
 import numpy as np
@@ -25,7 +26,7 @@ from semmap.maps import _octree_kernels as kern
 from semmap.maps._coarsen import coarsen_cells
 from semmap.maps._keys import EMPTY_KEY
 from semmap.maps.octree_tree import UNSET_COLOR, OctreeNodes, build_tree
-from semmap.types import EMPTY_LABEL, LabelSet, TopKProbs, muted_grey
+from semmap.types import EMPTY_LABEL, LabelSet, MapCloud, MapKind, Observation, TopKProbs, muted_grey
 
 log = logging.getLogger("semmap")
 
@@ -140,11 +141,18 @@ class CellArrays:
 
 
 class SemanticOctoMap:
-    """Probabilistic 3D occupancy map with colour and top-k semantics per voxel, OctoMap-compatible keys."""
+    """Probabilistic 3D occupancy map with colour and top-k semantics per voxel, OctoMap-compatible keys.
+
+    Implements :class:`semmap.maps.base.SemanticMap` (``integrate``, ``cloud``, ``save``, ``describe``);
+    ``color_mode`` is the voxel colour its ``.ot`` file shows (``class`` or ``rgb``).
+    """
+
+    kind = MapKind.OCTOMAP
+    needs_normals = False
 
     def __init__(self, resolution: float = 0.05, *, occupancy: OccupancyParams | None = None,
                  semantics: SemanticParams | None = None, label_set: LabelSet | None = None,
-                 max_range: float = -1.0, grid_cell_limit: int = GRID_CELL_LIMIT) -> None:
+                 max_range: float = -1.0, grid_cell_limit: int = GRID_CELL_LIMIT, color_mode: str = "class") -> None:
         if not (math.isfinite(resolution) and 0.001 <= resolution <= 10.0):
             raise ConfigError(f"resolution must be between 0.001 and 10 m, got {resolution}")
         self.resolution = float(resolution)
@@ -153,6 +161,8 @@ class SemanticOctoMap:
         self.label_set = label_set
         self.max_range = float(max_range)
         self.grid_cell_limit = int(grid_cell_limit)
+        self.color_mode = color_mode
+        self._tree_counts: dict[str, int] | None = None
         self._hit, self._miss = self.occupancy.hit_log, self.occupancy.miss_log
         self._min, self._max = self.occupancy.min_log, self.occupancy.max_log
         self._thr = self.occupancy.threshold_log
@@ -580,9 +590,50 @@ class SemanticOctoMap:
         m._load_cells(cells)
         return m
 
+    # ------------------------------------------------------------------ the map interface (maps.base)
+    def integrate(self, obs: Observation) -> dict[str, float]:
+        """Insert one frame's observation (:meth:`insert_points`); milliseconds per insertion step."""
+        self._tree_counts = None
+        return self.insert_points(obs.points_world, obs.origin, colors=obs.colors, semantics=obs.semantics).ms
+
+    def cloud(self) -> MapCloud:
+        """Occupied voxels: centres, mean colours, top class and its confidence, sorted by key."""
+        v = self.voxels()
+        return MapCloud(v.centers, v.colors, v.labels[:, 0].copy(), v.probs[:, 0].copy(), self.resolution)
+
+    def save(self, out_dir: Path) -> dict[str, int]:
+        """``map.ot`` (ColorOcTree, voxel colour by ``color_mode``), ``map.bt`` and lossless ``map.semmap``."""
+        from semmap.io.native import save_map
+        from semmap.io.octomap_files import write_bt, write_ot
+
+        out_dir = Path(out_dir)
+        tree = self.tree(color_mode=self.color_mode)
+        sizes = {
+            "map.ot": write_ot(out_dir / "map.ot", tree, self.resolution, color=True),
+            "map.bt": write_bt(out_dir / "map.bt", tree, self.resolution, float(self._thr)),
+            "map.semmap": save_map(out_dir / "map.semmap", self),
+        }
+        self._tree_counts = _tree_counts(tree, self.is_occupied(tree.values))
+        return sizes
+
+    def describe(self) -> dict:
+        """Pruned-tree leaves and nodes, voxel counts and memory (bytes per known voxel)."""
+        if self._tree_counts is None:
+            tree = self.tree(color_mode=self.color_mode)
+            self._tree_counts = _tree_counts(tree, self.is_occupied(tree.values))
+        return {**self._tree_counts, "occupied_voxels": self.num_occupied, "free_voxels": self.num_free,
+                "bytes_in_memory": self.memory_bytes,
+                "bytes_per_voxel_in_memory": round(self.memory_bytes / max(self.num_leaves, 1), 2)}
+
     def __repr__(self) -> str:
         return (f"SemanticOctoMap(resolution={self.resolution}, leaves={self.num_leaves}, "
                 f"occupied={self.num_occupied}, bytes={self.memory_bytes})")
+
+
+def _tree_counts(tree: OctreeNodes, occupied: np.ndarray) -> dict[str, int]:
+    leaf = tree.is_leaf
+    return {"occupied_leaves": int((leaf & occupied).sum()), "free_leaves": int((leaf & ~occupied).sum()),
+            "nodes": len(tree)}
 
 
 @nb.njit(cache=True)

@@ -1,0 +1,43 @@
+"""The one map interface: every semantic map (OctoMap, voxel grid, point map, ...) is fed and read the same way.
+
+The pipeline builds a list of maps (:func:`semmap.maps.registry.get_map`) and, per frame, hands each the same
+:class:`~semmap.types.Observation`; afterwards it reads each as a :class:`~semmap.types.MapCloud`, saves it and
+puts its self-description in the report.  Nothing outside ``maps/`` needs to know which map it holds.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Protocol, runtime_checkable
+
+from semmap.types import LabelSet, MapCloud, MapKind, Observation
+
+
+@runtime_checkable
+class SemanticMap(Protocol):
+    """A 3D semantic map built frame by frame from world points, their sensor origin, colours and classes."""
+
+    #: Which map this is (names its files and its entry in the report).
+    kind: MapKind
+    #: Voxel edge (or point-filter cell) in metres.
+    resolution: float
+    #: Classes of the fused distributions; None for geometry and colour only.
+    label_set: LabelSet | None
+    #: True when :meth:`integrate` uses ``Observation.normals`` (the pipeline computes them only then).
+    needs_normals: bool
+
+    def integrate(self, obs: Observation) -> dict[str, float]:
+        """Fuse one frame's observation into the map; returns milliseconds per step (for the report)."""
+        ...
+
+    def cloud(self) -> MapCloud:
+        """Occupied voxels (or points) as flat arrays, in a deterministic order."""
+        ...
+
+    def save(self, out_dir: Path) -> dict[str, int]:
+        """Write the map's files into ``out_dir`` atomically; returns ``{file name: bytes}``."""
+        ...
+
+    def describe(self) -> dict:
+        """Counts and memory of the map for the report (JSON-serialisable)."""
+        ...
