@@ -135,7 +135,7 @@ def main() -> None:
         "real 7-Scenes frames (ground truth from KinectFusion) and simulated sequences (exact ground truth); "
         f"`{tracking['peer']}` is Open3D's legacy hybrid RGB-D odometry chained frame to frame. The Sim(3) scale "
         "maps a trajectory onto the ground truth with scale fitted too: away from 1, the depth calibration and the "
-        "ground truth disagree (`scripts/seven_scenes_scale_check.py`).", "",
+        "ground truth disagree (`scripts/research/seven_scenes_scale_check.py`).", "",
         *tracking_table(tracking, sim3=True), "",
         "## Segmentation speed", "",
         "`benchmarks/bench_segmenters.py`: ESPNetv2 on 640×480 7-Scenes frames, 2 CPU threads; a frame's time "

@@ -59,3 +59,19 @@ def test_eval_traj_scores_a_file_against_a_dataset_or_a_file(room, tmp_path):
         scores = json.loads(r.stdout)
         assert scores["ate_rmse_m"] < 1e-6 and scores["matched"] == 8
     assert (tmp_path / "plot.png").stat().st_size > 1000
+
+
+def test_eval_traj_compares_several_estimates_against_two_references(room, tmp_path):
+    gt = read_trajectory(room / "groundtruth.txt")
+    a, b = tmp_path / "a" / "est.txt", tmp_path / "b" / "est.txt"
+    write_trajectory(a, _shifted(gt))
+    write_trajectory(b, gt)
+    r = run_cli("eval-traj", str(room), str(a), str(b), "--pairwise", "--reference2", str(room / "groundtruth.txt"),
+                "--rotation-frames", "2", "--plot-errors", str(tmp_path / "errors.png"))
+    assert r.returncode == 0, r.stderr
+    result = json.loads(r.stdout)
+    assert set(result["estimates"]) == {"a/est", "b/est"}  # repeated stems named by their folder
+    assert result["pairwise"][0]["ate_m"] < 1e-6
+    assert result["reference2"]["reference"]["ate_rmse_m"] < 1e-9
+    assert np.abs(result["rotation_disagreement_deg"]["matrix"]).max() < 1e-6
+    assert (tmp_path / "errors.png").stat().st_size > 1000

@@ -10,7 +10,9 @@ from hypothesis import strategies as st
 from semmap.errors import ConfigError, FormatError
 from semmap.eval.trajectory import (
     ate_without_alignment,
+    compare_trajectories,
     evaluate_trajectory,
+    on_common_frames,
     plot_position_errors,
     plot_trajectories,
 )
@@ -225,6 +227,59 @@ def test_plot_position_errors_writes_png_and_refuses_other_frames(tmp_path):
     short = Trajectory(gt.timestamps[:20], gt.poses[:20])
     with pytest.raises(ConfigError, match="short: 20 poses, the reference has 40"):
         plot_position_errors(tmp_path / "bad.png", gt, {"short": short})
+
+
+def _with_position_error(traj: Trajectory, error: np.ndarray) -> Trajectory:
+    poses = traj.poses.copy()
+    poses[:, :3, 3] += error
+    return Trajectory(traj.timestamps, poses, traj.names)
+
+
+def test_pairwise_comparison_finds_the_error_two_estimates_share():
+    gt = _trajectory(120)
+    rng = np.random.default_rng(4)
+    common = 0.02 * np.stack([np.sin(np.arange(120) / 9), np.cos(np.arange(120) / 13), np.zeros(120)], axis=1)
+    a = _with_position_error(gt, common + 0.005 * rng.normal(size=(120, 3)))
+    b = _with_position_error(gt, common + 0.005 * rng.normal(size=(120, 3)))
+    result = compare_trajectories(gt, {"a": a, "b": b}, pairwise=True)
+    [pair] = result["pairwise"]
+    ate_a = result["estimates"]["a"]["ate_rmse_m"]
+    assert pair["between"] == ["a", "b"] and pair["ate_m"] < ate_a  # closer to each other than to the reference
+    # the shared part is the common error as the alignment leaves it: far above the 5 mm own errors
+    assert 0.01 < pair["shared_m"] <= ate_a and pair["correlation"] > 0.7
+    unrelated = compare_trajectories(gt, {"a": _with_position_error(gt, 0.01 * rng.normal(size=(120, 3))),
+                                          "b": _with_position_error(gt, 0.01 * rng.normal(size=(120, 3)))},
+                                     pairwise=True)
+    assert unrelated["pairwise"][0]["correlation"] < 0.2
+
+
+def test_second_reference_and_rotation_disagreement_of_a_drifting_reference():
+    gt = _trajectory(90)
+    spin = np.array([quat_xyzw_to_rot([0, 0, np.sin(0.001 * k), np.cos(0.001 * k)]) for k in range(90)])
+    drifting = gt.poses.copy()
+    drifting[:, :3, :3] = spin @ gt.poses[:, :3, :3]  # heading drifts by 0.002 rad a frame
+    ref2 = Trajectory(gt.timestamps, drifting, gt.names)
+    est = Trajectory(gt.timestamps[::2], gt.poses[::2], gt.names[::2])  # every other frame only
+    result = compare_trajectories(gt, {"est": est}, reference2=ref2, rotation_frames=5)
+    assert result["estimates"]["est"]["ate_rmse_m"] < 1e-9
+    assert set(result["reference2"]) == {"reference", "est"}
+    rot = result["rotation_disagreement_deg"]
+    assert rot["order"] == ["reference", "reference2", "est"] and rot["common_frames"] == 45
+    matrix = np.array(rot["matrix"])
+    assert matrix[0, 2] < 1e-6  # the estimate is the reference's own poses
+    # five common frames are ten frames of the drift: 0.02 rad
+    assert matrix[0, 1] == pytest.approx(np.degrees(0.02), rel=0.02)
+    np.testing.assert_allclose(matrix, matrix.T, atol=1e-9)
+
+
+def test_common_frames_keep_only_poses_every_trajectory_matches():
+    gt = _trajectory(30)
+    late = Trajectory(gt.timestamps[5:] + 0.005, gt.poses[5:], gt.names[5:])
+    ref, common = on_common_frames(gt, {"late": late, "all": gt})
+    assert len(ref) == 25 and ref.names[0] == "f5"
+    np.testing.assert_allclose(common["late"].poses, gt.poses[5:])
+    with pytest.raises(ConfigError, match="matched by every trajectory"):
+        on_common_frames(gt, {"far": Trajectory(gt.timestamps + 5.0, gt.poses)})
 
 
 # --------------------------------------------------------------------------------------------------

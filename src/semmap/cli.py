@@ -338,28 +338,67 @@ def track(
 
 @app.command("eval-traj")
 def eval_traj(
-    gt: Annotated[Path, typer.Argument(help="ground truth: a TUM trajectory file, or a dataset folder with poses")],
-    est: Annotated[Path, typer.Argument(help="estimated trajectory (TUM format)")],
+    gt: Annotated[Path, typer.Argument(help="reference: a TUM trajectory file, or a dataset folder with poses")],
+    est: Annotated[list[Path], typer.Argument(help="estimated trajectories (TUM format); several are compared")],
     max_time_diff: Annotated[float, typer.Option(help="largest timestamp difference of matched poses (s)")] = 0.02,
     plot: Annotated[Path | None, typer.Option(help="write a trajectory plot PNG here")] = None,
+    pairwise: Annotated[bool, typer.Option("--pairwise", help="also the ATE between every two estimates and the "
+                                           "error they share")] = False,
+    reference2: Annotated[Path | None, typer.Option(help="a second, independent reference (TUM file or dataset "
+                                                    "folder): every trajectory is scored against it too")] = None,
+    rotation_frames: Annotated[int | None, typer.Option(help="also compare relative rotations over N frames "
+                                                        "between every two trajectories (no alignment needed)")
+                               ] = None,
+    plot_errors: Annotated[Path | None, typer.Option(help="write each estimate's position error per axis over the "
+                                                     "frames to this PNG")] = None,
 ) -> None:
-    """ATE (after SE(3) Umeyama alignment) and RPE of an estimated trajectory against ground truth."""
+    """ATE (after SE(3) Umeyama alignment) and RPE of estimated trajectories against a reference; with several
+    estimates, `--pairwise` or `--reference2`, a comparison of all of them."""
     _setup_logging(False)
-    from semmap.eval.trajectory import evaluate_trajectory, plot_trajectories
+    from semmap.eval.trajectory import (
+        compare_trajectories,
+        evaluate_trajectory,
+        on_common_frames,
+        plot_position_errors,
+        plot_trajectories,
+    )
     from semmap.io.trajectory import read_trajectory
 
-    if gt.is_dir():
+    reference = _reference_trajectory(gt)
+    estimates = _named_trajectories(est, read_trajectory)
+    if len(estimates) == 1 and not (pairwise or reference2 or rotation_frames):
+        scores = evaluate_trajectory(reference, next(iter(estimates.values())), max_time_diff=max_time_diff)
+    else:
+        scores = compare_trajectories(reference, estimates, pairwise=pairwise, rotation_frames=rotation_frames,
+                                      reference2=None if reference2 is None else _reference_trajectory(reference2),
+                                      max_time_diff=max_time_diff)
+    if plot is not None:
+        plot_trajectories(plot, reference, estimates, max_time_diff=max_time_diff)
+    if plot_errors is not None:
+        ref, common = on_common_frames(reference, estimates, max_time_diff=max_time_diff)
+        plot_position_errors(plot_errors, ref, common, title=f"position error against {gt.name}, SE(3) aligned")
+    typer.echo(json.dumps(scores, indent=2))
+
+
+def _reference_trajectory(path: Path):
+    """A TUM trajectory file, or the ground-truth poses of a dataset folder."""
+    if path.is_dir():
         from semmap.datasets import open_dataset
         from semmap.poses.file import trajectory_of_dataset
 
-        reference = trajectory_of_dataset(open_dataset(gt))
-    else:
-        reference = read_trajectory(gt)
-    estimate = read_trajectory(est)
-    scores = evaluate_trajectory(reference, estimate, max_time_diff=max_time_diff)
-    if plot is not None:
-        plot_trajectories(plot, reference, {est.stem: estimate}, max_time_diff=max_time_diff)
-    typer.echo(json.dumps(scores, indent=2))
+        return trajectory_of_dataset(open_dataset(path))
+    from semmap.io.trajectory import read_trajectory
+
+    return read_trajectory(path)
+
+
+def _named_trajectories(paths: list[Path], read) -> dict:
+    """Trajectories by file stem (the parent folder's name is added where stems repeat)."""
+    stems = [p.stem for p in paths]
+    names = [f"{p.parent.name}/{p.stem}" if stems.count(p.stem) > 1 else p.stem for p in paths]
+    if len(set(names)) < len(names):
+        raise SemmapError(f"the same trajectory is given twice: {', '.join(map(str, paths))}")
+    return {name: read(p) for name, p in zip(names, paths, strict=True)}
 
 
 @app.command("eval-seg")

@@ -18,7 +18,7 @@ from evo.core.trajectory import PoseTrajectory3D
 from semmap.errors import ConfigError
 from semmap.io.atomic import write_bytes_atomic
 from semmap.io.trajectory import clean_poses
-from semmap.types import Trajectory
+from semmap.types import Trajectory, rotation_angle
 
 #: Fewest associated poses an evaluation accepts (Umeyama alignment needs three non-collinear positions).
 MIN_MATCHES = 3
@@ -128,6 +128,107 @@ def ate_without_alignment(gt: Trajectory, est: Trajectory, *, max_time_diff: flo
         "ate_median_m": float(ate.get_statistic(stat.median)),
         "ate_max_m": float(ate.get_statistic(stat.max)),
     }
+
+
+# --------------------------------------------------------------------------------------------------
+# Several trajectories
+# --------------------------------------------------------------------------------------------------
+def on_common_frames(reference: Trajectory, estimates: dict[str, Trajectory], *, max_time_diff: float = 0.02
+                     ) -> tuple[Trajectory, dict[str, Trajectory]]:
+    """The reference's poses that every estimate matches within ``max_time_diff`` (nearest timestamp), and each
+    estimate's matching poses in the same order: trajectories over the same frames, for frame-wise comparisons.
+
+    :class:`ConfigError` when fewer than :data:`MIN_MATCHES` frames are common to all."""
+    keep = np.ones(len(reference), bool)
+    rows: dict[str, np.ndarray] = {}
+    for name, est in estimates.items():
+        if len(est) == 0:
+            raise ConfigError(f"{name} trajectory has no poses")
+        order = np.argsort(est.timestamps, kind="stable")
+        stamps = est.timestamps[order]
+        right = np.clip(np.searchsorted(stamps, reference.timestamps), 1, max(len(stamps) - 1, 1))
+        left = right - 1
+        pick = np.where(np.abs(stamps[left] - reference.timestamps) <= np.abs(stamps[right] - reference.timestamps),
+                        left, right) if len(stamps) > 1 else np.zeros(len(reference), int)
+        keep &= np.abs(stamps[pick] - reference.timestamps) <= max_time_diff
+        rows[name] = order[pick]
+    if keep.sum() < MIN_MATCHES:
+        raise ConfigError(f"only {int(keep.sum())} reference poses are matched by every trajectory within "
+                          f"{max_time_diff} s (need at least {MIN_MATCHES})")
+    names = tuple(n for n, k in zip(reference.names, keep, strict=True) if k) if reference.names else ()
+    ref = Trajectory(reference.timestamps[keep], reference.poses[keep], names)
+    out = {name: Trajectory(ref.timestamps, estimates[name].poses[r[keep]], names) for name, r in rows.items()}
+    return ref, out
+
+
+def rotation_disagreement_deg(a: Trajectory, b: Trajectory, frames: int) -> float:
+    """RMS angle (degrees) between two trajectories' relative rotations over ``frames`` frames, from every start
+    frame; both hold the same frames in order. Rotation angles need no alignment and no scale, and a fixed rotation
+    between the two cameras changes them only to second order."""
+    if not 0 < frames < len(a):
+        raise ConfigError(f"relative rotations over {frames} frames need more than {frames} common frames "
+                          f"(have {len(a)})")
+    ra, rb = a.poses[:, :3, :3], b.poses[:, :3, :3]
+    rel_a = np.transpose(ra[:-frames], (0, 2, 1)) @ ra[frames:]
+    rel_b = np.transpose(rb[:-frames], (0, 2, 1)) @ rb[frames:]
+    angles = [rotation_angle(x.T @ y) for x, y in zip(rel_a, rel_b, strict=True)]
+    return float(np.degrees(np.sqrt(np.mean(np.square(angles)))))
+
+
+#: Scores kept per trajectory when several are compared (the full set is printed for a single estimate).
+SUMMARY_KEYS = ("matched", "ate_rmse_m", "ate_sim3_rmse_m", "sim3_scale", "rpe_trans_m", "rpe_rot_deg")
+
+
+def compare_trajectories(reference: Trajectory, estimates: dict[str, Trajectory], *,
+                         reference2: Trajectory | None = None, pairwise: bool = False,
+                         rotation_frames: int | None = None, max_time_diff: float = 0.02) -> dict:
+    """Several estimates against one reference, and optionally against each other and a second reference.
+
+    - ``estimates``: each one's ATE / Sim(3) / RPE summary against ``reference``;
+    - ``pairwise``: the ATE between every two estimates and the part of their errors they share: read each error
+      over the frames as a common part plus its own; estimates with ATEs a and b lying d apart share
+      sqrt((a² + b² - d²) / 2) (exact when their own parts are independent). Unrelated trackers that share most of
+      their error point at an error of the reference, not of any tracker;
+    - ``reference2``: every estimate and the first reference scored against a second, independent reference;
+    - ``rotation_frames``: the RMS disagreement of relative rotations over that many frames between every two of
+      the reference, the second reference and the estimates, on the frames all of them hold.
+    """
+    result: dict = {"estimates": {}}
+    ates: dict[str, float] = {}
+    for name, est in estimates.items():
+        scores = evaluate_trajectory(reference, est, max_time_diff=max_time_diff)
+        result["estimates"][name] = {k: scores[k] for k in SUMMARY_KEYS}
+        ates[name] = scores["ate_rmse_m"]
+    if pairwise:
+        pairs = []
+        names = list(estimates)
+        for i, a in enumerate(names):
+            for b in names[i + 1:]:
+                apart = evaluate_trajectory(estimates[a], estimates[b], max_time_diff=max_time_diff)["ate_rmse_m"]
+                shared = (ates[a] ** 2 + ates[b] ** 2 - apart ** 2) / 2
+                corr = shared / (ates[a] * ates[b]) if ates[a] * ates[b] > 0 else float("nan")
+                pairs.append({"between": [a, b], "ate_m": apart, "shared_m": float(np.sqrt(max(shared, 0.0))),
+                              "correlation": float(corr)})
+        result["pairwise"] = pairs
+    if reference2 is not None:
+        against = {"reference": reference, **estimates}
+        result["reference2"] = {}
+        for name, traj in against.items():
+            scores = evaluate_trajectory(reference2, traj, max_time_diff=max_time_diff)
+            result["reference2"][name] = {k: scores[k] for k in ("matched", "ate_rmse_m", "ate_sim3_rmse_m",
+                                                                  "sim3_scale")}
+    if rotation_frames is not None:
+        others = dict(estimates)
+        if reference2 is not None:
+            others = {"reference2": reference2, **others}
+        ref, common = on_common_frames(reference, others, max_time_diff=max_time_diff)
+        everything = {"reference": ref, **common}
+        labels = list(everything)
+        matrix = [[rotation_disagreement_deg(everything[a], everything[b], rotation_frames) for b in labels]
+                  for a in labels]
+        result["rotation_disagreement_deg"] = {"frames": rotation_frames, "common_frames": len(ref),
+                                               "order": labels, "matrix": matrix}
+    return result
 
 
 # --------------------------------------------------------------------------------------------------

@@ -1,7 +1,7 @@
 """Run the built-in RGB-D SLAM on a dataset and print ATE, RPE, ms/frame, keyframes, loops and lost frames.
 
-    python scripts/slam_check.py /work/shared/data/7scenes-redkitchen [--no-loop] [--max-frames N]
-    python scripts/slam_check.py sim:desk [--frames 300] [--cache /tmp/slamcache]
+    python scripts/research/slam_check.py /work/shared/data/7scenes-redkitchen [--no-loop] [--max-frames N]
+    python scripts/research/slam_check.py sim:desk [--frames 300] [--cache /tmp/slamcache]
 
 Frames are read (or rendered) into memory first, so the timing covers the SLAM only. ``--cache`` keeps the
 decoded frames in an .npz per dataset to skip reading/rendering on the next run.

@@ -14,7 +14,7 @@ depth, as the reader does), and the mean distance (pixels, ``semmap.eval.registr
 pairing offset, separately for frames the repeat count calls in sync and shifted. The offset the colour really
 has gives the smallest distance; a one-frame shift of a moving camera costs about half a pixel.
 
-    python scripts/seven_scenes_stream_check.py [../shared/data/7scenes-redkitchen] [--stride 1]
+    python scripts/research/seven_scenes_stream_check.py [../shared/data/7scenes-redkitchen] [--stride 1]
 """
 
 from __future__ import annotations
@@ -31,7 +31,7 @@ from semmap.eval.registration import edge_misalignment
 from semmap.geometry import register_color
 from semmap.types import Frame
 
-SHARED = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "7scenes-redkitchen"
+SHARED = Path(__file__).resolve().parents[2].parent / "shared" / "data" / "7scenes-redkitchen"
 OFFSETS = (-1, 0, 1)
 
 

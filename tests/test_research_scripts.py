@@ -1,6 +1,7 @@
-"""The math behind the diagnostic scripts whose findings DESIGN.md quotes: the camera-offset fit and pose
-averaging of ``scripts/tracker_agreement.py``, the RPE of ``scripts/slam_check.py``, and the pose-list reading,
-colour-camera move and rotation comparison of ``scripts/seven_scenes_sfm_reference.py``."""
+"""The math behind the diagnostic scripts whose findings docs/EXPERIMENTS.md quotes: the camera-offset fit and
+pose averaging of ``scripts/research/tracker_agreement.py``, the RPE of ``scripts/research/slam_check.py``, and the
+pose-list reading, colour-camera move and rotation comparison of
+``scripts/research/seven_scenes_sfm_reference.py``."""
 
 from __future__ import annotations
 
@@ -14,7 +15,7 @@ from scipy.spatial.transform import Rotation
 from semmap.errors import FormatError
 from semmap.types import Trajectory
 
-SCRIPTS = Path(__file__).resolve().parents[1] / "scripts"
+SCRIPTS = Path(__file__).resolve().parents[1] / "scripts" / "research"
 
 
 def _script(name: str):

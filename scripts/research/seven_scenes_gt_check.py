@@ -6,7 +6,8 @@ depth residuals of both.
 moves away from it and leaves the two depth clouds closer than the ground truth does, the ground truth itself is
 off by that much; this bounds how low any tracker's ATE against it can meaningfully go.
 
-    python scripts/seven_scenes_gt_check.py [../shared/data/7scenes-redkitchen] [--gap 5] [--every 20] [--worst 5]
+    python scripts/research/seven_scenes_gt_check.py [../shared/data/7scenes-redkitchen] [--gap 5] [--every 20]
+        [--worst 5]
 
 ``--gap 1 --every 1`` checks every consecutive pair; ``--worst N`` lists the N pairs ICP corrects most, with the
 ground truth's own step between the two frames (a glitch shows as a step far larger than its neighbours' that ICP
@@ -26,7 +27,7 @@ from semmap.datasets import open_dataset
 from semmap.geometry import backproject
 from semmap.types import invert_pose, orthonormalize, pose_change
 
-SHARED = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "7scenes-redkitchen"
+SHARED = Path(__file__).resolve().parents[2].parent / "shared" / "data" / "7scenes-redkitchen"
 VOXEL = 0.01  #: metres; clouds are voxel-filtered to this before ICP
 MAX_DEPTH = 3.5  #: metres; farther Kinect depth is too noisy to judge a pose by
 

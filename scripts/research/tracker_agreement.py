@@ -1,7 +1,7 @@
 """How much of the trackers' error against the ground truth they share: per-tracker ATE, ATE between trackers, the
 part of the error each pair has in common, and the ATE of averaged trajectories.
 
-    python scripts/tracker_agreement.py [DATASET] [--methods slam,slam-orb,odometry,slam-features,open3d-f2f]
+    python scripts/research/tracker_agreement.py [DATASET] [--methods slam,slam-orb,odometry,slam-features,open3d-f2f]
         [--plot errors.png]
 
 Read each tracker's error as a vector over the frames: a common part c plus its own part. Two trackers with ATEs
@@ -38,7 +38,7 @@ from semmap.types import Trajectory, orthonormalize
 #: `slam-features` (ORB features, PnP, bundle adjustment) and `open3d-f2f` (Open3D's code) share no cost or code with
 #: the dense trackers; `slam-orb` refines its feature poses with the dense aligner.
 DEFAULT_METHODS = "slam,slam-orb,odometry,slam-features,open3d-f2f"
-SHARED = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "7scenes-redkitchen"
+SHARED = Path(__file__).resolve().parents[2].parent / "shared" / "data" / "7scenes-redkitchen"
 
 
 def chordal_mean(trajectories: list[Trajectory]) -> Trajectory:

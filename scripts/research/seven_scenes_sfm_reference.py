@@ -2,7 +2,7 @@
 ground truth of Brachmann et al., "On the Limits of Pseudo Ground Truth in Visual Camera Re-localisation"
 (ICCV 2021).
 
-    python scripts/seven_scenes_sfm_reference.py PGT [DATASET] [--sequence seq-01]
+    python scripts/research/seven_scenes_sfm_reference.py PGT [DATASET] [--sequence seq-01]
         [--methods slam,slam-orb,odometry,slam-features,open3d-f2f] [--trajectories DIR] [--plot errors.png]
 
 PGT is their pose file for the scene, ``pgt/sfm/7scenes/redkitchen_train.txt`` of
@@ -34,15 +34,15 @@ import numpy as np
 from semmap.datasets import open_dataset
 from semmap.datasets.sevenscenes import FRAME_RATE, SEVEN_SCENES_COLOR_CAMERA
 from semmap.errors import FormatError
-from semmap.eval.trajectory import evaluate_trajectory, plot_position_errors
+from semmap.eval.trajectory import evaluate_trajectory, plot_position_errors, rotation_disagreement_deg
 from semmap.io.trajectory import read_trajectory, write_trajectory
 from semmap.poses.base import estimate_trajectory
 from semmap.poses.file import trajectory_of_dataset
 from semmap.poses.track import METHODS, make_tracker
-from semmap.types import Trajectory, invert_pose, make_pose, quat_xyzw_to_rot, rotation_angle
+from semmap.types import Trajectory, invert_pose, make_pose, quat_xyzw_to_rot
 
 DEFAULT_METHODS = "slam,slam-orb,odometry,slam-features,open3d-f2f"
-SHARED = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "7scenes-redkitchen"
+SHARED = Path(__file__).resolve().parents[2].parent / "shared" / "data" / "7scenes-redkitchen"
 PEER = "open3d-f2f"
 DSLAM = "D-SLAM ground truth"
 LINE = re.compile(r"^(?P<seq>[^/\s]+)/frame-(?P<frame>\d+)\.color\.\w+$")
@@ -106,17 +106,6 @@ def common_frames(*trajectories: Trajectory) -> list[Trajectory]:
         rows = [index[f] for f in shared]
         out.append(Trajectory(t.timestamps[rows], t.poses[rows], tuple(f"frame-{f:06d}" for f in shared)))
     return out
-
-
-def rotation_disagreement_deg(a: Trajectory, b: Trajectory, frames: int) -> float:
-    """RMS angle (degrees) between two trajectories' relative rotations over ``frames`` frames, every start frame.
-    Rotation angles need no alignment and no scale; a fixed rotation between the two cameras changes them only
-    to second order."""
-    ra, rb = a.poses[:, :3, :3], b.poses[:, :3, :3]
-    rel_a = np.transpose(ra[:-frames], (0, 2, 1)) @ ra[frames:]
-    rel_b = np.transpose(rb[:-frames], (0, 2, 1)) @ rb[frames:]
-    angles = [rotation_angle(x.T @ y) for x, y in zip(rel_a, rel_b, strict=True)]
-    return float(np.degrees(np.sqrt(np.mean(np.square(angles)))))
 
 
 def trajectory_of(method: str, frames: list, folder: Path | None) -> Trajectory:

@@ -20,7 +20,7 @@ again, and
 An RGB-D tracker's trajectory has the metric scale of its depth camera model, so a Sim(3) scale away from 1, and
 costs that disagree about how far the camera moved, point at a calibration that does not match the ground truth.
 
-    python scripts/seven_scenes_scale_check.py [../shared/data/7scenes-redkitchen] [--focals 575,585,595,605]
+    python scripts/research/seven_scenes_scale_check.py [../shared/data/7scenes-redkitchen] [--focals 575,585,595,605]
         [--radials 0] [--gap 15] [--every 5] [--slam]
 """
 
@@ -47,7 +47,7 @@ from semmap.poses.odometry import OdometryConfig
 from semmap.poses.slam import DenseSlam
 from semmap.types import Frame, invert_pose, orthonormalize, rotation_angle
 
-SHARED = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "7scenes-redkitchen"
+SHARED = Path(__file__).resolve().parents[2].parent / "shared" / "data" / "7scenes-redkitchen"
 
 
 def with_depth_model(frames: list[Frame], focal: float, radial: float = 0.0) -> list[Frame]:
