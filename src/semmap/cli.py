@@ -24,6 +24,7 @@ _MAPPING = "Mapping"
 _SEMANTICS = "Semantics"
 _OUTPUT = "Output"
 _POSES = "Poses"
+_ROS = "ROS bags"
 
 
 def _console():
@@ -69,15 +70,24 @@ def progress_bar(description: str):
 
 @app.command()
 def run(
-    dataset: Annotated[Path, typer.Argument(help="RGB-D sequence folder (TUM RGB-D or 7-Scenes layout)")],
+    dataset: Annotated[Path, typer.Argument(help="RGB-D sequence: TUM RGB-D or 7-Scenes folder, ROS 1 .bag or ROS 2 "
+                                                 "bag folder")],
     out: Annotated[Path, typer.Option("--out", "-o", help="output folder", rich_help_panel=_OUTPUT)],
-    format: Annotated[str, typer.Option(help="auto | tum | 7scenes", rich_help_panel=_INPUT)] = "auto",
+    format: Annotated[str, typer.Option(help="auto | tum | 7scenes | rosbag", rich_help_panel=_INPUT)] = "auto",
     labels: Annotated[Path | None, typer.Option(help="folder of label PNGs (class ids) matched to frames by name",
                                                  rich_help_panel=_INPUT)] = None,
     max_frames: Annotated[int | None, typer.Option(help="use at most N frames", rich_help_panel=_INPUT)] = None,
     stride: Annotated[int, typer.Option(help="use every k-th frame", rich_help_panel=_INPUT)] = 1,
     raw_color: Annotated[bool, typer.Option("--raw-color", help="7-Scenes: keep colour as stored instead of "
                                             "registering it onto the depth image", rich_help_panel=_INPUT)] = False,
+    rgb_topic: Annotated[str | None, typer.Option(help="ROS bag: colour image topic", rich_help_panel=_ROS)] = None,
+    depth_topic: Annotated[str | None, typer.Option(help="ROS bag: depth image topic", rich_help_panel=_ROS)] = None,
+    camera_info_topic: Annotated[str | None, typer.Option(help="ROS bag: CameraInfo topic",
+                                                          rich_help_panel=_ROS)] = None,
+    pose_topic: Annotated[str | None, typer.Option(help="ROS bag: PoseStamped / Odometry topic (default: /tf)",
+                                                   rich_help_panel=_ROS)] = None,
+    world_frame: Annotated[str | None, typer.Option(help="ROS bag: /tf world frame", rich_help_panel=_ROS)] = None,
+    camera_frame: Annotated[str | None, typer.Option(help="ROS bag: /tf camera frame", rich_help_panel=_ROS)] = None,
     resolution: Annotated[float, typer.Option(help="finest voxel size (m)", rich_help_panel=_MAPPING)] = 0.05,
     min_depth: Annotated[float, typer.Option(help="ignore depth below (m)", rich_help_panel=_MAPPING)] = 0.1,
     max_depth: Annotated[float, typer.Option(help="ignore depth above (m)", rich_help_panel=_MAPPING)] = 8.0,
@@ -115,13 +125,24 @@ def run(
     """Map an RGB-D sequence: writes map.ot, map.bt, map.semmap, preview.png, trajectory.txt, report.json,
     report.md and config.json."""
     _setup_logging(verbose)
-    from semmap.config import InputConfig, MappingConfig, OutputConfig, PosesConfig, RunConfig, SemanticsConfig
+    from semmap.config import (
+        InputConfig,
+        MappingConfig,
+        OutputConfig,
+        PosesConfig,
+        RosConfig,
+        RunConfig,
+        SemanticsConfig,
+    )
     from semmap.pipeline import Pipeline
     from semmap.pipeline import color_mode as parse_color_mode
 
     config = _validated(lambda: RunConfig(
         input=InputConfig(dataset=dataset, format=format, labels=labels, stride=stride, max_frames=max_frames,
-                          raw_color=raw_color),
+                          raw_color=raw_color, ros=RosConfig(rgb_topic=rgb_topic, depth_topic=depth_topic,
+                                                             camera_info_topic=camera_info_topic,
+                                                             pose_topic=pose_topic, world_frame=world_frame,
+                                                             camera_frame=camera_frame)),
         mapping=MappingConfig(resolution=resolution, min_depth=min_depth, max_depth=max_depth,
                               max_range=max_range, pixel_stride=pixel_stride),
         semantics=SemanticsConfig(source=semantics, label_confidence=label_confidence, lam=lam, segmenter=segmenter,
@@ -167,7 +188,8 @@ def _segmenter(config):
     if name == "oracle":
         from semmap.datasets import open_dataset
 
-        label_set = open_dataset(config.input.dataset, config.input.format, max_frames=1).label_set
+        label_set = open_dataset(config.input.dataset, config.input.format, max_frames=1,
+                                 ros=config.input.ros.options()).label_set
     return make_segmenter(name, weights=s.weights, label_set=label_set, k=s.k, label_confidence=s.label_confidence,
                           oracle_preset=s.oracle_preset, seed=s.seed, backend=s.backend, batch_size=s.batch_size,
                           input_size=s.input_size)

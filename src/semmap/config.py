@@ -34,6 +34,22 @@ class _Section(BaseModel):
     model_config = ConfigDict(extra="forbid", frozen=True)
 
 
+class RosConfig(_Section):
+    """Topics and frames of a ROS bag (``datasets/rosbag.py``); None = found automatically where unambiguous."""
+
+    rgb_topic: str | None = None
+    depth_topic: str | None = None
+    camera_info_topic: str | None = None
+    pose_topic: str | None = Field(None, description="PoseStamped / Odometry / TransformStamped topic (else /tf)")
+    world_frame: str | None = Field(None, description="/tf frame of the world (default: the camera's root frame)")
+    camera_frame: str | None = Field(None, description="/tf frame of the camera (default: the depth images' frame)")
+    max_time_diff: float = Field(0.02, gt=0.0, description="largest colour/depth timestamp gap (s)")
+
+    def options(self) -> dict:
+        """Keyword arguments for :class:`semmap.datasets.rosbag.RosbagDataset`."""
+        return self.model_dump()
+
+
 class InputConfig(_Section):
     dataset: Path
     format: str = "auto"
@@ -41,6 +57,7 @@ class InputConfig(_Section):
     stride: int = Field(1, ge=1)
     max_frames: int | None = Field(None, ge=1)
     raw_color: bool = Field(False, description="keep colour unregistered (7-Scenes colour is registered to depth)")
+    ros: RosConfig = RosConfig()
 
 
 class MappingConfig(_Section):

@@ -194,7 +194,7 @@ class Pipeline:
             return self.dataset
         c = self.config.input
         return open_dataset(c.dataset, c.format, labels=c.labels, stride=c.stride, max_frames=c.max_frames,
-                            raw_color=c.raw_color)
+                            raw_color=c.raw_color, ros=c.ros.options())
 
     def _label_set(self, dataset: Dataset) -> LabelSet | None:
         """The classes of the map: the segmenter's, the dataset's, a generic set when label images come

@@ -236,5 +236,5 @@ def ensure_folder(root: str | Path) -> Path:
     if not path.exists():
         raise DatasetError(f"{path}: dataset folder does not exist")
     if not path.is_dir():
-        raise DatasetError(f"{path}: is a file, expected a dataset folder")
+        raise DatasetError(f"{path}: is a file, expected a dataset folder (or a ROS bag: .bag, .mcap, .db3)")
     return path
