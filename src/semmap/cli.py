@@ -120,6 +120,12 @@ def run(
                                             "odometry | PATH of a TUM trajectory", rich_help_panel=_POSES)] = "gt",
     color_mode: Annotated[str, typer.Option(help="class | rgb: voxel colour in map.ot",
                                             rich_help_panel=_OUTPUT)] = "class",
+    rerun: Annotated[Path | None, typer.Option(help="log images, poses and the growing map to this rerun "
+                                               "recording (.rrd)", rich_help_panel=_OUTPUT)] = None,
+    rerun_spawn: Annotated[bool, typer.Option("--rerun-spawn", help="watch the map grow in a rerun viewer",
+                                              rich_help_panel=_OUTPUT)] = False,
+    rerun_map_every: Annotated[int, typer.Option(help="frames between two logs of the whole map to rerun",
+                                                 rich_help_panel=_OUTPUT)] = 10,
     verbose: Annotated[bool, typer.Option("--verbose", "-v", help="debug logging")] = False,
 ) -> None:
     """Map an RGB-D sequence: writes map.ot, map.bt, map.semmap, preview.png, trajectory.txt, report.json,
@@ -149,7 +155,8 @@ def run(
                                   weights=weights, segment_every=segment_every, keyframes=keyframes,
                                   batch_size=batch_size, backend=backend, input_size=_size(input_size)),
         poses=PosesConfig(source=poses),
-        output=OutputConfig(out=out, color_mode=parse_color_mode(color_mode)),
+        output=OutputConfig(out=out, color_mode=parse_color_mode(color_mode), rerun=rerun, rerun_spawn=rerun_spawn,
+                            rerun_map_every=rerun_map_every),
     ))
     result = Pipeline(config, segmenter=_segmenter(config), progress=progress_bar("mapping"),
                       track_progress=progress_bar(f"tracking ({poses})"),
@@ -279,6 +286,7 @@ def demo(
     frames: Annotated[int, typer.Option(help="frames of the default trajectory")] = 300,
     resolution: Annotated[float, typer.Option(help="finest voxel size (m)")] = 0.05,
     scene_seed: Annotated[int, typer.Option(help="scene generator seed")] = 0,
+    rerun: Annotated[Path | None, typer.Option(help="also log the run to this rerun recording (.rrd)")] = None,
 ) -> None:
     """Simulate the default scene, map it with ground-truth poses and the cnn-like oracle segmenter, and write
     the outputs of `semmap run` plus report.md with 3D accuracy against ground truth."""
@@ -292,7 +300,7 @@ def demo(
     dataset = SimulatedDataset.default(scene_seed=scene_seed, frames=frames)
     config = _validated(lambda: RunConfig(
         input=InputConfig(dataset=Path(dataset.name)), mapping=MappingConfig(resolution=resolution),
-        semantics=SemanticsConfig(source="oracle"), output=OutputConfig(out=out)))
+        semantics=SemanticsConfig(source="oracle"), output=OutputConfig(out=out, rerun=rerun)))
     segmenter = OracleSegmenter(dataset.label_set, preset=config.semantics.oracle_preset, seed=scene_seed)
 
     def ground_truth(res: float):
@@ -463,6 +471,20 @@ def info(path: Annotated[Path, typer.Argument(help="a .ot, .bt or .semmap file")
         d = {"kind": leaves.tree_type, "resolution": leaves.resolution, "nodes": leaves.num_nodes,
              "occupied_leaves": int(occ.sum()), "free_leaves": int((~occ).sum())}
     typer.echo(json.dumps(d, indent=2))
+
+
+@app.command()
+def view(
+    path: Annotated[Path, typer.Argument(help="a .semmap, .ot or .bt map file")],
+    save: Annotated[Path | None, typer.Option(help="write a rerun recording (.rrd) instead of opening a viewer")
+                    ] = None,
+) -> None:
+    """Open a finished map in the rerun viewer (voxels in class colours, class names on hover)."""
+    _setup_logging(False)
+    from semmap.viz.rerun_log import view_map
+
+    n = view_map(path, save=save, spawn=save is None)
+    _console().print(f"{path}: {n:,} occupied voxels" + (f" written to {save}" if save else " sent to rerun"))
 
 
 def main() -> None:

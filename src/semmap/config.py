@@ -109,6 +109,9 @@ class OutputConfig(_Section):
     out: Path
     color_mode: ColorMode = ColorMode.CLASS
     preview: bool = True
+    rerun: Path | None = Field(None, description="log the run to this rerun recording (.rrd)")
+    rerun_spawn: bool = Field(False, description="stream the run to a rerun viewer")
+    rerun_map_every: int = Field(10, ge=1, description="frames between two logs of the whole map")
 
 
 class RunConfig(_Section):

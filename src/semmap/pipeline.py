@@ -30,6 +30,7 @@ from semmap.perception.base import Segmenter
 from semmap.perception.schedule import Scheduler, SegmentationSchedule, with_semantics
 from semmap.types import Frame, LabelSet, MapCloud, MapKind, Observation, TopKProbs, Trajectory, muted_grey
 from semmap.viz.preview import CEILING_MARGIN, perspective, side_by_side, top_down, up_vector, write_png
+from semmap.viz.rerun_log import NoVisualizer, Visualizer, get_visualizer
 
 log = logging.getLogger("semmap")
 #: Fallback label set when labels come without a labelset.json (8-bit label images).
@@ -165,9 +166,11 @@ class Pipeline:
         self.title = title
         self._conf2d: np.ndarray | None = None
         self._segmented = 0
+        self._viewer: Visualizer = NoVisualizer()
 
     def run(self) -> RunResult:
         self._conf2d = None
+        self._viewer = get_visualizer(self.config.output, name=self.title)
         dataset = self._open()
         label_set = self._label_set(dataset)
         kinds = self._map_kinds()
@@ -177,6 +180,7 @@ class Pipeline:
                         pixel_stride=self.config.mapping.pixel_stride)
         pose_of = self._pose_source(dataset)
         timings, poses, no_pose = self._integrate_all(dataset, mapper, label_set, pose_of)
+        self._viewer.finish(maps[0])
         files, sizes = self._write_outputs(maps, poses)
         report = self._report(dataset, mapper, timings, poses, no_pose, sizes)
         report["startup_s"] = round(startup_s, 3)
@@ -278,6 +282,7 @@ class Pipeline:
             for name, ms in mapper.integrate(frame, T, sem).items():
                 timings[name] += ms
             poses.append(T)
+            self._viewer.log_frame(frame, T, sem, mapper.maps[0])
         if not poses:
             hint = " (poses come from the dataset's ground truth, e.g. TUM groundtruth.txt)" if no_pose else ""
             raise ConfigError(f"{self.config.input.dataset}: no frame could be mapped "

@@ -1,0 +1,245 @@
+"""Live viewing with rerun: per frame the colour, depth and class images, the camera and its trajectory, and every
+``map_every`` frames the map's occupied voxels in class colours; a finished map file opened the same way.
+
+The pipeline talks to a :class:`Visualizer`; :class:`NoVisualizer` does nothing, so the frame loop has no ``if``.
+Entity layout: ``world/camera`` (pose, pinhole), ``world/camera/image/{rgb,depth,classes}``, ``world/trajectory``,
+``world/map``; timelines ``frame`` (frame index) and ``time`` (the frame's timestamp, seconds).
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import shutil
+import sys
+from pathlib import Path
+from typing import Protocol
+
+import numpy as np
+
+from semmap.errors import ConfigError, FormatError
+from semmap.types import EMPTY_LABEL, Frame, LabelSet, MapCloud, TopKProbs, muted_grey
+
+LOG = logging.getLogger("semmap")
+#: Default number of frames between two logs of the whole map.
+DEFAULT_MAP_EVERY = 10
+#: JPEG quality of logged colour images (rerun stores them compressed: ~50 KB instead of 900 KB at 640x480).
+JPEG_QUALITY = 85
+APPLICATION_ID = "semmap"
+
+
+class MapLike(Protocol):
+    """What the visualizer reads from a map: its occupied voxels and classes."""
+
+    label_set: LabelSet | None
+
+    def cloud(self) -> MapCloud: ...
+
+
+class Visualizer(Protocol):
+    """Receives a run's frames and map as they are built."""
+
+    def log_frame(self, frame: Frame, T_world_cam: np.ndarray, semantics: TopKProbs | None, map_: MapLike) -> None:
+        """One integrated frame (and, when due, the map as it stands)."""
+        ...
+
+    def finish(self, map_: MapLike) -> None:
+        """The final map; flush and close."""
+        ...
+
+
+class NoVisualizer:
+    """The visualizer of a run without a viewer: every call does nothing."""
+
+    def log_frame(self, frame: Frame, T_world_cam: np.ndarray, semantics: TopKProbs | None, map_: MapLike) -> None:
+        pass
+
+    def finish(self, map_: MapLike) -> None:
+        pass
+
+
+def viewer_executable() -> str | None:
+    """The rerun viewer installed beside this Python (its ``bin/``), which need not be on PATH."""
+    beside = Path(sys.executable).with_name("rerun")
+    return str(beside) if beside.is_file() else shutil.which("rerun")
+
+
+def open_recording(name: str, *, save: str | Path | None, spawn: bool):
+    """A rerun recording stream writing to ``save`` (.rrd) and/or a newly spawned viewer."""
+    import rerun as rr
+    from rerun.sinks import spawn as spawn_viewer
+
+    rec = rr.RecordingStream(APPLICATION_ID)
+    sinks = []
+    if save is not None:
+        Path(save).parent.mkdir(parents=True, exist_ok=True)
+        sinks.append(rr.FileSink(str(save)))
+    if spawn:
+        if sys.platform.startswith("linux") and not (os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY")):
+            raise ConfigError("cannot open a rerun viewer: no display (DISPLAY / WAYLAND_DISPLAY unset); write a "
+                              "recording instead (semmap run --rerun FILE.rrd, semmap view MAP --save FILE.rrd) and "
+                              "open it with `rerun FILE.rrd` where there is a screen")
+        executable = viewer_executable()
+        if executable is None:
+            raise ConfigError("--rerun-spawn: no rerun viewer found (pip install rerun-sdk puts `rerun` beside "
+                              "python); write a recording with --rerun FILE and open it elsewhere")
+        try:
+            spawn_viewer(connect=False, executable_path=executable, recording=rec)
+        except RuntimeError as exc:
+            raise ConfigError(f"--rerun-spawn: cannot start the rerun viewer: {str(exc).splitlines()[0]}") from None
+        sinks.append(rr.GrpcSink())
+    rec.set_sinks(*sinks)
+    rec.send_recording_name(name)
+    return rec
+
+
+def class_colors(cloud: MapCloud, label_set: LabelSet | None) -> np.ndarray:
+    """(M, 3) uint8 voxel colours: the class colour where the top class is a real one, the observed colour in grey
+    where it is unknown (0) or missing, so classified things stand out."""
+    if label_set is None:
+        return cloud.colors
+    top = cloud.labels
+    ok = (top < len(label_set)) & (top != 0)
+    out = muted_grey(cloud.colors)
+    out[ok] = label_set.colors[top[ok]]
+    return out
+
+
+class RerunVisualizer:
+    """Logs a run to a rerun recording: saved to ``save`` (.rrd), and/or streamed to a spawned viewer."""
+
+    def __init__(self, *, save: str | Path | None = None, spawn: bool = False, map_every: int = DEFAULT_MAP_EVERY,
+                 recording_name: str = "semmap run") -> None:
+        import rerun as rr
+
+        if save is None and not spawn:
+            raise ConfigError("rerun logging needs a file to save to or a viewer to spawn")
+        if map_every < 1:
+            raise ConfigError(f"--rerun-map-every must be at least 1, got {map_every}")
+        self._rr = rr
+        self.rec = open_recording(recording_name, save=save, spawn=spawn)
+        self.map_every = map_every
+        self._positions: list[np.ndarray] = []
+        self._frames = 0
+        self._last_map_frame = -1
+        self.rec.log("world", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
+
+    def log_frame(self, frame: Frame, T_world_cam: np.ndarray, semantics: TopKProbs | None, map_: MapLike) -> None:
+        rr, rec = self._rr, self.rec
+        if self._frames == 0 and map_.label_set is not None:
+            log_classes(rec, map_.label_set)
+        rec.set_time("frame", sequence=int(frame.index))
+        rec.set_time("time", duration=float(frame.timestamp))
+        cam = frame.intrinsics
+        T = np.asarray(T_world_cam, np.float64)
+        rec.log("world/camera", rr.Transform3D(translation=T[:3, 3], mat3x3=T[:3, :3]))
+        rec.log("world/camera/image", rr.Pinhole(image_from_camera=cam.K, resolution=[cam.width, cam.height],
+                                                 camera_xyz=rr.ViewCoordinates.RDF))
+        rec.log("world/camera/image/rgb", rr.Image(frame.rgb).compress(jpeg_quality=JPEG_QUALITY))
+        depth_mm = np.clip(np.rint(frame.depth * 1000.0), 0, 65535).astype(np.uint16)
+        rec.log("world/camera/image/depth", rr.DepthImage(depth_mm, meter=1000.0))
+        if semantics is not None:
+            rec.log("world/camera/image/classes", rr.SegmentationImage(semantics.labels[..., 0]))
+        self._positions.append(T[:3, 3].copy())
+        self._frames += 1
+        if self._frames % self.map_every == 0:
+            self._log_trajectory()
+            self._log_map(map_)
+
+    def finish(self, map_: MapLike) -> None:
+        if self._frames and self._last_map_frame != self._frames:
+            self._log_trajectory()
+            self._log_map(map_)
+        close_recording(self.rec)
+
+    def _log_trajectory(self) -> None:
+        if len(self._positions) >= 2:
+            self.rec.log("world/trajectory", self._rr.LineStrips3D([np.stack(self._positions)],
+                                                                  colors=[(255, 140, 0)]))
+
+    def _log_map(self, map_: MapLike) -> None:
+        self._last_map_frame = self._frames
+        log_cloud(self.rec, "world/map", map_.cloud(), map_.label_set)
+
+
+def log_classes(rec, label_set: LabelSet) -> None:
+    """Class names and colours for everything under ``world`` (class images and voxel class ids)."""
+    import rerun as rr
+
+    rec.log("world", rr.AnnotationContext([(i, name, tuple(int(c) for c in color)) for i, (name, color) in
+                                           enumerate(zip(label_set.names, label_set.colors, strict=True))]),
+            static=True)
+
+
+def log_cloud(rec, entity: str, cloud: MapCloud, label_set: LabelSet | None) -> None:
+    """Occupied voxels as boxes in class colours (class ids kept, so the viewer can show their names)."""
+    import rerun as rr
+
+    half = 0.5 * cloud.resolution
+    class_ids = np.where(cloud.labels == EMPTY_LABEL, 0, cloud.labels).astype(np.uint16)
+    rec.log(entity, rr.Boxes3D(centers=cloud.centers.astype(np.float32), half_sizes=[half, half, half],
+                               colors=class_colors(cloud, label_set), class_ids=class_ids, fill_mode="solid"))
+
+
+def get_visualizer(output, *, name: str = "semmap run") -> Visualizer:
+    """The visualizer an ``OutputConfig`` asks for (``--rerun FILE``, ``--rerun-spawn``), else the null one."""
+    if output.rerun is None and not output.rerun_spawn:
+        return NoVisualizer()
+    return RerunVisualizer(save=output.rerun, spawn=output.rerun_spawn, map_every=output.rerun_map_every,
+                           recording_name=name)
+
+
+# --------------------------------------------------------------------------------------------------
+# A finished map
+# --------------------------------------------------------------------------------------------------
+def map_file_cloud(path: str | Path) -> tuple[MapCloud, LabelSet | None]:
+    """Occupied voxels of a ``.semmap``, ``.ot`` or ``.bt`` file (a ``.bt`` has no colour: grey by height)."""
+    path = Path(path)
+    if path.suffix == ".semmap":
+        from semmap.io.native import load_map
+
+        m = load_map(path)
+        return m.cloud(), m.label_set
+    if path.suffix not in (".ot", ".bt"):
+        raise FormatError(f"{path}: semmap view opens .semmap, .ot and .bt files")
+    from semmap.io.octomap_files import read_octomap
+    from semmap.keys import keys_to_coords
+
+    leaves = read_octomap(path)
+    keys, leaf_of = leaves.expand()
+    keep = leaves.occupied()[leaf_of]
+    centers = keys_to_coords(keys[keep], leaves.resolution)
+    if leaves.colors is not None:
+        colors = leaves.colors[leaf_of[keep]]
+    else:
+        z = centers[:, 2]
+        shade = (60 + 180 * (z - z.min()) / max(float(np.ptp(z)), 1e-9)) if len(z) else z
+        colors = np.repeat(shade.astype(np.uint8)[:, None], 3, axis=1)
+    n = len(centers)
+    cloud = MapCloud(centers, np.ascontiguousarray(colors, np.uint8), np.full(n, EMPTY_LABEL, np.uint16),
+                     np.zeros(n, np.float32), leaves.resolution)
+    return cloud, None
+
+
+def view_map(path: str | Path, *, save: str | Path | None = None, spawn: bool = True) -> int:
+    """Log a finished map file to rerun (saved to ``save`` and/or a spawned viewer); returns the voxel count."""
+    import rerun as rr
+
+    cloud, label_set = map_file_cloud(path)
+    rec = open_recording(f"semmap view {Path(path).name}", save=save, spawn=spawn)
+    rec.log("world", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
+    if label_set is not None:
+        log_classes(rec, label_set)
+    log_cloud(rec, "world/map", cloud, label_set)
+    close_recording(rec)
+    return len(cloud)
+
+
+def close_recording(rec) -> None:
+    """Flush and close; a viewer that went away is one clear error, not a gRPC traceback."""
+    try:
+        rec.flush()
+    except RuntimeError as exc:
+        raise ConfigError(f"rerun viewer unreachable: {str(exc).splitlines()[0]}") from None
+    finally:
+        rec.disconnect()
