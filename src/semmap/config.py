@@ -109,6 +109,7 @@ class OutputConfig(_Section):
     out: Path
     color_mode: ColorMode = ColorMode.CLASS
     preview: bool = True
+    plots: bool = Field(True, description="draw the report's plots (trajectory, IoU, storage, timings)")
     rerun: Path | None = Field(None, description="log the run to this rerun recording (.rrd)")
     rerun_spawn: bool = Field(False, description="stream the run to a rerun viewer")
     rerun_map_every: int = Field(10, ge=1, description="frames between two logs of the whole map")

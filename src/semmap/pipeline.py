@@ -19,7 +19,9 @@ import numpy as np
 from semmap.config import ColorMode, RunConfig, SemanticSource
 from semmap.datasets import Dataset, open_dataset
 from semmap.errors import ConfigError
+from semmap.eval.report_html import write_report_html
 from semmap.eval.report_md import write_report_md
+from semmap.eval.report_plots import write_report_plots
 from semmap.eval.semantic import confusion, evaluate_2d, evaluate_map_3d
 from semmap.geometry import backproject_world
 from semmap.io.atomic import write_text_atomic
@@ -188,8 +190,13 @@ class Pipeline:
         report.update(self._evaluate(maps[0]))
         out = self.config.output.out
         write_text_atomic(out / "report.json", json.dumps(report, indent=2))
-        write_report_md(out / "report.md", report, title=self.title)
+        plots = write_report_plots(out, report, used=pose_of.used_trajectory(), ground_truth=pose_of.ground_truth(),
+                                   cloud=maps[0].cloud()) if self.config.output.plots else {}
+        write_report_md(out / "report.md", report, title=self.title, plots=plots)
+        write_report_html(out / "report.html", (out / "report.md").read_text(), title=self.title)
         files["report"], files["report_md"] = out / "report.json", out / "report.md"
+        files["report_html"] = out / "report.html"
+        files.update({f"plot_{name}": out / file for name, file in plots.items()})
         return RunResult(maps, out, report, files, poses)
 
     # ---------------------------------------------------------------- steps

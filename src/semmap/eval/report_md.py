@@ -11,8 +11,14 @@ def _kb(n: float) -> str:
     return f"{n / 1024:,.1f} KiB" if n < 1024**2 else f"{n / 1024**2:,.2f} MiB"
 
 
-def render_report_md(report: dict, *, title: str = "semmap run") -> str:
-    """Markdown for a report dict as written by the pipeline."""
+def _plot(plots: dict[str, str] | None, section: str, caption: str) -> list[str]:
+    """The Markdown image line of a report plot (``eval.report_plots``), when it was drawn."""
+    return [f"![{caption}]({plots[section]})", ""] if plots and section in plots else []
+
+
+def render_report_md(report: dict, *, title: str = "semmap run", plots: dict[str, str] | None = None) -> str:
+    """Markdown for a report dict as written by the pipeline; ``plots`` names the pictures of
+    :func:`semmap.eval.report_plots.write_report_plots` by section."""
     lines = [f"# {title}", "", f"Dataset: `{report.get('dataset', '?')}`  ", f"Resolution: {report['resolution']} m  ",
              f"Frames used: {report['frames_used']} (skipped: {report['frames_skipped']})", ""]
     if "miou_3d" in report:
@@ -35,6 +41,7 @@ def render_report_md(report: dict, *, title: str = "semmap run") -> str:
             b = f"{per2[name]:.3f}" if name in per2 else "–"
             lines.append(f"| {name} | {a} | {b} |")
         lines.append("")
+    lines += _plot(plots, "iou", "IoU per class")
     sizes = report["bytes_on_disk"]
     lines += ["## Storage", "", "| representation | size |", "|---|---|",
               f"| dense coloured point cloud (binary PLY, every integrated point) | "
@@ -46,11 +53,19 @@ def render_report_md(report: dict, *, title: str = "semmap run") -> str:
     lines += [f"| in memory ({report['bytes_per_voxel_in_memory']} B per voxel) | {_kb(report['bytes_in_memory'])} |",
               "", f"Occupied voxels: {report['occupied_voxels']:,}, free voxels: {report['free_voxels']:,}; "
               f"after pruning: {report['occupied_leaves']:,} occupied and {report['free_leaves']:,} free leaves.", "",
+              *_plot(plots, "storage", "storage per representation"),
               "## Timings (ms per frame)", "", "| stage | ms |", "|---|---|"]
     lines += [f"| {k} | {v:.2f} |" for k, v in report["ms_per_frame"].items()]
-    lines += ["", "![preview](preview.png)", ""]
+    lines += ["", *_plot(plots, "timings", "time per stage")]
+    if plots and "trajectory" in plots:
+        traj = report.get("trajectory_vs_ground_truth")
+        lines += ["## Trajectory", "", f"Poses: `{report.get('poses', '?')}`" + (
+            f"; against ground truth ATE {100 * traj['ate_rmse_m']:.2f} cm, RPE {100 * traj['rpe_trans_m']:.2f} cm "
+            f"per frame ({traj['matched']} poses)." if traj else "."), "", *_plot(plots, "trajectory", "trajectory")]
+    lines += ["![preview](preview.png)", ""]
     return "\n".join(lines)
 
 
-def write_report_md(path: str | Path, report: dict, *, title: str = "semmap run") -> Path:
-    return write_text_atomic(path, render_report_md(report, title=title))
+def write_report_md(path: str | Path, report: dict, *, title: str = "semmap run",
+                    plots: dict[str, str] | None = None) -> Path:
+    return write_text_atomic(path, render_report_md(report, title=title, plots=plots))

@@ -1,0 +1,192 @@
+"""Pictures for ``report.md`` / ``report.html`` (matplotlib, written atomically as PNG): the trajectory from above
+against ground truth and over the map, per-class IoU, storage per representation and time per stage.
+
+Each plot is drawn only when the report has its data; :func:`write_report_plots` returns ``{name: file name}``.
+"""
+
+from __future__ import annotations
+
+import io
+from pathlib import Path
+
+import numpy as np
+
+from semmap.io.atomic import write_bytes_atomic
+from semmap.types import MapCloud, Trajectory
+
+#: File names of the plots, by the report section they belong to.
+PLOT_FILES = {"trajectory": "report_trajectory.png", "iou": "report_iou.png", "storage": "report_storage.png",
+              "timings": "report_timings.png"}
+#: The map is drawn under the trajectory only when its footprint has at most this many cells.
+MAX_BACKGROUND_CELLS = 16_000_000
+#: Report keys that are totals or bookkeeping, not stages, in ``ms_per_frame``.
+NOT_STAGES = ("total",)
+
+
+def _figure(width: float, height: float):
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=(width, height), dpi=100, layout="constrained")
+    FigureCanvasAgg(fig)
+    return fig
+
+
+def _save(fig, path: Path) -> Path:
+    buffer = io.BytesIO()
+    fig.savefig(buffer, format="png")
+    return write_bytes_atomic(path, buffer.getvalue())
+
+
+def _plane_axes(up: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Two unit vectors spanning the horizontal plane (perpendicular to ``up``), right-handed with it."""
+    helper = np.array([1.0, 0.0, 0.0]) if abs(up[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
+    a = np.cross(helper, up)
+    a /= np.linalg.norm(a)
+    return a, np.cross(up, a)
+
+
+def plot_trajectory(path: Path, used: Trajectory, ground_truth: Trajectory | None, *, cloud: MapCloud | None = None,
+                    up: np.ndarray | None = None, label: str = "poses used", ate_m: float | None = None) -> Path:
+    """The camera path from above over the map (occupied voxels counted per column, grey), and the ground truth when
+    it differs from the poses used (both in the run's world frame, as the map was built)."""
+    from semmap.viz.preview import up_vector
+
+    up = up_vector(used.poses) if up is None else np.asarray(up, float)
+    a, b = _plane_axes(up)
+    fig = _figure(7.5, 6.5)
+    ax = fig.add_subplot(1, 1, 1)
+    if cloud is not None and len(cloud):
+        # the map from above: occupied voxels per column, so walls (tall stacks) are dark and floors light
+        u, v = cloud.centers @ a, cloud.centers @ b
+        res = cloud.resolution
+        bins = [np.arange(u.min(), u.max() + 2 * res, res), np.arange(v.min(), v.max() + 2 * res, res)]
+        if len(bins[0]) * len(bins[1]) <= MAX_BACKGROUND_CELLS:
+            counts, ue, ve = np.histogram2d(u, v, bins=bins)
+            shade = np.ma.masked_equal(np.log1p(counts.T), 0)
+            ax.imshow(shade, origin="lower", extent=(ue[0], ue[-1], ve[0], ve[-1]), cmap="Greys", vmin=0,
+                      vmax=max(float(shade.max()) * 1.3, 1e-9), interpolation="nearest", aspect="equal")
+            ax.plot([], [], "s", color="0.55", label="map (occupied voxels per column)")
+    if ground_truth is not None and len(ground_truth):
+        g = ground_truth.positions
+        ax.plot(g @ a, g @ b, color="black", lw=2.2, label="ground truth")
+    p = used.positions
+    name = label if ate_m is None else f"{label} (ATE {100 * ate_m:.2f} cm)"
+    ax.plot(p @ a, p @ b, color="tab:orange", lw=1.3, label=name)
+    ax.plot(p[:1] @ a, p[:1] @ b, "o", color="tab:green", ms=6, label="start")
+    ax.set_aspect("equal", adjustable="datalim")
+    ax.set_xlabel("metres")
+    ax.set_ylabel("metres")
+    ax.set_title("camera trajectory, seen from above")
+    ax.grid(alpha=0.3)
+    fig.legend(fontsize=8, loc="outside lower center", ncol=2)
+    return _save(fig, path)
+
+
+def plot_iou(path: Path, per_class_3d: dict[str, float], per_class_2d: dict[str, float], *,
+             label_2d: str = "single-frame segmentation") -> Path:
+    """Horizontal bars of IoU per class, the fused 3D map beside the single-frame segmentation it came from."""
+    names = sorted(set(per_class_3d) | set(per_class_2d), key=lambda n: (per_class_3d.get(n, -1.0), n))
+    y = np.arange(len(names))
+    fig = _figure(7.5, 1.2 + 0.28 * max(len(names), 1))
+    ax = fig.add_subplot(1, 1, 1)
+    h = 0.4
+    if per_class_3d:
+        ax.barh(y + h / 2, [per_class_3d.get(n, 0.0) for n in names], h, color="tab:blue", label="fused 3D map")
+    if per_class_2d:
+        ax.barh(y - h / 2, [per_class_2d.get(n, 0.0) for n in names], h, color="tab:gray", label=label_2d)
+    ax.set_yticks(y, names, fontsize=8)
+    ax.set_xlim(0, 1)
+    ax.set_xlabel("IoU")
+    ax.set_title("intersection over union per class")
+    ax.grid(axis="x", alpha=0.3)
+    ax.legend(fontsize=8, loc="lower right")
+    return _save(fig, path)
+
+
+def _human_bytes(n: float) -> str:
+    for unit in ("B", "KiB", "MiB", "GiB"):
+        if n < 1024 or unit == "GiB":
+            return f"{n:,.0f} {unit}" if unit == "B" else f"{n:,.1f} {unit}"
+        n /= 1024
+    return f"{n:,.1f} GiB"
+
+
+def plot_storage(path: Path, sizes: dict[str, int]) -> Path:
+    """Horizontal bars of bytes per representation on a log scale, each labelled with its size."""
+    names = list(sizes)
+    values = np.array([max(sizes[n], 1) for n in names], float)
+    fig = _figure(7.5, 1.3 + 0.45 * len(names))
+    ax = fig.add_subplot(1, 1, 1)
+    y = np.arange(len(names))[::-1]
+    ax.barh(y, values, color=["tab:red" if "dense" in n else "tab:blue" for n in names])
+    for yi, v in zip(y, values, strict=True):
+        ax.text(v * 1.15, yi, _human_bytes(v), va="center", fontsize=8)
+    ax.set_yticks(y, names, fontsize=8)
+    ax.set_xscale("log")
+    ax.set_xlim(values.min() / 3, values.max() * 20)
+    ax.set_xlabel("bytes (log scale)")
+    ax.set_title("storage of the same scene")
+    ax.grid(axis="x", alpha=0.3)
+    return _save(fig, path)
+
+
+def plot_timings(path: Path, ms_per_frame: dict[str, float]) -> Path:
+    """Horizontal bars of milliseconds per frame per stage, with the total in the title."""
+    stages = {k: v for k, v in ms_per_frame.items() if k not in NOT_STAGES}
+    names = list(stages)
+    values = np.array([stages[n] for n in names], float)
+    total = ms_per_frame.get("total", float(values.sum()))
+    fig = _figure(7.5, 1.3 + 0.32 * max(len(names), 1))
+    ax = fig.add_subplot(1, 1, 1)
+    y = np.arange(len(names))[::-1]
+    ax.barh(y, values, color="tab:purple")
+    for yi, v in zip(y, values, strict=True):
+        ax.text(v + 0.01 * max(values.max(), 1e-9), yi, f"{v:.1f}", va="center", fontsize=8)
+    ax.set_yticks(y, names, fontsize=8)
+    ax.set_xlim(0, max(values.max(), 1e-9) * 1.15)
+    ax.set_xlabel("ms per frame")
+    ax.set_title(f"time per stage ({total:.1f} ms per frame in all)")
+    ax.grid(axis="x", alpha=0.3)
+    return _save(fig, path)
+
+
+def storage_sizes(report: dict) -> dict[str, int]:
+    """Bytes per representation from a report: the dense cloud, each map file, the map in memory."""
+    sizes: dict[str, int] = {}
+    if "dense_point_cloud_bytes" in report:
+        sizes["dense point cloud (PLY)"] = int(report["dense_point_cloud_bytes"])
+    for name, n in report.get("bytes_on_disk", {}).items():
+        if not name.endswith(".png"):
+            sizes[name] = int(n)
+    if "bytes_in_memory" in report:
+        sizes["in memory"] = int(report["bytes_in_memory"])
+    return sizes
+
+
+def write_report_plots(out_dir: str | Path, report: dict, *, used: Trajectory | None = None,
+                       ground_truth: Trajectory | None = None, cloud: MapCloud | None = None) -> dict[str, str]:
+    """Every plot the report has data for, into ``out_dir``; returns ``{section: file name}``."""
+    out_dir = Path(out_dir)
+    plots: dict[str, str] = {}
+    if used is not None and len(used) >= 2:
+        same = ground_truth is not None and report.get("poses") == "gt"
+        ate = report.get("trajectory_vs_ground_truth", {}).get("ate_rmse_m")
+        plot_trajectory(out_dir / PLOT_FILES["trajectory"], used, None if same else ground_truth, cloud=cloud,
+                        label="ground-truth poses" if same else f"poses used ({report.get('poses', '?')})",
+                        ate_m=ate)
+        plots["trajectory"] = PLOT_FILES["trajectory"]
+    per3 = report.get("per_class_iou_3d", {})
+    seg = next((k[: -len("_per_class_iou_2d")] for k in report if k.endswith("_per_class_iou_2d")), None)
+    per2 = report.get(f"{seg}_per_class_iou_2d", {}) if seg else {}
+    if per3 or per2:
+        plot_iou(out_dir / PLOT_FILES["iou"], per3, per2, label_2d=f"single-frame segmentation ({seg})")
+        plots["iou"] = PLOT_FILES["iou"]
+    sizes = storage_sizes(report)
+    if sizes:
+        plot_storage(out_dir / PLOT_FILES["storage"], sizes)
+        plots["storage"] = PLOT_FILES["storage"]
+    if report.get("ms_per_frame"):
+        plot_timings(out_dir / PLOT_FILES["timings"], report["ms_per_frame"])
+        plots["timings"] = PLOT_FILES["timings"]
+    return plots
