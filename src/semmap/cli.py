@@ -25,6 +25,7 @@ _SEMANTICS = "Semantics"
 _OUTPUT = "Output"
 _POSES = "Poses"
 _ROS = "ROS bags"
+_MAPS = "Maps and fusion"
 
 
 def _console():
@@ -126,12 +127,31 @@ def run(
                                               rich_help_panel=_OUTPUT)] = False,
     rerun_map_every: Annotated[int, typer.Option(help="frames between two logs of the whole map to rerun",
                                                  rich_help_panel=_OUTPUT)] = 10,
+    maps: Annotated[str, typer.Option(help="maps built side by side, comma-separated, the first is the primary: "
+                                           "octomap | voxelgrid | points", rich_help_panel=_MAPS)] = "octomap",
+    fusion: Annotated[str | None, typer.Option(help="label fusion for every map: max | topk | bayes | bayes-prior | "
+                                                    "vote (default: each map's own: octomap topk, voxelgrid bayes, "
+                                                    "points bayes-prior)", rich_help_panel=_MAPS)] = None,
+    state_dtype: Annotated[str | None, typer.Option(help="float16 | float32: per-class numbers of the voxel grid and "
+                                                         "point map (default float32 / float16)",
+                                                    rich_help_panel=_MAPS)] = None,
+    free_space: Annotated[bool, typer.Option("--free-space", help="voxel grid: ray-cast free space too",
+                                             rich_help_panel=_MAPS)] = False,
+    point_resolution: Annotated[float, typer.Option(help="filter cell of the point map (m)",
+                                                    rich_help_panel=_MAPS)] = 0.01,
+    class_prior: Annotated[Path | None, typer.Option(help="bayes-prior: JSON {class name: frequency} "
+                                                     "(default uniform)", rich_help_panel=_MAPS)] = None,
+    crf: Annotated[bool, typer.Option("--crf", help="refine every map with a 3D dense CRF after mapping",
+                                      rich_help_panel=_MAPS)] = False,
+    crf_every: Annotated[int, typer.Option(help="with --crf, also refine every N keyframes while mapping",
+                                           rich_help_panel=_MAPS)] = 0,
     verbose: Annotated[bool, typer.Option("--verbose", "-v", help="debug logging")] = False,
 ) -> None:
-    """Map an RGB-D sequence: writes map.ot, map.bt, map.semmap, preview.png, trajectory.txt, report.json,
-    report.md and config.json."""
+    """Map an RGB-D sequence: writes map.ot, map.bt, map.semmap (and voxelgrid.* / points.* for --maps),
+    preview.png, trajectory.txt, report.json, report.md and config.json."""
     _setup_logging(verbose)
     from semmap.config import (
+        CrfConfig,
         InputConfig,
         MappingConfig,
         OutputConfig,
@@ -140,8 +160,11 @@ def run(
         RunConfig,
         SemanticsConfig,
     )
+    from semmap.maps.registry import map_kind
     from semmap.pipeline import Pipeline
     from semmap.pipeline import color_mode as parse_color_mode
+
+    kinds = tuple(map_kind(name.strip()) for name in maps.split(",") if name.strip())
 
     config = _validated(lambda: RunConfig(
         input=InputConfig(dataset=dataset, format=format, labels=labels, stride=stride, max_frames=max_frames,
@@ -150,11 +173,14 @@ def run(
                                                              pose_topic=pose_topic, world_frame=world_frame,
                                                              camera_frame=camera_frame)),
         mapping=MappingConfig(resolution=resolution, min_depth=min_depth, max_depth=max_depth,
-                              max_range=max_range, pixel_stride=pixel_stride),
+                              max_range=max_range, pixel_stride=pixel_stride, maps=kinds, state_dtype=state_dtype,
+                              free_space=free_space, point_resolution=point_resolution),
         semantics=SemanticsConfig(source=semantics, label_confidence=label_confidence, lam=lam, segmenter=segmenter,
                                   weights=weights, segment_every=segment_every, keyframes=keyframes,
-                                  batch_size=batch_size, backend=backend, input_size=_size(input_size)),
+                                  batch_size=batch_size, backend=backend, input_size=_size(input_size),
+                                  fusion=fusion, class_prior=class_prior),
         poses=PosesConfig(source=poses),
+        crf=CrfConfig(enabled=crf, every=crf_every),
         output=OutputConfig(out=out, color_mode=parse_color_mode(color_mode), rerun=rerun, rerun_spawn=rerun_spawn,
                             rerun_map_every=rerun_map_every),
     ))
@@ -454,23 +480,12 @@ def eval_seg(
 
 
 @app.command()
-def info(path: Annotated[Path, typer.Argument(help="a .ot, .bt or .semmap file")]) -> None:
-    """Describe a map file: type, resolution, nodes, occupied and free leaves."""
+def info(path: Annotated[Path, typer.Argument(help="a map file: .ot, .bt, .semmap (any map) or .ply")]) -> None:
+    """Describe a map file: kind, resolution, voxels or points, occupied and free, classes, fusion rule."""
     _setup_logging(False)
-    if path.suffix == ".semmap":
-        from semmap.io.native import load_map
+    from semmap.io.map_info import describe_map_file
 
-        m = load_map(path)
-        d = {"kind": "semmap", "resolution": m.resolution, "voxels": m.num_leaves, "occupied": m.num_occupied,
-             "free": m.num_free, "classes": None if m.label_set is None else len(m.label_set)}
-    else:
-        from semmap.io.octomap_files import read_octomap
-
-        leaves = read_octomap(path)
-        occ = leaves.occupied()
-        d = {"kind": leaves.tree_type, "resolution": leaves.resolution, "nodes": leaves.num_nodes,
-             "occupied_leaves": int(occ.sum()), "free_leaves": int((~occ).sum())}
-    typer.echo(json.dumps(d, indent=2))
+    typer.echo(json.dumps(describe_map_file(path), indent=2))
 
 
 @app.command()

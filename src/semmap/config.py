@@ -12,6 +12,7 @@ from pydantic import BaseModel, ConfigDict, Field, field_validator
 
 from semmap.fusion.topk_bayes import DEFAULT_LAMBDA, DEFAULT_MAX_CONFIDENCE
 from semmap.geometry import DEFAULT_MAX_DEPTH, DEFAULT_MIN_DEPTH
+from semmap.types import MapKind
 
 
 class ColorMode(str, Enum):
@@ -70,6 +71,20 @@ class MappingConfig(_Section):
     prob_miss: float = 0.4
     clamp_min: float = 0.1192
     clamp_max: float = 0.971
+    maps: tuple[MapKind, ...] = Field((MapKind.OCTOMAP,), min_length=1,
+                                      description="maps built side by side; the first is the primary one")
+    state_dtype: str | None = Field(None, pattern="^(float16|float32)$",
+                                    description="per-class numbers of the voxel grid / point map (None: float32 / "
+                                                "float16)")
+    free_space: bool = Field(False, description="voxel grid: also ray-cast free space (occupancy OctoMap)")
+    point_resolution: float = Field(0.01, ge=0.001, le=1.0, description="filter cell of the point map (m)")
+
+    @field_validator("maps")
+    @classmethod
+    def _unique_maps(cls, v: tuple[MapKind, ...]) -> tuple[MapKind, ...]:
+        if len(set(v)) != len(v):
+            raise ValueError(f"each map at most once, got {[m.value for m in v]}")
+        return v
 
     @field_validator("max_depth")
     @classmethod
@@ -94,15 +109,36 @@ class SemanticsConfig(_Section):
     keyframes: bool = Field(False, description="segment only frames where the camera moved enough")
     batch_size: int = Field(1, ge=1, le=64, description="frames per network batch")
     backend: str = Field("torch", pattern="^(torch|onnx)$", description="network runtime")
+    fusion: str | None = Field(None, description="max | topk | bayes | bayes-prior | vote for every map (None: each "
+                                                  "map's own: octomap topk, voxelgrid bayes, points bayes-prior)")
+    class_prior: Path | None = Field(None, description="bayes-prior: JSON {class name: frequency} (None: uniform)")
     input_size: tuple[int, int] | int | None = Field(
         None, description="network input: (width, height), or the short side keeping the aspect ratio; None = the "
                     "segmenter's default (espnetv2: 320)")
+
+
+    @field_validator("fusion")
+    @classmethod
+    def _known_rule(cls, v: str | None) -> str | None:
+        from semmap.fusion.rules import FusionRule
+
+        if v is not None and v not in {r.value for r in FusionRule}:
+            raise ValueError(f"unknown fusion rule {v!r}; choose from {', '.join(r.value for r in FusionRule)}")
+        return v
 
 
 class PosesConfig(_Section):
     source: str = Field("gt", description="gt | a tracker (slam, odometry, ...: semmap.poses.track.METHODS) | path of "
                                           "a TUM trajectory file")
     max_time_diff: float = Field(0.02, gt=0.0, description="largest timestamp gap when reading a trajectory file")
+
+
+class CrfConfig(_Section):
+    """3D dense CRF over each map after integration (and every ``every`` keyframes while mapping)."""
+
+    enabled: bool = False
+    every: int = Field(0, ge=0, description="also refine every N keyframes during mapping (0: only at the end)")
+    iterations: int = Field(5, ge=1, le=50)
 
 
 class OutputConfig(_Section):
@@ -122,6 +158,7 @@ class RunConfig(_Section):
     mapping: MappingConfig = MappingConfig()
     semantics: SemanticsConfig = SemanticsConfig()
     poses: PosesConfig = PosesConfig()
+    crf: CrfConfig = CrfConfig()
     output: OutputConfig
 
     def to_json(self) -> str:

@@ -182,3 +182,66 @@ def onto_depth_grid(frame: Frame, *per_color_pixel: np.ndarray) -> tuple[np.ndar
         else:
             out.append(remap(arr))
     return tuple(out)
+
+
+@nb.njit(cache=True, parallel=True)
+def _pixel_normals(depth, rx, ry, R, pixels, max_jump):
+    H, W = depth.shape
+    out = np.zeros((pixels.shape[0], 3), np.float32)
+    for i in nb.prange(pixels.shape[0]):
+        v = pixels[i] // W
+        u = pixels[i] - v * W
+        z = np.float64(depth[v, u])
+        # neighbours left/right and up/down with valid, continuous depth (one-sided where needed)
+        ul, ur = max(u - 1, 0), min(u + 1, W - 1)
+        vu, vd = max(v - 1, 0), min(v + 1, H - 1)
+        if depth[v, ul] <= 0 or abs(depth[v, ul] - z) > max_jump * z:
+            ul = u
+        if depth[v, ur] <= 0 or abs(depth[v, ur] - z) > max_jump * z:
+            ur = u
+        if depth[vu, u] <= 0 or abs(depth[vu, u] - z) > max_jump * z:
+            vu = v
+        if depth[vd, u] <= 0 or abs(depth[vd, u] - z) > max_jump * z:
+            vd = v
+        if ul == ur or vu == vd:
+            continue
+        zl, zr, zu, zd = np.float64(depth[v, ul]), np.float64(depth[v, ur]), np.float64(depth[vu, u]), np.float64(
+            depth[vd, u])
+        ax = rx[ur] * zr - rx[ul] * zl
+        ay = ry[v] * (zr - zl)
+        az = zr - zl
+        bx = rx[u] * (zd - zu)
+        by = ry[vd] * zd - ry[vu] * zu
+        bz = zd - zu
+        nx = ay * bz - az * by
+        ny = az * bx - ax * bz
+        nz = ax * by - ay * bx
+        norm = np.sqrt(nx * nx + ny * ny + nz * nz)
+        if norm == 0.0:
+            continue
+        # face the camera: the normal points against the viewing ray (x, y, 1) * z
+        if nx * rx[u] + ny * ry[v] + nz > 0.0:
+            norm = -norm
+        nx, ny, nz = nx / norm, ny / norm, nz / norm
+        out[i, 0] = R[0, 0] * nx + R[0, 1] * ny + R[0, 2] * nz
+        out[i, 1] = R[1, 0] * nx + R[1, 1] * ny + R[1, 2] * nz
+        out[i, 2] = R[2, 0] * nx + R[2, 1] * ny + R[2, 2] * nz
+    return out
+
+
+#: Neighbouring depths further apart than this fraction of the depth are a different surface (no normal across).
+NORMAL_MAX_DEPTH_JUMP = 0.05
+
+
+def pixel_normals(depth: np.ndarray, intrinsics: CameraIntrinsics, T_world_cam: np.ndarray,
+                  pixels: np.ndarray) -> np.ndarray:
+    """World-frame unit normals (N, 3) float32 at flat pixel indices ``pixels`` of a depth image: the cross
+    product of the back-projected central differences along u and v, facing the camera; zero where a pixel has
+    no valid neighbour on a side (depth edges, holes)."""
+    if depth.shape != (intrinsics.height, intrinsics.width):
+        raise ConfigError(f"depth image {depth.shape} does not match the camera "
+                          f"({intrinsics.height}, {intrinsics.width})")
+    rays = pixel_rays(intrinsics)
+    return _pixel_normals(np.ascontiguousarray(depth, np.float32), rays.x, rays.y,
+                          np.ascontiguousarray(np.asarray(T_world_cam, np.float64)[:3, :3]),
+                          np.ascontiguousarray(pixels, np.int64), NORMAL_MAX_DEPTH_JUMP)

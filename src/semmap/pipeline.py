@@ -22,10 +22,9 @@ from semmap.errors import ConfigError
 from semmap.eval.report_html import write_report_html
 from semmap.eval.report_md import write_report_md
 from semmap.eval.report_plots import write_report_plots
-from semmap.eval.semantic import confusion, evaluate_2d, evaluate_map_3d
-from semmap.geometry import backproject_world
+from semmap.eval.semantic import confusion, evaluate_2d, evaluate_cloud_3d
+from semmap.geometry import backproject_world, pixel_normals
 from semmap.io.atomic import write_text_atomic
-from semmap.keys import coords_to_keys
 from semmap.maps.base import SemanticMap
 from semmap.maps.registry import compile_kernels, get_map
 from semmap.perception.base import Segmenter
@@ -52,6 +51,10 @@ class Mapper:
         self.maps = maps
         self.min_depth, self.max_depth, self.pixel_stride = min_depth, max_depth, pixel_stride
         self.points_integrated = 0
+        self.keyframes = 0
+        self.last_was_keyframe = False
+        self._keyframe_of = Scheduler(SegmentationSchedule(keyframes=True))
+        self._normals = any(m.needs_normals for m in maps)
 
     def integrate(self, frame: Frame, T_world_cam: np.ndarray, semantics: TopKProbs | None) -> dict[str, float]:
         """Integrate one frame seen from ``T_world_cam`` with optional per-pixel class sets (H, W, k) into every
@@ -67,8 +70,14 @@ class Mapper:
         if semantics is not None:
             flat = semantics.reshape_flat()
             point_sem = TopKProbs(np.take(flat.labels, pixels, axis=0), np.take(flat.probs, pixels, axis=0))
+        # keyframes (the camera moved 10 cm or turned 10° since the last one) and, on them, normals if a map asks
+        keyframe = self._keyframe_of.due(T_world_cam)
+        self.keyframes += keyframe
+        self.last_was_keyframe = keyframe
+        normals = (pixel_normals(frame.depth, frame.intrinsics, T_world_cam, pixels)
+                   if self._normals and keyframe else None)
         obs = Observation(points_world, np.asarray(T_world_cam, np.float64)[:3, 3].copy(), colors, point_sem,
-                          frame_index=frame.index)
+                          normals=normals, frame_index=frame.index, keyframe=keyframe)
         ms = {"backproject": (time.perf_counter() - t0) * 1e3}
         # each map fuses the same observation (the OctoMap ray-casts free space from the camera centre)
         for i, m in enumerate(self.maps):
@@ -169,6 +178,7 @@ class Pipeline:
         self._conf2d: np.ndarray | None = None
         self._segmented = 0
         self._viewer: Visualizer = NoVisualizer()
+        self._gt: dict[float, tuple[np.ndarray, np.ndarray]] = {}
 
     def run(self) -> RunResult:
         self._conf2d = None
@@ -183,11 +193,16 @@ class Pipeline:
         pose_of = self._pose_source(dataset)
         timings, poses, no_pose = self._integrate_all(dataset, mapper, label_set, pose_of)
         self._viewer.finish(maps[0])
+        crf = self._refine(maps, poses) if self.config.crf.enabled else {}
         files, sizes = self._write_outputs(maps, poses)
         report = self._report(dataset, mapper, timings, poses, no_pose, sizes)
         report["startup_s"] = round(startup_s, 3)
         report.update(self._trajectory_outputs(pose_of, files))
         report.update(self._evaluate(maps[0]))
+        if maps[0].kind in crf and "miou_3d" in crf[maps[0].kind]:
+            report["miou_3d_before_crf"] = crf[maps[0].kind]["miou_3d"]
+        if len(maps) > 1 or crf:
+            report["maps"] = self._maps_report(maps, sizes, crf)
         out = self.config.output.out
         write_text_atomic(out / "report.json", json.dumps(report, indent=2))
         plots = write_report_plots(out, report, used=pose_of.used_trajectory(), ground_truth=pose_of.ground_truth(),
@@ -221,7 +236,50 @@ class Pipeline:
 
     def _map_kinds(self) -> list[MapKind]:
         """The maps this run builds, the primary one first."""
-        return [MapKind.OCTOMAP]
+        return list(self.config.mapping.maps)
+
+    def _refine(self, maps: list[SemanticMap], poses: list[np.ndarray]) -> dict[MapKind, dict]:
+        """3D dense CRF over every map with class distributions; per map: its accuracy before (when there is
+        ground truth), elements refined and changed, milliseconds."""
+        from semmap.fusion.crf import CrfParams, refine_map
+
+        params = CrfParams(iterations=self.config.crf.iterations)
+        viewpoint = np.mean([np.asarray(T)[:3, 3] for T in poses], axis=0) if poses else None
+        out: dict[MapKind, dict] = {}
+        for m in maps:
+            if m.label_set is None:
+                continue
+            before = self._evaluate_3d(m)
+            r = refine_map(m, params, viewpoint=viewpoint)
+            out[m.kind] = {**({"miou_3d": before["miou_3d"], "voxel_accuracy_3d": before["voxel_accuracy_3d"]}
+                              if before else {}), "refined": r.refined, "changed": r.changed, "ms": round(r.ms, 1)}
+        return out
+
+    def _ground_truth(self, resolution: float) -> tuple[np.ndarray, np.ndarray]:
+        if resolution not in self._gt:
+            self._gt[resolution] = self.ground_truth(resolution)
+        return self._gt[resolution]
+
+    def _evaluate_3d(self, m: SemanticMap) -> dict:
+        """3D accuracy of a map against ground truth at the run's voxel size (a finer point map votes per voxel);
+        empty without ground truth or classes."""
+        if self.ground_truth is None or m.label_set is None:
+            return {}
+        resolution = self.config.mapping.resolution
+        gt_keys, gt_labels = self._ground_truth(resolution)
+        cloud = m.cloud()
+        return evaluate_cloud_3d(cloud.centers, cloud.labels, gt_keys, gt_labels, m.label_set, resolution)
+
+    def _maps_report(self, maps: list[SemanticMap], sizes: dict[str, int], crf: dict[MapKind, dict]) -> dict:
+        """Each map side by side: what it holds, its files, its accuracy (and before the CRF)."""
+        out = {}
+        for m in maps:
+            files = {name: size for name, size in sizes.items() if name in _files_of(m)}
+            entry = {"resolution": m.resolution, **m.describe(), "files": files, **self._evaluate_3d(m)}
+            if m.kind in crf:
+                entry["crf"] = crf[m.kind]
+            out[m.kind.value] = entry
+        return out
 
     def _pose_source(self, dataset: Dataset) -> FramePoses:
         """Where each frame's pose comes from: ground truth, a trajectory file, or a tracker run over the
@@ -288,6 +346,11 @@ class Pipeline:
                     self._score_segmentation(sem, frame.labels, len(label_set))
             for name, ms in mapper.integrate(frame, T, sem).items():
                 timings[name] += ms
+            every = self.config.crf.every
+            if self.config.crf.enabled and every and mapper.last_was_keyframe and mapper.keyframes % every == 0:
+                t_crf = time.perf_counter()
+                self._refine(mapper.maps, [*poses, T])
+                timings["crf"] += (time.perf_counter() - t_crf) * 1e3
             poses.append(T)
             self._viewer.log_frame(frame, T, sem, mapper.maps[0])
         if not poses:
@@ -323,11 +386,7 @@ class Pipeline:
             return out
         if self._conf2d is not None:
             out.update(evaluate_2d(self._conf2d, primary.label_set, self.segmenter.name))
-        if self.ground_truth is not None:
-            gt_keys, gt_labels = self.ground_truth(primary.resolution)
-            cloud = primary.cloud()
-            out.update(evaluate_map_3d(coords_to_keys(cloud.centers, cloud.resolution), cloud.labels, gt_keys,
-                                       gt_labels, primary.label_set))
+        out.update(self._evaluate_3d(primary))
         return out
 
     def _write_outputs(self, maps: list[SemanticMap], poses: list[np.ndarray]):
@@ -339,9 +398,10 @@ class Pipeline:
             sizes.update(m.save(out))
         files = {name: out / name for name in sizes}
         if self.config.output.preview:
-            files["preview"] = out / "preview.png"
-            sizes["preview.png"] = write_png(files["preview"], render_preview(maps[0].cloud(), maps[0].label_set,
-                                                                              poses))
+            for i, m in enumerate(maps):  # preview.png of the primary map, preview_<kind>.png of the others
+                name = "preview.png" if i == 0 else f"preview_{m.kind.value}.png"
+                files[name] = out / name
+                sizes[name] = write_png(files[name], render_preview(m.cloud(), m.label_set, poses))
         write_text_atomic(out / "config.json", self.config.to_json())
         files["config"] = out / "config.json"
         return files, sizes
@@ -382,6 +442,12 @@ class Pipeline:
             out["voxels_per_class"] = {names[i]: int(counts[i]) for i in order if counts[i] > 0}
             out["voxels_without_class"] = int((top >= len(names)).sum())
         return out
+
+
+def _files_of(m: SemanticMap) -> set[str]:
+    """Names of the files ``m.save`` writes (the OctoMap's map.*; other maps <kind>.*), and its preview."""
+    stem = "map" if m.kind == MapKind.OCTOMAP else m.kind.value
+    return {f"{stem}.ot", f"{stem}.bt", f"{stem}.semmap", f"{stem}.ply", f"preview_{m.kind.value}.png"}
 
 
 def render_preview(cloud: MapCloud, label_set: LabelSet | None, poses: list[np.ndarray]) -> np.ndarray:

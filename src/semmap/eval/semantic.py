@@ -12,7 +12,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from semmap.keys import pack_keys
+from semmap.keys import coords_to_keys, pack_keys, unpack_keys
 from semmap.types import EMPTY_LABEL, LabelSet
 
 
@@ -144,3 +144,36 @@ def evaluate_2d(conf: np.ndarray, label_set: LabelSet, prefix: str) -> dict:
     s = scores(conf)
     return {f"{prefix}_miou_2d": round(s.miou, 4), f"{prefix}_pixel_accuracy_2d": round(s.accuracy, 4),
             f"{prefix}_mpa_2d": round(s.mpa, 4), f"{prefix}_per_class_iou_2d": s.per_class(label_set)}
+
+
+def cloud_keys_and_labels(centers: np.ndarray, labels: np.ndarray, resolution: float) -> tuple[np.ndarray, np.ndarray]:
+    """Voxel keys (M, 3) at ``resolution`` of a map's voxels or points and one class per voxel: the most frequent
+    class of the points inside (ties: the lower id; no class counts only where nothing else does)."""
+    keys = coords_to_keys(centers, resolution)
+    if len(keys) == 0:
+        return keys.reshape(0, 3), np.zeros(0, np.uint16)
+    packed = pack_keys(keys)
+    uniq, inverse = np.unique(packed, return_inverse=True)
+    if len(uniq) == len(packed):
+        return keys, np.asarray(labels)
+    lab = np.asarray(labels).astype(np.int64)
+    none = lab == int(EMPTY_LABEL)
+    lab = np.where(none, -1, lab)
+    # count (voxel, class) pairs; the empty class ranks below every real one
+    pair = inverse * (int(lab.max(initial=0)) + 2) + (lab + 1)
+    pairs, counts = np.unique(pair, return_counts=True)
+    vox, cls = pairs // (int(lab.max(initial=0)) + 2), pairs % (int(lab.max(initial=0)) + 2) - 1
+    score = np.where(cls < 0, -1, counts)
+    order = np.lexsort((cls, -score, vox))  # per voxel: highest count first, then lower id
+    first = np.ones(len(order), bool)
+    first[1:] = vox[order][1:] != vox[order][:-1]
+    best = cls[order][first]
+    return unpack_keys(uniq), np.where(best < 0, int(EMPTY_LABEL), best).astype(np.uint16)
+
+
+def evaluate_cloud_3d(centers: np.ndarray, labels: np.ndarray, gt_keys: np.ndarray, gt_labels: np.ndarray,
+                      label_set: LabelSet, resolution: float, *, tolerance: int = 1) -> dict:
+    """:func:`evaluate_map_3d` for any map's voxels or points, voxelised at the ground truth's ``resolution``
+    (a finer point map votes per voxel)."""
+    keys, voxel_labels = cloud_keys_and_labels(centers, labels, resolution)
+    return evaluate_map_3d(keys, voxel_labels, gt_keys, gt_labels, label_set, tolerance=tolerance)

@@ -127,3 +127,86 @@ def lookup_many(keys: np.ndarray, shard_cap: int, packed: np.ndarray) -> np.ndar
 def round_capacity(n: float) -> int:
     """Shard capacity: at least GROUP, a multiple of GROUP."""
     return max(GROUP, int(np.ceil(n / GROUP)) * GROUP)
+
+
+class ShardedTable:
+    """The sharded table's arrays and their growth, for maps that hold their own voxels (voxel grid, point map).
+
+    ``keys`` / ``logodds`` / ``attr`` are the slots (see the module docstring), ``counts`` the entries per shard.
+    """
+
+    def __init__(self, shard_cap: int = GROUP * 8) -> None:
+        self.alloc(round_capacity(shard_cap))
+
+    def alloc(self, shard_cap: int) -> None:
+        n = N_SHARDS * shard_cap
+        self.shard_cap = shard_cap
+        self.keys = np.full(n, EMPTY_KEY, np.int64)
+        self.logodds = np.zeros(n, np.float32)
+        self.attr = np.full(n, -1, np.int32)
+        self.counts = np.zeros(N_SHARDS, np.int64)
+
+    @property
+    def fill_limit(self) -> int:
+        """Entries a shard may hold before it must grow (keeps linear probing short)."""
+        return int(HARD_LOAD * self.shard_cap)
+
+    @property
+    def nbytes(self) -> int:
+        return int(self.keys.nbytes + self.logodds.nbytes + self.attr.nbytes + self.counts.nbytes)
+
+    def grow(self, min_cap: int) -> None:
+        """Rehash into shards of at least ``min_cap`` slots (more if a lane overflows)."""
+        cap = self.shard_cap
+        while cap < min_cap:
+            cap = round_capacity(cap * GROWTH)
+        old = (self.keys, self.logodds, self.attr, self.shard_cap)
+        while True:
+            self.alloc(cap)
+            if rehash(old[0], old[1], old[2], old[3], self.keys, self.logodds, self.attr, cap, self.counts):
+                return
+            cap = round_capacity(cap * GROWTH)
+
+    def settle(self) -> bool:
+        """Grow once after a frame if the fullest shard is past the normal load; True if the table moved."""
+        if self.counts.max() > MAX_LOAD * self.shard_cap:
+            self.grow(round_capacity(self.shard_cap * GROWTH))
+            return True
+        return False
+
+    def used(self) -> np.ndarray:
+        """Slots holding a key."""
+        return np.flatnonzero(self.keys != EMPTY_KEY)
+
+    def load(self, packed: np.ndarray, logodds: np.ndarray, attr: np.ndarray) -> None:
+        """Replace the contents with the given (unique) keys, values and attribute rows."""
+        packed = np.ascontiguousarray(packed, np.int64)
+        per_shard = np.bincount(shards_of(packed), minlength=N_SHARDS) if packed.size else np.zeros(1)
+        cap = round_capacity(per_shard.max() / (MAX_LOAD * 0.9) + 1)
+        values, rows = np.ascontiguousarray(logodds, np.float32), np.ascontiguousarray(attr, np.int32)
+        while True:
+            self.alloc(cap)
+            if insert_all(self.keys, self.logodds, self.attr, self.counts, cap, packed, values, rows):
+                return
+            cap = round_capacity(cap * GROWTH)
+
+
+@nb.njit(cache=True)
+def shards_of(packed: np.ndarray) -> np.ndarray:
+    """Shard of each packed key."""
+    out = np.empty(packed.shape[0], np.int64)
+    for i in range(packed.shape[0]):
+        out[i] = shard_of(packed[i])
+    return out
+
+
+@nb.njit(cache=True)
+def insert_all(keys, logodds, attr, counts, shard_cap, packed, values, rows) -> bool:
+    """Insert (unique) keys with their values and rows into an empty table; False if a lane overflowed."""
+    for i in range(packed.shape[0]):
+        s = find_or_insert(keys, logodds, attr, counts, shard_of(packed[i]), shard_cap, packed[i])
+        if s < 0:
+            return False
+        logodds[s] = values[i]
+        attr[s] = rows[i]
+    return True

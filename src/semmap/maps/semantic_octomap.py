@@ -625,6 +625,28 @@ class SemanticOctoMap:
                 "bytes_in_memory": self.memory_bytes,
                 "bytes_per_voxel_in_memory": round(self.memory_bytes / max(self.num_leaves, 1), 2)}
 
+    def class_probs(self) -> np.ndarray:
+        """(M, K) class distribution of each occupied voxel (:meth:`cloud` order): its top-k set read as a
+        K-vector with "others" spread over the classes outside the set (``fusion.dense.expand_topk``)."""
+        from semmap.fusion.dense import expand_topk
+
+        if self.label_set is None:
+            raise ConfigError("a map without a label set has no class distributions")
+        v = self.voxels()
+        p = expand_topk(v.labels, v.probs, len(self.label_set))
+        return (p / p.sum(1, keepdims=True)).astype(np.float32)
+
+    def set_class_probs(self, probs: np.ndarray, *, where: np.ndarray | None = None) -> None:
+        """Replace the top-k sets of the occupied voxels (:meth:`cloud` order; only rows ``where`` is True) by the
+        top k of (M, K) distributions, e.g. a CRF's posterior (top confidence capped as fusion caps it)."""
+        c = self.cells()
+        rows = c.attr[c.logodds >= self._thr]
+        sel = rows >= 0 if where is None else np.asarray(where, bool) & (rows >= 0)
+        top = TopKProbs.from_dense(np.asarray(probs, np.float32)[sel], self.semantics.k)
+        self._sem_labels[rows[sel]] = top.labels
+        self._sem_probs[rows[sel]] = np.minimum(top.probs, self.semantics.max_confidence)
+        self._tree_counts = None
+
     def __repr__(self) -> str:
         return (f"SemanticOctoMap(resolution={self.resolution}, leaves={self.num_leaves}, "
                 f"occupied={self.num_occupied}, bytes={self.memory_bytes})")

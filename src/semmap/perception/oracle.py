@@ -1,6 +1,6 @@
 """Oracle segmenter: class probabilities made from a frame's ground-truth labels, with controlled errors.
 
-Two presets:
+Three presets:
 
 - ``"voxel-grid-paper"`` (Semantic Voxel Grid Mapping, Sec. IV-B): 0.9 on the true class and the remaining
   0.1 spread evenly over the other real classes (ids 1..K-1); no errors. The top-3 then holds the true class and
@@ -10,6 +10,9 @@ Two presets:
   (chair/sofa, table/desk, cabinet/shelf, monitor/picture, cup/bottle, ...), blotchy patches, small false blobs,
   and frame-to-frame flicker - with soft probabilities: the predicted class 0.5-0.9, the second choice often
   the true class.
+- ``"independent"``: the same accuracy and soft probabilities, but every error drawn independently per pixel and
+  per frame (uniformly placed, a uniformly random wrong class): errors that multi-view fusion can undo completely,
+  the counterpart of ``cnn-like``'s structured ones.
 
 How errors are placed: every pixel gets an error score (near a boundary, inside an object flagged for
 confusion this frame, inside a false blob, plus smooth noise); exactly ``round((1 - accuracy) * N)`` of the N
@@ -62,6 +65,7 @@ class OracleSettings:
     blob_radius_px: tuple[int, int] = (6, 28)
     conf_range: tuple[float, float] = (0.5, 0.9)  # probability of the predicted class
     second_is_true_p: float = 0.75  # for wrong pixels: chance the second choice is the true class
+    independent: bool = False  # errors placed uniformly at random, wrong classes uniform (no structure)
 
     def __post_init__(self) -> None:
         if not 0.0 <= self.pixel_accuracy <= 1.0:
@@ -77,6 +81,7 @@ PRESETS: dict[str, OracleSettings] = {
     "voxel-grid-paper": OracleSettings(pixel_accuracy=1.0, accuracy_jitter=0.0, soft=False, true_prob=0.9,
                                        flip_p=0.0, blobs_per_frame=0.0),
     "cnn-like": OracleSettings(),
+    "independent": OracleSettings(accuracy_jitter=0.0, independent=True),
 }
 
 
@@ -140,7 +145,9 @@ class OracleSegmenter:
         n_valid = int(valid.sum())
         acc = float(np.clip(s.pixel_accuracy + rng.uniform(-1, 1) * s.accuracy_jitter, 0.0, 1.0))
         n_err = round((1.0 - acc) * n_valid)
-        if n_err > 0:
+        if n_err > 0 and s.independent:
+            pred = self._independent_errors(gt, valid, n_err, rng)
+        elif n_err > 0:
             score, flagged, blob_cls = self._error_scores(gt, frame.instances, rng)
             flat = np.where(valid, score, -np.inf).ravel()
             idx = np.argpartition(-flat, n_err - 1)[:n_err]
@@ -153,6 +160,16 @@ class OracleSegmenter:
         return self._paper_probs(gt, pred)
 
     # ------------------------------------------------------------------ error placement
+    def _independent_errors(self, gt: np.ndarray, valid: np.ndarray, n_err: int,
+                            rng: np.random.Generator) -> np.ndarray:
+        """``gt`` with ``n_err`` uniformly chosen labelled pixels set to a uniformly random other real class."""
+        K = len(self._label_set)
+        idx = rng.choice(np.flatnonzero(valid.ravel()), size=n_err, replace=False)
+        pred = gt.copy().ravel()
+        shift = rng.integers(1, K - 1, n_err)  # 1..K-2 steps around the real classes 1..K-1: never the true one
+        pred[idx] = 1 + (pred[idx] - 1 + shift) % (K - 1)
+        return pred.reshape(gt.shape)
+
     def _error_scores(self, gt: np.ndarray, instances: np.ndarray | None, rng: np.random.Generator):
         """Per-pixel error score, the mask of objects confused this frame, and false-blob classes (0 = none)."""
         s = self.settings

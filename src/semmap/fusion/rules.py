@@ -1,0 +1,126 @@
+"""The label-fusion rules by name (``--fusion``) and their settings; the kernels live one module per family.
+
+============  ==========================================================  =========================  ==============
+rule          what a voxel keeps and how a measurement enters             paper                      module
+============  ==========================================================  =========================  ==============
+``max``       one (label, confidence): the more confident of map and      semantic_slam-style maps   ``max_rule``
+              measurement wins; agreeing labels keep the higher one
+``topk``      k (label, confidence) pairs + "others" (Algorithm 1)        semantic-octomap, alg. 1   ``topk_bayes``
+``bayes``     K log-odds against a pivot class, every pixel adds          semantic-voxel-grid,       ``dense``
+              ``l(z) - h0`` (h0 = 0: uniform prior)                       eqs. 2-5
+``bayes-prior`` as ``bayes`` but each measurement is divided by the class   rgbd-semantic-mapping,     ``dense``
+              prior p(c) (``h0`` = log prior ratios)                      eqs. 3-5
+``vote``      K counts of argmax labels                                   (baseline)                 ``dense``
+============  ==========================================================  =========================  ==============
+
+A segmenter hands over top-k sets (:class:`~semmap.types.TopKProbs`); the full-K rules read such a set as the
+K-vector with the set's probabilities on its classes and the "others" mass ``1 - sum`` spread evenly over the
+K - n classes not in the set (n = labels present), every entry raised to at least :data:`MIN_PROB`
+(:func:`semmap.fusion.dense.expand_topk`).  A segmenter that hands over k = K gets plain multi-class Bayes.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from enum import Enum
+
+import numpy as np
+
+from semmap.errors import ConfigError
+from semmap.fusion.topk_bayes import DEFAULT_LAMBDA, DEFAULT_MAX_CONFIDENCE
+
+#: Largest log-odds gap between a voxel's most probable class and any other (the floor of the normalised
+#: log-odds): OctoMap-style clamping, so that a voxel stays able to change class after enough contrary
+#: evidence (about this many nats).  exp(-24) ~ 4e-11.
+DEFAULT_LOGODDS_CLAMP = 24.0
+#: Vote counts are halved once the largest passes this (keeps float16 counts exact and votes changeable).
+DEFAULT_VOTE_CAP = 1024.0
+
+
+class FusionRule(str, Enum):
+    """How a voxel's class distribution absorbs a measurement."""
+
+    MAX = "max"
+    TOPK = "topk"
+    BAYES = "bayes"
+    BAYES_PRIOR = "bayes-prior"
+    VOTE = "vote"
+
+    @property
+    def code(self) -> int:
+        """Small integer the numba kernels branch on."""
+        return _CODES[self]
+
+    @property
+    def dense(self) -> bool:
+        """True for the rules that keep K numbers per voxel (bayes, bayes-prior, vote)."""
+        return self in (FusionRule.BAYES, FusionRule.BAYES_PRIOR, FusionRule.VOTE)
+
+
+_CODES = {FusionRule.MAX: 0, FusionRule.TOPK: 1, FusionRule.BAYES: 2, FusionRule.BAYES_PRIOR: 3, FusionRule.VOTE: 4}
+MAX_CODE, TOPK_CODE, BAYES_CODE, BAYES_PRIOR_CODE, VOTE_CODE = 0, 1, 2, 3, 4
+
+
+def fusion_rule(value: str | FusionRule) -> FusionRule:
+    """``"bayes"`` -> :attr:`FusionRule.BAYES`, or a ConfigError listing the rules."""
+    try:
+        return FusionRule(value)
+    except ValueError:
+        raise ConfigError(f"unknown fusion rule {value!r}; choose from "
+                          f"{', '.join(r.value for r in FusionRule)}") from None
+
+
+@dataclass(frozen=True)
+class FusionParams:
+    """A fusion rule and its settings.
+
+    ``k`` is the set size of ``topk`` (1..8; ``max`` keeps one pair); ``lam`` and ``max_confidence`` are
+    Algorithm 1's penalty and top-confidence cap (``max_confidence`` also caps ``max``); ``logodds_clamp`` is
+    the largest log-odds gap ``bayes``/``bayes-prior`` keep; ``prior`` (K,) are the class frequencies
+    ``bayes-prior`` divides by (None: uniform, which makes it ``bayes``).
+    """
+
+    rule: FusionRule = FusionRule.TOPK
+    k: int = 3
+    lam: float = DEFAULT_LAMBDA
+    max_confidence: float = DEFAULT_MAX_CONFIDENCE
+    logodds_clamp: float = DEFAULT_LOGODDS_CLAMP
+    vote_cap: float = DEFAULT_VOTE_CAP
+    prior: np.ndarray | None = field(default=None, repr=False, compare=False)
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "rule", fusion_rule(self.rule))
+        if not 1 <= self.k <= 8:
+            raise ConfigError(f"top-k set size must be in 1..8, got {self.k}")
+        if not 0.0 <= self.lam <= 1.0:
+            raise ConfigError(f"λ must be in [0, 1], got {self.lam}")
+        if not 0.0 < self.max_confidence <= 1.0:
+            raise ConfigError(f"max_confidence must be in (0, 1], got {self.max_confidence}")
+        if not (math.isfinite(self.logodds_clamp) and self.logodds_clamp > 0):
+            raise ConfigError(f"log-odds clamp must be positive, got {self.logodds_clamp}")
+        if not 2.0 <= self.vote_cap <= 2048.0:
+            raise ConfigError(f"vote cap must be in [2, 2048] (float16 counts stay exact), got {self.vote_cap}")
+        if self.prior is not None:
+            p = np.asarray(self.prior, np.float64).reshape(-1)
+            if p.size < 1 or not np.isfinite(p).all() or (p < 0).any() or p.sum() <= 0:
+                raise ConfigError("class prior must be non-negative frequencies with a positive sum")
+            object.__setattr__(self, "prior", p)
+
+    def set_width(self) -> int:
+        """Pairs kept per voxel by the set rules (0 for the dense ones)."""
+        if self.rule == FusionRule.TOPK:
+            return self.k
+        return 1 if self.rule == FusionRule.MAX else 0
+
+    def prior_logodds(self, num_classes: int) -> np.ndarray:
+        """(K,) float32 ``h0``: log class priors (``bayes-prior``; zeros = uniform otherwise), floored at
+        :data:`~semmap.fusion.dense.MIN_PROB` so an unseen class is not ruled out."""
+        from semmap.fusion.dense import MIN_PROB
+
+        if self.rule != FusionRule.BAYES_PRIOR or self.prior is None:
+            return np.zeros(num_classes, np.float32)
+        if self.prior.size != num_classes:
+            raise ConfigError(f"class prior has {self.prior.size} entries but the label set {num_classes} classes")
+        p = np.maximum(self.prior / self.prior.sum(), MIN_PROB)
+        return np.log(p).astype(np.float32)

@@ -1,0 +1,143 @@
+"""Lossless files of the hashed semantic maps (``voxelgrid.semmap``, ``points.semmap``).
+
+A zip of numpy arrays (``numpy.savez_compressed``) and a JSON header: format, version, map kind, resolution,
+state dtype, fusion rule and settings, label set (and, for a voxel grid with free space, its occupancy
+OctoMap's cells).  ``save_grid -> load_grid`` gives back a map whose arrays are bit-identical.
+"""
+
+from __future__ import annotations
+
+import json
+import zipfile
+from dataclasses import fields
+from pathlib import Path
+
+import numpy as np
+
+from semmap.errors import FormatError
+from semmap.fusion.rules import FusionParams
+from semmap.io.atomic import write_atomic
+from semmap.maps.semantic_grid import GridArrays
+from semmap.maps.semantic_octomap import CellArrays, OccupancyParams, SemanticOctoMap
+from semmap.types import LabelSet, MapKind
+
+FORMAT = "semmap-grid"
+VERSION = 1
+_GRID_FIELDS = tuple(f.name for f in fields(GridArrays))
+
+
+def save_grid(path: str | Path, m) -> int:
+    """Write a :class:`~semmap.maps.voxel_grid.SemanticVoxelGrid` or
+    :class:`~semmap.maps.point_map.SemanticPointMap` atomically; returns the file size in bytes."""
+    g = m.grid
+    f = g.fusion
+    header = {
+        "format": FORMAT, "version": VERSION, "kind": m.kind.value, "resolution": g.resolution, "dtype": g.dtype,
+        "fusion": {"rule": f.rule.value, "k": f.k, "lam": f.lam, "max_confidence": f.max_confidence,
+                   "logodds_clamp": f.logodds_clamp, "vote_cap": f.vote_cap,
+                   "prior": None if f.prior is None else [float(v) for v in f.prior]},
+        "label_set": None if g.label_set is None else g.label_set.to_dict(),
+    }
+    a = g.arrays()
+    arrays = {name: getattr(a, name) for name in _GRID_FIELDS}
+    if m.kind == MapKind.VOXELGRID:
+        header.update({"occupancy": vars(m.occupancy), "max_range": m.max_range, "free_space": m.free_space})
+        if m.geometry is not None:
+            cells = m.geometry.cells()
+            arrays["geo_packed"], arrays["geo_logodds"] = cells.packed, cells.logodds
+    else:
+        header.update({"keyframes_only": m.keyframes_only, "frames_integrated": m.frames_integrated})
+    arrays["header"] = np.frombuffer(json.dumps(header).encode("utf-8"), np.uint8)
+    write_atomic(path, lambda fobj: np.savez_compressed(fobj, **arrays))
+    return Path(path).stat().st_size
+
+
+def read_header(path: str | Path) -> dict:
+    """The JSON header of a grid file (what ``semmap info`` shows without loading every array)."""
+    path = Path(path)
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            if "header" not in z.files:
+                raise FormatError(f"{path}: not a semmap grid map (no header)")
+            header = json.loads(bytes(z["header"]).decode("utf-8"))
+    except FormatError:
+        raise
+    except FileNotFoundError:
+        raise FormatError(f"{path}: no such file") from None
+    except (zipfile.BadZipFile, EOFError, ValueError, OSError, KeyError, UnicodeDecodeError) as exc:
+        raise FormatError(f"{path}: corrupt or truncated semmap file ({exc})") from None
+    if header.get("format") != FORMAT:
+        raise FormatError(f"{path}: not a semmap grid map (format {header.get('format')!r})")
+    if header.get("version") != VERSION:
+        raise FormatError(f"{path}: unsupported semmap grid version {header.get('version')!r} (this is {VERSION})")
+    return header
+
+
+def load_grid(path: str | Path):
+    """Read a map written by :func:`save_grid` (a voxel grid or a point map, as its header says)."""
+    from semmap.maps.point_map import SemanticPointMap
+    from semmap.maps.voxel_grid import SemanticVoxelGrid
+
+    path = Path(path)
+    header = read_header(path)
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            missing = set(_GRID_FIELDS) - set(z.files)
+            if missing:
+                raise FormatError(f"{path}: not a semmap grid map (missing {sorted(missing)})")
+            arrays = {name: z[name] for name in z.files if name != "header"}
+    except FormatError:
+        raise
+    except (zipfile.BadZipFile, EOFError, ValueError, OSError, KeyError) as exc:
+        raise FormatError(f"{path}: corrupt or truncated semmap file ({exc})") from None
+    try:
+        fz = dict(header["fusion"])
+        prior = fz.pop("prior")
+        fusion = FusionParams(**fz, prior=None if prior is None else np.array(prior))
+        label_set = None if header["label_set"] is None else LabelSet.from_dict(header["label_set"])
+        kind = MapKind(header["kind"])
+        resolution, dtype = float(header["resolution"]), str(header["dtype"])
+        if kind == MapKind.VOXELGRID:
+            m = SemanticVoxelGrid(resolution, label_set=label_set, fusion=fusion, dtype=dtype,
+                                  free_space=bool(header["free_space"]),
+                                  occupancy=OccupancyParams(**header["occupancy"]),
+                                  max_range=float(header["max_range"]))
+        else:
+            m = SemanticPointMap(resolution, label_set=label_set, fusion=fusion, dtype=dtype,
+                                 keyframes_only=bool(header["keyframes_only"]))
+            m.frames_integrated = int(header["frames_integrated"])
+    except (KeyError, TypeError, ValueError) as exc:
+        raise FormatError(f"{path}: malformed header ({exc})") from None
+    grid = GridArrays(**{name: arrays[name] for name in _GRID_FIELDS})
+    _check(path, grid, m)
+    m.grid.load_arrays(grid)
+    if kind == MapKind.VOXELGRID and m.geometry is not None:
+        if "geo_packed" not in arrays or "geo_logodds" not in arrays:
+            raise FormatError(f"{path}: free-space map without its occupancy cells")
+        n = arrays["geo_packed"].shape[0]
+        m.geometry = SemanticOctoMap.from_cells(
+            resolution, CellArrays(arrays["geo_packed"], arrays["geo_logodds"], np.full(n, -1, np.int32),
+                                   np.zeros((0, 3), np.uint8), np.zeros(0, np.uint16),
+                                   np.zeros((0, 3), np.uint16), np.zeros((0, 3), np.float32)),
+            occupancy=m.occupancy, max_range=m.max_range)
+    return m
+
+
+def _check(path: Path, a: GridArrays, m) -> None:
+    """Shapes and dtypes as the map's settings say, unique in-range keys."""
+    g = m.grid
+    k_dense, s_pairs = g._widths()
+    state = np.uint16 if g.dtype == "float16" else np.float32
+    geo = 3 if g.keep_geometry else 0
+    n = a.packed.shape[0]
+    expected = {"packed": (np.int64, (n,)), "logodds": (np.float32, (n,)), "rgb": (np.uint8, (n, 3)),
+                "rgb_count": (np.uint16, (n,)), "hits": (np.uint16, (n,)), "dense": (state, (n, k_dense)),
+                "set_labels": (np.uint16, (n, s_pairs)), "set_probs": (state, (n, s_pairs)),
+                "positions": (np.float32, (n, geo)), "normal_sums": (np.float32, (n, geo))}
+    for name, (dtype, shape) in expected.items():
+        arr = getattr(a, name)
+        if arr.dtype != dtype or arr.shape != shape:
+            raise FormatError(f"{path}: array {name!r} is {arr.dtype}{arr.shape}, expected {np.dtype(dtype)}{shape}")
+    p = a.packed
+    if p.size and (p.min() < 0 or p.max() >= 1 << 48 or np.unique(p).size != p.size):
+        raise FormatError(f"{path}: invalid or duplicate voxel keys")

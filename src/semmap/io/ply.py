@@ -1,0 +1,70 @@
+"""Binary PLY of a map's voxels or points (CloudCompare, Open3D, MeshLab open it).
+
+One ``vertex`` element, little-endian: ``x y z`` float32, ``red green blue`` uchar, ``label`` ushort (65535 =
+no class), ``confidence`` float32, and ``nx ny nz`` float32 when the map keeps normals.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from semmap.errors import FormatError
+from semmap.io.atomic import write_atomic
+from semmap.types import MapCloud
+
+_BASE = [("x", "<f4"), ("y", "<f4"), ("z", "<f4"), ("red", "u1"), ("green", "u1"), ("blue", "u1"),
+         ("label", "<u2"), ("confidence", "<f4")]
+_NORMALS = [("nx", "<f4"), ("ny", "<f4"), ("nz", "<f4")]
+_PLY_TYPES = {"<f4": "float", "u1": "uchar", "<u2": "ushort"}
+
+
+def write_ply(path: str | Path, cloud: MapCloud) -> int:
+    """Write ``cloud`` as binary little-endian PLY atomically; returns the file size in bytes."""
+    fields = _BASE + (_NORMALS if cloud.normals is not None else [])
+    rows = np.empty(len(cloud), dtype=fields)
+    rows["x"], rows["y"], rows["z"] = cloud.centers.T
+    rows["red"], rows["green"], rows["blue"] = cloud.colors.T
+    rows["label"], rows["confidence"] = cloud.labels, cloud.confidence
+    if cloud.normals is not None:
+        rows["nx"], rows["ny"], rows["nz"] = cloud.normals.T
+    header = ["ply", "format binary_little_endian 1.0", "comment semmap map (label 65535 = no class)",
+              f"comment resolution {cloud.resolution!r}", f"element vertex {len(cloud)}"]
+    header += [f"property {_PLY_TYPES[t]} {name}" for name, t in fields] + ["end_header"]
+    data = ("\n".join(header) + "\n").encode("ascii") + rows.tobytes()
+    write_atomic(path, lambda f: f.write(data))
+    return Path(path).stat().st_size
+
+
+def read_ply(path: str | Path) -> MapCloud:
+    """Read a PLY written by :func:`write_ply` back into a :class:`MapCloud`."""
+    path = Path(path)
+    try:
+        raw = path.read_bytes()
+    except OSError as exc:
+        raise FormatError(f"{path}: cannot read ({exc.strerror or exc})") from None
+    end = raw.find(b"end_header\n")
+    if not raw.startswith(b"ply\n") or end < 0:
+        raise FormatError(f"{path}: not a PLY file (no 'ply' / 'end_header')")
+    lines = raw[:end].decode("ascii", "replace").splitlines()
+    if "format binary_little_endian 1.0" not in lines:
+        raise FormatError(f"{path}: only binary little-endian PLY written by semmap is supported")
+    try:
+        n = next(int(line.split()[2]) for line in lines if line.startswith("element vertex"))
+        resolution = next((float(line.split()[2]) for line in lines if line.startswith("comment resolution")), 0.0)
+    except (StopIteration, IndexError, ValueError):
+        raise FormatError(f"{path}: malformed PLY header") from None
+    names = [line.split()[2] for line in lines if line.startswith("property")]
+    fields = _BASE + (_NORMALS if "nx" in names else [])
+    if names != [name for name, _ in fields]:
+        raise FormatError(f"{path}: unexpected vertex properties {names}")
+    body = raw[end + len(b"end_header\n"):]
+    dtype = np.dtype(fields)
+    if len(body) != n * dtype.itemsize:
+        raise FormatError(f"{path}: truncated PLY ({len(body)} bytes of vertex data, expected {n * dtype.itemsize})")
+    rows = np.frombuffer(body, dtype)
+    normals = np.stack([rows["nx"], rows["ny"], rows["nz"]], 1).astype(np.float32) if "nx" in names else None
+    return MapCloud(np.stack([rows["x"], rows["y"], rows["z"]], 1).astype(np.float64),
+                    np.stack([rows["red"], rows["green"], rows["blue"]], 1).astype(np.uint8),
+                    rows["label"].astype(np.uint16), rows["confidence"].astype(np.float32), resolution, normals)

@@ -1,0 +1,100 @@
+"""The semantic point map of *rgbd-semantic-mapping-multiscale-crf* / *object-oriented-semantic-slam*.
+
+Points voxel-filtered at a fine resolution (1 cm by default): each filter cell keeps one point, the mean of the
+points that fell in it, with its mean colour, a normal (the mean of the pixels' depth-image normals) and a
+fused class distribution (``bayes-prior``, eqs. 3-5, by default).  Like those systems it is updated on
+keyframes only: other frames are skipped (:attr:`~semmap.types.Observation.keyframe`).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from semmap.fusion.rules import FusionParams, FusionRule
+from semmap.maps.semantic_grid import SemanticGrid
+from semmap.maps.voxel_grid import UNCOLOURED
+from semmap.types import LabelSet, MapCloud, MapKind, Observation
+
+#: Default filter cell of the point map (metres).
+DEFAULT_POINT_RESOLUTION = 0.01
+
+
+class SemanticPointMap:
+    """Voxel-filtered semantic points updated on keyframes; implements :class:`~semmap.maps.base.SemanticMap`."""
+
+    kind = MapKind.POINTS
+    needs_normals = True
+    NATIVE, PLY = "points.semmap", "points.ply"
+
+    def __init__(self, resolution: float = DEFAULT_POINT_RESOLUTION, *, label_set: LabelSet | None = None,
+                 fusion: FusionParams | None = None, dtype: str = "float16", keyframes_only: bool = True) -> None:
+        self.grid = SemanticGrid(resolution, label_set=label_set,
+                                 fusion=fusion or FusionParams(FusionRule.BAYES_PRIOR), dtype=dtype,
+                                 keep_geometry=True)
+        self.keyframes_only = keyframes_only
+        self.frames_integrated = 0
+
+    @property
+    def resolution(self) -> float:
+        return self.grid.resolution
+
+    @property
+    def label_set(self) -> LabelSet | None:
+        return self.grid.label_set
+
+    @property
+    def fusion(self) -> FusionParams:
+        return self.grid.fusion
+
+    def integrate(self, obs: Observation) -> dict[str, float]:
+        """Fuse a keyframe's points (other frames are skipped when ``keyframes_only``)."""
+        if self.keyframes_only and not obs.keyframe:
+            return {}
+        self.frames_integrated += 1
+        return self.grid.integrate_points(obs.points_world, colors=obs.colors, semantics=obs.semantics,
+                                          normals=obs.normals)
+
+    def cloud(self) -> MapCloud:
+        """Every point: mean position, colour, top class, confidence and unit normal (zero where unknown)."""
+        a = self.grid.arrays()
+        labels, conf, _ = self.grid.summary(a)
+        colors = np.where(a.rgb_count[:, None] > 0, a.rgb, np.uint8(UNCOLOURED)).astype(np.uint8)
+        n = np.linalg.norm(a.normal_sums, axis=1, keepdims=True)
+        normals = np.where(n > 0, a.normal_sums / np.where(n > 0, n, 1.0), 0.0).astype(np.float32)
+        return MapCloud(a.positions.astype(np.float64), colors, labels, conf, self.resolution, normals)
+
+    def class_probs(self) -> np.ndarray:
+        """(M, K) class distribution of each point, in :meth:`cloud` order."""
+        return self.grid.class_probs(self.grid.arrays())
+
+    def set_class_probs(self, probs: np.ndarray, *, where: np.ndarray | None = None) -> None:
+        """Replace the points' distributions (:meth:`cloud` order; only rows ``where`` is True)."""
+        packed = self.grid.arrays().packed
+        sel = np.ones(len(packed), bool) if where is None else np.asarray(where, bool)
+        self.grid.set_class_probs(packed[sel], np.asarray(probs)[sel])
+
+    def save(self, out_dir: Path) -> dict[str, int]:
+        """``points.semmap`` (lossless) and ``points.ply`` (with normals)."""
+        from semmap.io.grid_files import save_grid
+        from semmap.io.ply import write_ply
+
+        out_dir = Path(out_dir)
+        return {self.NATIVE: save_grid(out_dir / self.NATIVE, self), self.PLY: write_ply(out_dir / self.PLY,
+                                                                                         self.cloud())}
+
+    def describe(self) -> dict:
+        mem = self.grid.memory_bytes
+        n = self.grid.num_voxels
+        return {"points": n, "keyframes_integrated": self.frames_integrated, "fusion": self.fusion.rule.value,
+                "state_dtype": self.grid.dtype, "bytes_in_memory": mem,
+                "bytes_per_voxel_in_memory": round(mem / max(n, 1), 2)}
+
+    @property
+    def memory_bytes(self) -> int:
+        return self.grid.memory_bytes
+
+    def __repr__(self) -> str:
+        return (f"SemanticPointMap(resolution={self.resolution}, fusion={self.fusion.rule.value}, "
+                f"points={self.grid.num_voxels})")

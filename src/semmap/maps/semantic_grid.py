@@ -1,0 +1,332 @@
+"""Sparse hashed voxels with colour, hits and a fused class distribution: the core of the voxel grid and point map.
+
+Voxels live in the octree's sharded hash table (:class:`~semmap.maps._hashtable.ShardedTable`, OctoMap keys
+from ``maps/_keys.py``), so they line up with the semantic OctoMap's voxels and with the simulator's ground
+truth.  Each voxel owns one attribute row: mean colour + colour count, hits (frames that saw it), and the state
+of its fusion rule (``fusion/``): K numbers (log-odds or votes, float16 or float32) for the full-K rules, or
+(label, confidence) pairs for ``topk`` / ``max``; the point map adds a mean position and a normal sum.
+Every point of a frame counts (eq. 2's sum over all measurements in the cell), not only the first.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from semmap.errors import ConfigError
+from semmap.fusion.dense import expand_topk, logodds_to_probs, votes_to_probs
+from semmap.fusion.half import from_half_bits, to_half_bits
+from semmap.fusion.rules import FusionParams, FusionRule
+from semmap.keys import keys_to_coords, unpack_keys
+from semmap.maps import _grid_kernels as kern
+from semmap.maps._hashtable import GROWTH, ShardedTable, round_capacity
+from semmap.types import EMPTY_LABEL, LabelSet, TopKProbs
+
+#: Storage types of the per-class state.
+DTYPES = ("float16", "float32")
+#: OctoMap's hit log-odds (p = 0.7) and upper clamp (p = 0.971): a voxel is occupied once hit.
+HIT_LOGODDS = np.float32(0.8472979)
+CLAMP_MAX_LOGODDS = np.float32(3.5138063)
+_INITIAL_ROWS = 1024
+
+
+@dataclass(frozen=True)
+class GridArrays:
+    """Every stored voxel in key order, as a file writer or a comparison needs them (lossless)."""
+
+    packed: np.ndarray  # (M,) int64 packed keys
+    logodds: np.ndarray  # (M,) float32 hit log-odds
+    rgb: np.ndarray  # (M, 3) uint8
+    rgb_count: np.ndarray  # (M,) uint16
+    hits: np.ndarray  # (M,) uint16 frames that hit the voxel (saturating)
+    dense: np.ndarray  # (M, K) float32 or uint16 float16 bits; (M, 0) for the set rules
+    set_labels: np.ndarray  # (M, S) uint16
+    set_probs: np.ndarray  # (M, S) float32 or uint16 float16 bits
+    positions: np.ndarray  # (M, 3) float32 mean point (point map) or (M, 0)
+    normal_sums: np.ndarray  # (M, 3) float32 summed normals (point map) or (M, 0)
+
+    def select(self, sel: np.ndarray) -> GridArrays:
+        """The voxels picked by a boolean mask or index array."""
+        return GridArrays(*(getattr(self, f)[sel] for f in GridArrays.__dataclass_fields__))
+
+
+class SemanticGrid:
+    """Hashed semantic voxels at ``resolution`` fused by ``fusion`` (see the module docstring).
+
+    ``dtype`` is the storage of the per-class numbers (float16 halves the memory of the full-K rules);
+    ``keep_geometry`` keeps each voxel's mean point and normal (the point map).
+    """
+
+    def __init__(self, resolution: float, *, label_set: LabelSet | None, fusion: FusionParams | None = None,
+                 dtype: str = "float32", keep_geometry: bool = False) -> None:
+        if not (np.isfinite(resolution) and 0.001 <= resolution <= 10.0):
+            raise ConfigError(f"resolution must be between 0.001 and 10 m, got {resolution}")
+        if dtype not in DTYPES:
+            raise ConfigError(f"state dtype must be one of {', '.join(DTYPES)}, got {dtype!r}")
+        self.resolution = float(resolution)
+        self.label_set = label_set
+        self.fusion = fusion or FusionParams()
+        self.dtype = dtype
+        self.keep_geometry = keep_geometry
+        self.num_classes = len(label_set) if label_set is not None else 0
+        self._prior_log = self.fusion.prior_logodds(max(self.num_classes, 1))
+        self._table = ShardedTable()
+        self._rows = 0
+        self._alloc_rows(_INITIAL_ROWS)
+        self._keys_buf = np.zeros(0, np.int64)
+
+    # ------------------------------------------------------------------ storage
+    @property
+    def _half(self) -> bool:
+        return self.dtype == "float16"
+
+    def _widths(self) -> tuple[int, int]:
+        """(K numbers, S pairs) per voxel for the fusion rule."""
+        if self.num_classes == 0:
+            return 0, 0
+        return (self.num_classes, 0) if self.fusion.rule.dense else (0, self.fusion.set_width())
+
+    def _alloc_rows(self, n: int) -> None:
+        K, S = self._widths()
+        state_t = np.uint16 if self._half else np.float32
+        g = 3 if self.keep_geometry else 0
+        fresh = {
+            "rgb": np.zeros((n, 3), np.uint8), "rgb_count": np.zeros(n, np.uint16), "hits": np.zeros(n, np.uint16),
+            "dense": np.zeros((n, K), state_t), "set_labels": np.full((n, S), EMPTY_LABEL, np.uint16),
+            "set_probs": np.zeros((n, S), state_t), "positions": np.zeros((n, g), np.float32),
+            "normal_sums": np.zeros((n, g), np.float32),
+        }
+        for name, arr in fresh.items():
+            old = getattr(self, f"_{name}", None)
+            if old is not None:
+                arr[: self._rows] = old[: self._rows]
+            setattr(self, f"_{name}", arr)
+
+    def _ensure_rows(self, n: int) -> None:
+        have = self._hits.shape[0]
+        if n > have:
+            self._alloc_rows(max(n, int(have * 1.5)))
+
+    @property
+    def memory_bytes(self) -> int:
+        """Bytes held: hash table (with its slack) and attribute rows (allocated, not only used)."""
+        rows = (self._rgb, self._rgb_count, self._hits, self._dense, self._set_labels, self._set_probs,
+                self._positions, self._normal_sums)
+        return self._table.nbytes + int(sum(a.nbytes for a in rows))
+
+    @property
+    def num_voxels(self) -> int:
+        return self._rows
+
+    # ------------------------------------------------------------------ integration
+    def integrate_points(self, points: np.ndarray, *, colors: np.ndarray | None = None,
+                         semantics: TopKProbs | None = None, normals: np.ndarray | None = None) -> dict[str, float]:
+        """Fuse one frame's world points (N, 3) with optional colours (N, 3) uint8, class sets (N, k) and
+        normals (N, 3); returns milliseconds per step."""
+        t0 = time.perf_counter()
+        pts, col, sem_l, sem_p, nrm = self._validated(points, colors, semantics, normals)
+        n = pts.shape[0]
+        if self._keys_buf.shape[0] < n:
+            self._keys_buf = np.empty(int(n * 1.25) + 16, np.int64)
+        packed = self._keys_buf[:n]
+        kern.point_keys(pts, 1.0 / self.resolution, packed)
+        order, offsets = kern.bucket_by_shard(packed)
+        t1 = time.perf_counter()
+        slots = self._find_slots(packed, order, offsets)
+        self._ensure_rows(self._rows + kern.mark_new(self._table.attr, slots, order))
+        self._rows = kern.assign_rows(self._table.attr, slots, order, self._rows)
+        t2 = time.perf_counter()
+        f = self.fusion
+        kern.fuse_points(self._table.attr, self._table.logodds, slots, order, offsets, pts,
+                         col if col is not None else np.zeros((1, 3), np.uint8), col is not None,
+                         sem_l, sem_p, sem_l.shape[0] > 0 and self.num_classes > 0,
+                         nrm if nrm is not None else np.zeros((1, 3), np.float32), nrm is not None,
+                         self._rgb, self._rgb_count, self._hits,
+                         self._dense if not self._half else np.zeros((1, self._dense.shape[1]), np.float32),
+                         self._dense if self._half else np.zeros((1, self._dense.shape[1]), np.uint16),
+                         self._set_labels,
+                         self._set_probs if not self._half else np.zeros((1, self._set_probs.shape[1]), np.float32),
+                         self._set_probs if self._half else np.zeros((1, self._set_probs.shape[1]), np.uint16),
+                         self._half, self._positions, self._normal_sums, self.keep_geometry,
+                         f.rule.code, self._prior_log, float(f.logodds_clamp), float(f.vote_cap), float(f.lam),
+                         float(f.max_confidence), HIT_LOGODDS, CLAMP_MAX_LOGODDS)
+        t3 = time.perf_counter()
+        return {"keys": (t1 - t0) * 1e3, "hash": (t2 - t1) * 1e3, "fuse": (t3 - t2) * 1e3}
+
+    def _find_slots(self, packed: np.ndarray, order: np.ndarray, offsets: np.ndarray) -> np.ndarray:
+        """Slot of each point's voxel (new voxels inserted; the table grows mid-frame when a shard fills)."""
+        t = self._table
+        slots = np.full(packed.shape[0], -1, np.int64)
+        progress = offsets[:-1].copy()
+        grown = False
+        while True:
+            kern.find_slots(t.keys, t.logodds, t.attr, t.counts, t.shard_cap, packed, order, progress, offsets,
+                            t.fill_limit, slots)
+            if (progress >= offsets[1:]).all():
+                break
+            t.grow(round_capacity(t.shard_cap * GROWTH))  # pending points repeat voxels: grow by the usual step
+            grown = True
+        grown |= t.settle()
+        if grown:  # slots found before the table moved are stale
+            from semmap.maps._hashtable import lookup_many
+
+            slots[order] = lookup_many(t.keys, t.shard_cap, packed[order])
+        return slots
+
+    def _validated(self, points, colors, semantics, normals):
+        pts = np.asarray(points)
+        pts = np.ascontiguousarray(pts, dtype=pts.dtype if pts.dtype in (np.float32, np.float64) else np.float32)
+        if pts.ndim != 2 or pts.shape[1] != 3:
+            raise ConfigError(f"points must be (N, 3), got {pts.shape}")
+        n = pts.shape[0]
+        col = nrm = None
+        if colors is not None:
+            col = np.ascontiguousarray(colors, dtype=np.uint8)
+            if col.shape != (n, 3):
+                raise ConfigError(f"colours must be ({n}, 3), got {col.shape}")
+        if normals is not None and self.keep_geometry:
+            nrm = np.ascontiguousarray(normals, dtype=np.float32)
+            if nrm.shape != (n, 3):
+                raise ConfigError(f"normals must be ({n}, 3), got {nrm.shape}")
+        k = max(self.fusion.k if self.fusion.rule == FusionRule.TOPK else 1, 1)
+        sem_l = np.zeros((0, k), np.uint16)
+        sem_p = np.zeros((0, k), np.float32)
+        if semantics is not None and self.num_classes > 0:
+            sem_l = np.ascontiguousarray(semantics.labels, dtype=np.uint16)
+            sem_p = np.ascontiguousarray(semantics.probs, dtype=np.float32)
+            if sem_l.ndim != 2 or sem_l.shape[0] != n:
+                raise ConfigError(f"class sets must be ({n}, k), got {sem_l.shape}")
+            if self.fusion.rule == FusionRule.TOPK and sem_l.shape[1] != self.fusion.k:
+                raise ConfigError(f"topk fusion with k = {self.fusion.k} needs class sets of {self.fusion.k}, "
+                                  f"got {sem_l.shape[1]}")
+            bad = (sem_l != EMPTY_LABEL) & (sem_l >= self.num_classes)
+            if bad.any():
+                raise ConfigError(f"class id {int(sem_l[bad].max())} is outside the map's label set "
+                                  f"({self.num_classes} classes)")
+        return pts, col, sem_l, sem_p, nrm
+
+    # ------------------------------------------------------------------ queries
+    def arrays(self) -> GridArrays:
+        """Every voxel, compacted and sorted by key (deterministic)."""
+        t = self._table
+        used = t.used()
+        used = used[np.argsort(t.keys[used], kind="stable")]
+        rows = t.attr[used]
+        return GridArrays(t.keys[used].copy(), t.logodds[used].copy(), self._rgb[rows], self._rgb_count[rows],
+                          self._hits[rows], self._dense[rows], self._set_labels[rows], self._set_probs[rows],
+                          self._positions[rows], self._normal_sums[rows])
+
+    def load_arrays(self, a: GridArrays) -> None:
+        """Replace the contents (file readers)."""
+        m = a.packed.shape[0]
+        self._rows = 0
+        for name in ("_rgb", "_rgb_count", "_hits", "_dense", "_set_labels", "_set_probs", "_positions",
+                     "_normal_sums"):
+            setattr(self, name, None)
+        self._alloc_rows(max(m, 16))
+        self._rows = m
+        self._rgb[:m], self._rgb_count[:m], self._hits[:m] = a.rgb, a.rgb_count, a.hits
+        self._dense[:m], self._set_labels[:m], self._set_probs[:m] = a.dense, a.set_labels, a.set_probs
+        self._positions[:m], self._normal_sums[:m] = a.positions, a.normal_sums
+        self._table.load(a.packed, a.logodds, np.arange(m, dtype=np.int32))
+
+    def summary(self, a: GridArrays) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(most probable class (EMPTY where no evidence), its probability, entropy in nats) per voxel."""
+        m = a.packed.shape[0]
+        labels = np.full(m, EMPTY_LABEL, np.uint16)
+        conf = np.zeros(m, np.float32)
+        ent = np.zeros(m, np.float32)
+        if self.num_classes == 0 or m == 0:
+            return labels, conf, ent
+        if self.fusion.rule.dense:
+            rows = np.arange(m, dtype=np.int64)
+            dense = np.ascontiguousarray(a.dense)
+            f32 = dense if not self._half else np.zeros((1, dense.shape[1]), np.float32)
+            u16 = dense if self._half else np.zeros((1, dense.shape[1]), np.uint16)
+            kern.dense_summary(f32, u16, self._half, rows, self.fusion.rule != FusionRule.VOTE, labels, conf, ent)
+            return labels, conf, ent
+        probs = self._set_probs_f32(a)
+        has = a.set_labels[:, 0] != EMPTY_LABEL
+        labels[has] = a.set_labels[has, 0]
+        conf[has] = probs[has, 0]
+        full = expand_topk(a.set_labels[has], probs[has], self.num_classes)
+        ent[has] = -(full * np.log(full)).sum(1) / full.sum(1) + np.log(full.sum(1))
+        return labels, conf, ent
+
+    def _set_probs_f32(self, a: GridArrays) -> np.ndarray:
+        return from_half_bits(a.set_probs) if self._half else a.set_probs.astype(np.float32)
+
+    def class_probs(self, a: GridArrays) -> np.ndarray:
+        """(M, K) class distribution of every voxel (the set rules' sets read as K-vectors)."""
+        if self.fusion.rule.dense:
+            dense = from_half_bits(a.dense) if self._half else a.dense
+            if self.fusion.rule == FusionRule.VOTE:
+                return votes_to_probs(dense).astype(np.float32)
+            return logodds_to_probs(dense).astype(np.float32)
+        p = expand_topk(a.set_labels, self._set_probs_f32(a), self.num_classes)
+        return (p / p.sum(1, keepdims=True)).astype(np.float32)
+
+    def set_class_probs(self, packed: np.ndarray, probs: np.ndarray) -> None:
+        """Replace the class distributions of the voxels with keys ``packed`` by ``probs`` (M, K) (e.g. a CRF's
+        posterior): log-odds, vote shares scaled to the cap, or the top pairs, as the rule keeps them."""
+        from semmap.maps._hashtable import lookup_many
+
+        t = self._table
+        if len(packed) == 0:
+            return
+        slots = lookup_many(t.keys, t.shard_cap, np.ascontiguousarray(packed, np.int64))
+        if (slots < 0).any():
+            raise ConfigError("set_class_probs: some voxels are not in the map")
+        rows = t.attr[slots]
+        p = np.clip(np.asarray(probs, np.float64), 1e-12, None)
+        p /= p.sum(1, keepdims=True)
+        rule = self.fusion.rule
+        if rule.dense:
+            if rule == FusionRule.VOTE:
+                new = np.floor(p / p.max(1, keepdims=True) * self.fusion.vote_cap * 0.5)
+            else:
+                h = np.log(p)
+                new = np.maximum(h - h.max(1, keepdims=True), -self.fusion.logodds_clamp)
+            self._dense[rows] = to_half_bits(new) if self._half else new.astype(np.float32)
+            return
+        top = TopKProbs.from_dense(p, self.fusion.set_width())
+        probs_top = np.minimum(top.probs, self.fusion.max_confidence)
+        self._set_labels[rows] = top.labels
+        self._set_probs[rows] = to_half_bits(probs_top) if self._half else probs_top
+
+    def centers(self, a: GridArrays) -> np.ndarray:
+        return keys_to_coords(unpack_keys(a.packed), self.resolution)
+
+
+def _compile_normals() -> None:
+    """The depth-image normals the point map asks the pipeline for."""
+    from semmap.geometry import pixel_normals
+    from semmap.types import CameraIntrinsics
+
+    cam = CameraIntrinsics(8, 6, 5.0, 5.0, 3.5, 2.5)
+    pixel_normals(np.ones((6, 8), np.float32), cam, np.eye(4), np.arange(48, dtype=np.int64))
+
+
+def compile_kernels() -> float:
+    """Run every grid kernel once on a tiny scan (each rule, both dtypes) so numba compiles or loads them now."""
+    t = time.perf_counter()
+    rng = np.random.default_rng(0)
+    pts = (rng.uniform(-1.0, 1.0, (3000, 3)) + np.array([0.0, 0.0, 2.0])).astype(np.float32)  # as back-projected
+    labels = np.full((len(pts), 3), EMPTY_LABEL, np.uint16)
+    labels[:, 0] = rng.integers(1, 4, len(pts))
+    probs = np.zeros((len(pts), 3), np.float32)
+    probs[:, 0] = 0.7
+    colors = rng.integers(0, 255, (len(pts), 3), dtype=np.uint8)
+    normals = np.tile(np.array([0.0, 0.0, 1.0], np.float32), (len(pts), 1))
+    for dtype in DTYPES:
+        for rule in FusionRule:
+            g = SemanticGrid(0.05, label_set=LabelSet.generic(4), fusion=FusionParams(rule), dtype=dtype,
+                             keep_geometry=rule == FusionRule.BAYES_PRIOR)
+            for points in (pts, pts.astype(np.float64)):
+                g.integrate_points(points, colors=colors, semantics=TopKProbs(labels, probs), normals=normals)
+            a = g.arrays()
+            g.summary(a)
+    _compile_normals()
+    return time.perf_counter() - t
