@@ -29,7 +29,7 @@ def config(tmp_path) -> RunConfig:
     return RunConfig(input=InputConfig(dataset=tmp_path), output=OutputConfig(out=tmp_path / "out"))
 
 
-@pytest.mark.parametrize("kind", [MapKind.OCTOMAP])
+@pytest.mark.parametrize("kind", list(MapKind))
 def test_every_map_kind_integrates_reads_back_saves_and_describes_itself(kind, tmp_path):
     m = get_map(kind, config(tmp_path), LabelSet.generic(4))
     assert isinstance(m, SemanticMap) and m.kind == kind
@@ -37,7 +37,7 @@ def test_every_map_kind_integrates_reads_back_saves_and_describes_itself(kind, t
     assert ms and all(v >= 0 for v in ms.values())
     cloud = m.cloud()
     assert len(cloud) > 0 and cloud.centers.shape == (len(cloud), 3) and cloud.colors.dtype == np.uint8
-    assert np.all(np.abs(cloud.centers[:, 0] - 2.0) <= cloud.resolution)
+    assert np.all(np.abs(cloud.centers[:, 0] - 2.0) <= max(cloud.resolution, 0.05))
     assert np.all(cloud.labels == 2) and np.all((cloud.confidence > 0.5) & (cloud.confidence <= 1.0))
     sizes = m.save(tmp_path / "out")
     assert sizes and all((tmp_path / "out" / name).stat().st_size == size for name, size in sizes.items())

@@ -199,8 +199,8 @@ class Pipeline:
         report["startup_s"] = round(startup_s, 3)
         report.update(self._trajectory_outputs(pose_of, files))
         report.update(self._evaluate(maps[0]))
-        if maps[0].kind in crf and "miou_3d" in crf[maps[0].kind]:
-            report["miou_3d_before_crf"] = crf[maps[0].kind]["miou_3d"]
+        if maps[0].kind in crf and "miou_3d_before" in crf[maps[0].kind]:
+            report["miou_3d_before_crf"] = crf[maps[0].kind]["miou_3d_before"]
         if len(maps) > 1 or crf:
             report["maps"] = self._maps_report(maps, sizes, crf)
         out = self.config.output.out
@@ -251,8 +251,9 @@ class Pipeline:
                 continue
             before = self._evaluate_3d(m)
             r = refine_map(m, params, viewpoint=viewpoint)
-            out[m.kind] = {**({"miou_3d": before["miou_3d"], "voxel_accuracy_3d": before["voxel_accuracy_3d"]}
-                              if before else {}), "refined": r.refined, "changed": r.changed, "ms": round(r.ms, 1)}
+            out[m.kind] = {**({"miou_3d_before": before["miou_3d"],
+                                "voxel_accuracy_3d_before": before["voxel_accuracy_3d"]} if before else {}),
+                           "refined": r.refined, "changed": r.changed, "ms": round(r.ms, 1)}
         return out
 
     def _ground_truth(self, resolution: float) -> tuple[np.ndarray, np.ndarray]:

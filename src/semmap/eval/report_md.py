@@ -46,15 +46,15 @@ def render_report_md(report: dict, *, title: str = "semmap run", plots: dict[str
     lines += ["## Storage", "", "| representation | size |", "|---|---|",
               f"| dense coloured point cloud (binary PLY, every integrated point) | "
               f"{_kb(report['dense_point_cloud_bytes'])} |"]
-    for name, what in (("map.bt", "OctoMap .bt (occupancy only)"), ("map.ot", "semantic OctoMap .ot (ColorOcTree)"),
-                       ("map.semmap", "native map (log-odds, colour, top-3 distribution)")):
+    for name, what in _FILES:
         if name in sizes:
             lines.append(f"| {what} | {_kb(sizes[name])} |")
     lines += [f"| in memory ({report['bytes_per_voxel_in_memory']} B per voxel) | {_kb(report['bytes_in_memory'])} |",
-              "", f"Occupied voxels: {report['occupied_voxels']:,}, free voxels: {report['free_voxels']:,}; "
-              f"after pruning: {report['occupied_leaves']:,} occupied and {report['free_leaves']:,} free leaves.", "",
-              *_plot(plots, "storage", "storage per representation"),
-              "## Timings (ms per frame)", "", "| stage | ms |", "|---|---|"]
+              "", _counts_line(report), "",
+              *_plot(plots, "storage", "storage per representation")]
+    if "maps" in report:
+        lines += _maps_section(report["maps"])
+    lines += ["## Timings (ms per frame)", "", "| stage | ms |", "|---|---|"]
     lines += [f"| {k} | {v:.2f} |" for k, v in report["ms_per_frame"].items()]
     lines += ["", *_plot(plots, "timings", "time per stage")]
     if plots and "trajectory" in plots:
@@ -63,7 +63,47 @@ def render_report_md(report: dict, *, title: str = "semmap run", plots: dict[str
             f"; against ground truth ATE {100 * traj['ate_rmse_m']:.2f} cm, RPE {100 * traj['rpe_trans_m']:.2f} cm "
             f"per frame ({traj['matched']} poses)." if traj else "."), "", *_plot(plots, "trajectory", "trajectory")]
     lines += ["![preview](preview.png)", ""]
+    lines += [f"![{kind}](preview_{kind}.png)" for kind in list(report.get("maps", {}))[1:]]
+    if "maps" in report:
+        lines.append("")
     return "\n".join(lines)
+
+
+_FILES = (("map.bt", "OctoMap .bt (occupancy only)"), ("map.ot", "semantic OctoMap .ot (ColorOcTree)"),
+          ("map.semmap", "native map (log-odds, colour, top-3 distribution)"),
+          ("voxelgrid.semmap", "semantic voxel grid, native (every voxel's class state)"),
+          ("voxelgrid.ply", "semantic voxel grid, binary PLY (occupied voxels)"),
+          ("points.semmap", "semantic point map, native"), ("points.ply", "semantic point map, binary PLY"))
+
+
+def _counts_line(report: dict) -> str:
+    """What the primary map holds: the OctoMap's voxels and pruned leaves, or a voxel grid's / point map's size."""
+    if "occupied_leaves" in report:
+        return (f"Occupied voxels: {report['occupied_voxels']:,}, free voxels: {report['free_voxels']:,}; "
+                f"after pruning: {report['occupied_leaves']:,} occupied and {report['free_leaves']:,} free leaves.")
+    if "points" in report:
+        return f"Points: {report['points']:,} (from {report['keyframes_integrated']} keyframes)."
+    return f"Voxels: {report['voxels']:,}, occupied: {report['occupied_voxels']:,}."
+
+
+def _maps_section(maps: dict) -> list[str]:
+    """The maps of the run side by side: fusion, size, accuracy (before / after the CRF), storage."""
+    lines = ["## Maps side by side", "",
+             "| map | fusion | elements | mIoU 3D | before CRF | accuracy | MPA | precision | coverage | "
+             "B per element in memory | files |", "|---|---|---|---|---|---|---|---|---|---|---|"]
+    for kind, m in maps.items():
+        size = m.get("points", m.get("voxels", m.get("occupied_voxels", 0) + (m.get("free_voxels") or 0)))
+        before = m.get("crf", {}).get("miou_3d_before")
+        files = ", ".join(f"{name} {_kb(n)}" for name, n in m.get("files", {}).items() if not name.endswith(".png"))
+
+        def fmt(key: str, m: dict = m) -> str:
+            return f"{m[key]:.3f}" if key in m else "–"
+
+        lines.append(f"| {kind} | {m.get('fusion', 'topk')} | {size:,} | {fmt('miou_3d')} | "
+                     f"{'–' if before is None else f'{before:.3f}'} | {fmt('voxel_accuracy_3d')} | {fmt('mpa_3d')} | "
+                     f"{fmt('geometric_precision_3d')} | {fmt('gt_coverage_3d')} | "
+                     f"{m['bytes_per_voxel_in_memory']} | {files} |")
+    return [*lines, "", "All maps are scored on the same ground-truth voxels (a finer point map votes per voxel).", ""]
 
 
 def write_report_md(path: str | Path, report: dict, *, title: str = "semmap run",
