@@ -1,12 +1,18 @@
-"""semmap's SemanticOctoMap against the real OctoMap library (pyoctomap), same frames, same run.
+"""semmap's SemanticOctoMap against the real OctoMap library (pyoctomap) and an occupancy-only yardstick,
+same frames, same run.
 
-Inserts the same back-projected RGB-D frames (7-Scenes from ../shared, or synthetic depth frames when absent)
-into semmap (occupancy + colour + top-3 semantics) and into ``pyoctomap.OcTree.insertPointCloud`` with
-``discretize=False`` and ``True``, at 0.05 m and 0.02 m.  Prints per-frame times, speed-up ratios, the
-occupied / free / unknown agreement with OctoMap's discretized insert, and bytes per leaf; the last line is
-one JSON object.
+Inserts the same back-projected RGB-D frames (7-Scenes from ../shared, or synthetic depth frames when absent;
+float32 world points as ``semmap run`` makes them) into semmap (occupancy + colour + top-3 semantics), into
+``occupancy_reference.OccupancyReference`` (occupancy only, a plain hash map: the speed limit of the occupancy
+part) and into ``pyoctomap.OcTree.insertPointCloud`` with ``discretize=True`` (and ``False`` for the
+consecutive case), at 0.05 m and 0.02 m, in two cases: consecutive frames (every 10th, mostly known space)
+and sparse frames (every 50th, each bringing much new space).  semmap and the reference are timed in turns,
+frame by frame, several times, and each frame's best time counts (a shared machine disturbs some runs).
+Prints per-frame times (mean and median over the frames), ratios, the occupied / free / unknown agreement of
+semmap and of the reference with OctoMap's discretized insert (and whether the reference's cells and log-odds
+equal semmap's), and bytes per leaf; the last line is one JSON object.
 
-    python benchmarks/bench_octree_vs_octomap.py [--quick] [--frames N]
+    python benchmarks/bench_octree_vs_octomap.py [--quick] [--frames N] [--sparse-frames N] [--repeats R]
 """
 
 from __future__ import annotations
@@ -19,24 +25,25 @@ from pathlib import Path
 
 import numpy as np
 
-from semmap.geometry import backproject
+from occupancy_reference import OccupancyReference
+from semmap.geometry import backproject_world
 from semmap.io.octomap_files import decode_octomap
 from semmap.keys import pack_keys
 from semmap.maps.semantic_octomap import SemanticOctoMap, compile_kernels
-from semmap.types import CameraIntrinsics, TopKProbs, transform_points
+from semmap.types import CameraIntrinsics, TopKProbs
 
 SHARED = Path(__file__).resolve().parents[2] / "shared" / "data" / "7scenes-redkitchen"
 
 
 def load_frames(n: int, stride: int) -> tuple[str, list[tuple[np.ndarray, np.ndarray, np.ndarray]]]:
-    """(source name, [(world points float64 (N,3), colours (N,3) uint8, origin (3,))])."""
+    """(source name, [(world points float32 (N,3), colours (N,3) uint8, origin (3,))])."""
     if SHARED.is_dir():
         from semmap.datasets import open_dataset
 
         out = []
         for f in open_dataset(SHARED, "7scenes", stride=stride, max_frames=n):
-            pts, pix = backproject(f.depth, f.intrinsics)
-            out.append((transform_points(f.T_world_cam, pts), f.rgb.reshape(-1, 3)[pix], f.T_world_cam[:3, 3]))
+            pts, pix = backproject_world(f.depth, f.intrinsics, f.T_world_cam)  # as Mapper.integrate does
+            out.append((pts, f.rgb.reshape(-1, 3)[pix], f.T_world_cam[:3, 3]))
         return f"7scenes-redkitchen ({SHARED})", out
     return "synthetic room (../shared absent)", synthetic_frames(n)
 
@@ -97,20 +104,37 @@ def agreement(a_keys, a_occ, b_keys, b_occ) -> float:
     return float(same.sum() / max(uniq.size, 1))
 
 
-def bench_resolution(frames, resolution: float, run_octomap_raw: bool) -> dict:
+def timed_inserts(frames, resolution: float, repeats: int) -> tuple[SemanticOctoMap, OccupancyReference, dict]:
+    """semmap's full insertion and the occupancy-only reference, frame by frame in turns, ``repeats`` times from
+    empty maps; each frame's best time of each (the machine may be shared: the best is the least disturbed)."""
+    n = len(frames)
+    best_sem, best_ref = np.full(n, np.inf), np.full(n, np.inf)
+    stage_ms: dict[str, np.ndarray] = {}
+    sems = [fake_semantics(c) for _, c, _ in frames]
+    for _ in range(repeats):
+        m, ref = SemanticOctoMap(resolution), OccupancyReference(resolution)
+        for i, ((p, c, o), sem) in enumerate(zip(frames, sems, strict=True)):
+            t = time.perf_counter()
+            st = m.insert_points(p, o, colors=c, semantics=sem)
+            best_sem[i] = min(best_sem[i], time.perf_counter() - t)
+            t = time.perf_counter()
+            ref.insert_points(p, o)
+            best_ref[i] = min(best_ref[i], time.perf_counter() - t)
+            for k, v in st.ms.items():
+                best = stage_ms.setdefault(k, np.full(n, np.inf))
+                best[i] = min(best[i], v)
+    times = {"semmap": best_sem * 1e3, "reference": best_ref * 1e3,
+             "stages": {k: float(np.median(v)) for k, v in stage_ms.items()}}
+    return m, ref, times
+
+
+def bench_resolution(frames, resolution: float, *, repeats: int, run_octomap_raw: bool) -> dict:
     import pyoctomap
 
     compile_kernels()  # numba compiles (or loads) every kernel before anything is timed
-
-    m = SemanticOctoMap(resolution)
-    sem_times, stage_ms = [], {}
-    for p, c, o in frames:
-        sem = fake_semantics(c)
-        t = time.perf_counter()
-        st = m.insert_points(p, o, colors=c, semantics=sem)
-        sem_times.append(time.perf_counter() - t)
-        for k, v in st.ms.items():
-            stage_ms[k] = stage_ms.get(k, 0.0) + v / len(frames)
+    warm = OccupancyReference(resolution)
+    warm.insert_points(*frames[0][::2])
+    m, ref, times = timed_inserts(frames, resolution, repeats)
 
     def run_octomap(discretize: bool):
         tree = pyoctomap.OcTree(resolution)
@@ -123,48 +147,77 @@ def bench_resolution(frames, resolution: float, run_octomap_raw: bool) -> dict:
         return tree, float(np.mean(times) * 1e3)
 
     tree_d, oct_d_ms = run_octomap(True)
-    oct_ms = run_octomap(False)[1] if run_octomap_raw else float("nan")
-    sem_ms = float(np.mean(sem_times) * 1e3)
+    oct_ms = run_octomap(False)[1] if run_octomap_raw else None
+    sem_ms, sem_median = float(np.mean(times["semmap"])), float(np.median(times["semmap"]))
+    ref_ms, ref_median = float(np.mean(times["reference"])), float(np.median(times["reference"]))
     c = m.cells()
     o_keys, o_occ = octomap_states(tree_d, resolution)
     agree = agreement(c.packed, m.is_occupied(c.logodds), o_keys, o_occ)
+    ref_keys, ref_logodds = ref.cells()
+    ref_agree = agreement(ref_keys, m.is_occupied(ref_logodds), o_keys, o_occ)
     return {
         "resolution": resolution,
         "semmap_ms": round(sem_ms, 2),
-        "octomap_ms": round(oct_ms, 2),
+        "semmap_median_ms": round(sem_median, 2),
+        "reference_ms": round(ref_ms, 2),
+        "reference_median_ms": round(ref_median, 2),
+        "vs_reference": round(sem_ms / ref_ms, 2),
+        "vs_reference_median": round(sem_median / ref_median, 2),
+        "reference_equal": bool(np.array_equal(ref_keys, c.packed) and np.array_equal(ref_logodds, c.logodds)),
+        "octomap_ms": None if oct_ms is None else round(oct_ms, 2),
         "octomap_discretized_ms": round(oct_d_ms, 2),
-        "speedup": round(oct_ms / sem_ms, 1),
+        "speedup": None if oct_ms is None else round(oct_ms / sem_ms, 1),
         "speedup_vs_discretized": round(oct_d_ms / sem_ms, 1),
         "agreement": round(agree, 6),
+        "reference_agreement": round(ref_agree, 6),
         "semmap_bytes_per_leaf": round(m.memory_bytes / max(m.num_leaves, 1), 1),
         "octomap_bytes_per_leaf": round(tree_d.memoryUsage() / max(tree_d.getNumLeafNodes(), 1), 1),
         "semmap_leaves": m.num_leaves,
         "octomap_leaves_expanded": int(o_keys.size),
-        "semmap_stage_ms": {k: round(v, 2) for k, v in stage_ms.items()},
+        "semmap_stage_ms": {k: round(v, 2) for k, v in times["stages"].items()},
     }
+
+
+def _print(case: str, r: dict) -> None:
+    raw = f"OctoMap {r['octomap_ms']:.1f} ms (x{r['speedup']}) | " if r["octomap_ms"] is not None else ""
+    print(f"{case} res {r['resolution']:.2f} m: semmap {r['semmap_ms']:.1f} ms/frame (median "
+          f"{r['semmap_median_ms']:.1f}) | occupancy-only reference {r['reference_ms']:.1f} (median "
+          f"{r['reference_median_ms']:.1f}): x{r['vs_reference']} (median x{r['vs_reference_median']}) | {raw}"
+          f"OctoMap discretized {r['octomap_discretized_ms']:.1f} ms (x{r['speedup_vs_discretized']}) | agreement "
+          f"{r['agreement']:.4%} (reference {r['reference_agreement']:.4%}, equal cells "
+          f"{r['reference_equal']}) | bytes/leaf {r['semmap_bytes_per_leaf']} vs {r['octomap_bytes_per_leaf']} | "
+          f"stages {r['semmap_stage_ms']}", file=sys.stderr)
 
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--quick", action="store_true", help="few frames, finishes in under a minute")
-    ap.add_argument("--frames", type=int, default=None, help="frames to insert (default 20, quick 4)")
-    ap.add_argument("--stride", type=int, default=10, help="take every k-th frame of the sequence")
+    ap.add_argument("--quick", action="store_true", help="few frames, finishes in about a minute")
+    ap.add_argument("--frames", type=int, default=None, help="consecutive-case frames (default 20, quick 4)")
+    ap.add_argument("--stride", type=int, default=10, help="consecutive case: take every k-th frame")
+    ap.add_argument("--sparse-frames", type=int, default=None, help="sparse-case frames (default 12, quick 4)")
+    ap.add_argument("--sparse-stride", type=int, default=50, help="sparse case: take every k-th frame")
+    ap.add_argument("--repeats", type=int, default=None, help="timed passes of semmap and the reference; each "
+                    "frame's best counts (default 5, quick 2)")
     args = ap.parse_args()
-    n = args.frames or (4 if args.quick else 20)
-    source, frames = load_frames(n, args.stride)
-    pts_per_frame = int(np.mean([len(p) for p, _, _ in frames]))
-    print(f"frames: {len(frames)} from {source}, {pts_per_frame} points per frame", file=sys.stderr)
-    results = []
-    for res in (0.05, 0.02):
-        r = bench_resolution(frames, res, run_octomap_raw=True)
-        results.append(r)
-        print(f"res {res:.2f} m: semmap {r['semmap_ms']:.1f} ms/frame | OctoMap {r['octomap_ms']:.1f} ms "
-              f"(x{r['speedup']}) | OctoMap discretized {r['octomap_discretized_ms']:.1f} ms "
-              f"(x{r['speedup_vs_discretized']}) | agreement {r['agreement']:.4%} | bytes/leaf "
-              f"{r['semmap_bytes_per_leaf']} vs {r['octomap_bytes_per_leaf']} | stages {r['semmap_stage_ms']}",
+    repeats = args.repeats or (2 if args.quick else 5)
+    cases = {"consecutive": (args.frames or (4 if args.quick else 20), args.stride),
+             "sparse": (args.sparse_frames or (4 if args.quick else 12), args.sparse_stride)}
+    out: dict = {"bench": "octree_vs_octomap", "repeats": repeats}
+    for case, (n, stride) in cases.items():
+        source, frames = load_frames(n, stride)
+        pts_per_frame = int(np.mean([len(p) for p, _, _ in frames]))
+        print(f"{case}: {len(frames)} frames (every {stride}th) from {source}, {pts_per_frame} points per frame",
               file=sys.stderr)
-    print(json.dumps({"bench": "octree_vs_octomap", "frames": len(frames), "points_per_frame": pts_per_frame,
-                      "source": source, "results": results}))
+        results = []
+        for res in (0.05, 0.02):
+            results.append(bench_resolution(frames, res, repeats=repeats, run_octomap_raw=case == "consecutive"))
+            _print(case, results[-1])
+        key = "results" if case == "consecutive" else "sparse_results"
+        out.update({key: results} if case == "sparse" else
+                   {"frames": len(frames), "points_per_frame": pts_per_frame, "source": source, key: results})
+        if case == "sparse":
+            out.update({"sparse_frames": len(frames), "sparse_stride": stride})
+    print(json.dumps(out))
 
 
 if __name__ == "__main__":

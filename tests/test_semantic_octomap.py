@@ -234,3 +234,76 @@ def test_keys_crowding_one_hash_lane_still_all_fit():
     m.insert_points(pts, [1e6, 0.0, 0.0])  # origin outside the key range: hits only
     assert m.num_occupied == np.unique(pack_keys(coords_to_keys(pts, res))).size
     assert (m.state_at(pts) == OCCUPIED).all()
+
+
+def _big_scan(rng, n=40000):
+    """A dense frame-like scan: enough endpoint and free cells for the many-item (threaded) passes."""
+    pts = random_scan(rng, n=n, radius=(0.6, 2.5))
+    labels = np.stack([rng.integers(1, 6, n), rng.integers(6, 11, n), np.full(n, EMPTY)], 1).astype(np.uint16)
+    probs = np.broadcast_to(np.array([0.6, 0.3, 0.0], np.float32), (n, 3)).copy()
+    colors = rng.integers(0, 250, (n, 3), dtype=np.uint8)
+    return pts, colors, TopKProbs(labels, probs)
+
+
+def _octomap_cells(tree) -> tuple[np.ndarray, np.ndarray]:
+    """Packed finest-level keys (sorted) and occupied flags of a pyoctomap tree (vectorised, via its .ot)."""
+    from semmap.io.octomap_files import decode_octomap
+
+    leaves = decode_octomap(tree.write(), "pyoctomap")
+    keys, src = leaves.expand()
+    packed = pack_keys(keys)
+    order = np.argsort(packed)
+    return packed[order], leaves.occupied(tree.getOccupancyThresLog())[src][order]
+
+
+def test_threaded_and_serial_insertion_give_identical_maps(monkeypatch):
+    # big scans run the ray, table and attribute passes on all threads; with the threshold out of reach the same
+    # scans run serially: every cell, log-odds, colour and class set must come out the same, and match OctoMap
+    from semmap.maps import _octree_kernels as kern
+
+    def build(tree=None):
+        rng = np.random.default_rng(11)
+        m = SemanticOctoMap(0.05, label_set=LabelSet.generic(12), max_range=2.0)
+        for _ in range(3):
+            origin = rng.uniform(-0.2, 0.2, 3)
+            pts, colors, sem = _big_scan(rng)
+            stats = m.insert_points(pts, origin, colors=colors, semantics=sem)
+            if tree is not None:
+                tree.insertPointCloud(pts, origin, max_range=2.0, discretize=True)
+        return m, stats
+
+    tree = pyoctomap.OcTree(0.05)
+    threaded, stats = build(tree)
+    assert stats.hits >= kern.PARALLEL_MIN_ITEMS and stats.free_cells >= kern.PARALLEL_MIN_ITEMS
+    monkeypatch.setattr(kern, "PARALLEL_MIN_ITEMS", 1 << 40)
+    serial, _ = build()
+    a, b = threaded.cells(), serial.cells()
+    assert np.array_equal(a.packed, b.packed) and np.array_equal(a.logodds, b.logodds)
+    va, vb = threaded.voxels(), serial.voxels()
+    assert np.array_equal(va.colors, vb.colors) and np.array_equal(va.labels, vb.labels)
+    assert np.array_equal(va.probs, vb.probs)
+    keys, occupied = _octomap_cells(tree)
+    assert np.array_equal(keys, a.packed) and np.array_equal(occupied, threaded.is_occupied(a.logodds))
+
+
+def test_occupancy_only_reference_of_the_benchmark_matches_the_map_cell_for_cell():
+    # the benchmark's yardstick must do the same work: same cells, same log-odds as SemanticOctoMap
+    import importlib.util
+    import sys
+    from pathlib import Path
+
+    path = Path(__file__).resolve().parents[1] / "benchmarks" / "occupancy_reference.py"
+    spec = importlib.util.spec_from_file_location("occupancy_reference", path)
+    reference = importlib.util.module_from_spec(spec)
+    sys.modules.setdefault("occupancy_reference", reference)  # numba's cache finds its kernels by module name
+    spec.loader.exec_module(reference)
+    rng = np.random.default_rng(12)
+    m, ref = SemanticOctoMap(0.05), reference.OccupancyReference(0.05)
+    for _ in range(3):
+        origin = rng.uniform(-0.5, 0.5, 3)
+        pts = random_scan(rng, n=20000, origin=origin)
+        m.insert_points(pts, origin)
+        ref.insert_points(pts, origin)
+    keys, values = ref.cells()
+    c = m.cells()
+    assert np.array_equal(keys, c.packed) and np.array_equal(values, c.logodds)

@@ -16,6 +16,7 @@ import numba as nb
 import numpy as np
 
 from semmap.maps._keys import EMPTY_KEY
+from semmap.maps._prefetch import prefetch
 
 GROUP = 8  # slots per locality group (low bits of z)
 SHARD_BITS = 6
@@ -210,3 +211,12 @@ def insert_all(keys, logodds, attr, counts, shard_cap, packed, values, rows) -> 
         logodds[s] = values[i]
         attr[s] = rows[i]
     return True
+
+
+@nb.njit(cache=True, inline="always")
+def prefetch_home(keys: np.ndarray, logodds: np.ndarray, shard: int, shard_cap: int, k: np.int64) -> None:
+    """Start fetching the cache lines where ``k``'s key and log-odds live (or would be inserted) in ``shard``:
+    a pass over many keys calls it some keys ahead, so their misses overlap."""
+    s = shard * shard_cap + home_slot(k, shard_cap)
+    prefetch(keys, s)
+    prefetch(logodds, s)

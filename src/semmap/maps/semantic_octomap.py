@@ -140,6 +140,29 @@ class CellArrays:
     sem_probs: np.ndarray  # (A, k) float32
 
 
+@dataclass
+class _ScanScratch:
+    """Per-point work arrays of one insertion, kept by the map and reused while big enough."""
+
+    keys: np.ndarray  # (n, 3) int32 keys of the points
+    valid: np.ndarray  # (n,) bool
+    first: np.ndarray  # (n,) int64 first point of each endpoint cell
+    packed: np.ndarray  # (n,) int64 packed key of each endpoint cell
+    targets: np.ndarray  # (n, 3) float32 ray target of each endpoint cell
+    hit: np.ndarray  # (n,) bool endpoint cell is a hit (not a max-range reading)
+    rows: np.ndarray  # (n,) int64 attribute row of each endpoint cell
+    free: np.ndarray = field(default_factory=lambda: np.empty(1 << 16, np.int64))  # packed free cells (grows)
+
+    @classmethod
+    def empty(cls, n: int = 0) -> _ScanScratch:
+        return cls(np.empty((n, 3), np.int32), np.empty(n, np.bool_), np.empty(n, np.int64), np.empty(n, np.int64),
+                   np.empty((n, 3), np.float32), np.empty(n, np.bool_), np.empty(n, np.int64))
+
+    @property
+    def capacity(self) -> int:
+        return int(self.valid.shape[0])
+
+
 class SemanticOctoMap:
     """Probabilistic 3D occupancy map with colour and top-k semantics per voxel, OctoMap-compatible keys.
 
@@ -170,9 +193,7 @@ class SemanticOctoMap:
         self._alloc_attributes(256)
         self._n_attr = 0
         self._grid = np.zeros(0, np.uint8)
-        self._keys_buf = np.zeros((0, 3), np.int32)
-        self._valid_buf = np.zeros(0, np.bool_)
-        self._first_buf = np.zeros(0, np.int64)
+        self._scratch = _ScanScratch.empty()
         self._warned_range = False
 
     # ------------------------------------------------------------------ storage
@@ -202,10 +223,13 @@ class SemanticOctoMap:
                 return
             cap = ht.round_capacity(cap * ht.GROWTH)  # a lane overflowed (very uneven keys): bigger still
 
-    def _grow_for(self, pending: np.ndarray) -> None:
-        """Grow mid-frame by the usual factor, or at once far enough for the stalled shards' remaining cells
-        (all counted as new) at the normal load, so that a frame rarely grows the table twice."""
-        need = max(self._shard_cap * ht.GROWTH, ((self._counts + pending) / ht.MAX_LOAD).max())
+    def _grow_for(self, pending: int) -> None:
+        """Grow mid-frame by the usual factor, or at once far enough for ``pending`` more cells (all counted as
+        new, spread over the shards like the cells so far) at the normal load, so that a frame rarely grows the
+        table twice."""
+        spread = self._counts.max() / max(self._counts.mean(), 1.0)
+        need = max(self._shard_cap * ht.GROWTH,
+                   (self._counts.max() + spread * pending / ht.N_SHARDS) / ht.MAX_LOAD)
         self._grow_table(ht.round_capacity(need))
 
     def _fill_limit(self) -> int:
@@ -223,14 +247,13 @@ class SemanticOctoMap:
         self._rgb[:n], self._rgb_count[:n] = old[0][:n], old[1][:n]
         self._sem_labels[:n], self._sem_probs[:n] = old[2][:n], old[3][:n]
 
-    def _point_buffers(self, n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Per-point scratch (keys, valid flags, endpoint indices) reused between scans."""
-        if self._keys_buf.shape[0] < n:
-            m = int(n * 1.25) + 16
-            self._keys_buf = np.empty((m, 3), np.int32)
-            self._valid_buf = np.empty(m, np.bool_)
-            self._first_buf = np.empty(m, np.int64)
-        return self._keys_buf[:n], self._valid_buf[:n], self._first_buf[:n]
+    def _point_buffers(self, n: int) -> _ScanScratch:
+        """Per-point scratch reused between scans (no page faults on every frame)."""
+        if self._scratch.capacity < n:
+            free = self._scratch.free  # sized by the scans seen so far, not by their points
+            self._scratch = _ScanScratch.empty(int(n * 1.25) + 16)
+            self._scratch.free = free
+        return self._scratch
 
     def _grid_buffer(self, cells: int) -> np.ndarray:
         if self._grid.shape[0] < cells:
@@ -251,7 +274,8 @@ class SemanticOctoMap:
         threads = nb.get_num_threads()
 
         # 1. keys and bounding box; the scan grid around them
-        keys, valid, first_buf = self._point_buffers(len(pts))
+        buf = self._point_buffers(len(pts))
+        keys, valid = buf.keys[: len(pts)], buf.valid[: len(pts)]
         boxes = kern.point_keys(pts, rf, threads, keys, valid)
         lo, hi = boxes[:, :3].min(axis=0), boxes[:, 3:].max(axis=0)
         if (hi < lo).any():
@@ -260,47 +284,54 @@ class SemanticOctoMap:
         origin_ok = bool(((okey >= 0) & (okey < KEY_LIMIT)).all())
         lo, hi, max_range = self._scan_box(lo, hi, okey, origin_ok, org, stats)
         (gnx, gny, gnz), (g0x, g0y, g0z) = (int(v) for v in hi - lo + 1), (int(v) for v in lo)
-        grid = self._grid_buffer(gnx * gny * gnz)
+        n_cells = gnx * gny * gnz
+        grid = self._grid_buffer(n_cells)
         t1 = time.perf_counter()
         stats.ms["keys"] = (t1 - t0) * 1e3
 
         try:  # the scratch grid must come back all-zero even if something below fails
-            # 2. voxel filter: the first point of each endpoint cell represents it (marked "hit" in the grid)
-            first = kern.dedupe_endpoints(keys, valid, grid, g0x, g0y, g0z, gnx, gny, gnz, first_buf)
+            # 2. voxel filter and ray targets: the first point of each endpoint cell represents it
+            m = kern.scan_endpoints(keys, valid, grid, g0x, g0y, g0z, gnx, gny, gnz, org, res, max_range,
+                                    buf.first, buf.packed, buf.targets, buf.hit)
+            first, packed, targets, hit = buf.first[:m], buf.packed[:m], buf.targets[:m], buf.hit[:m]
             outside = self._far_endpoints(keys, valid, lo, hi) if max_range >= 0 else None
+            if outside is not None and outside.size:
+                targets = np.concatenate([targets, kern.far_targets(keys, outside, org, res, max_range)])
             t2 = time.perf_counter()
             stats.ms["voxel_filter"] = (t2 - t1) * 1e3
 
             # 3. rays to every endpoint cell centre (or to the max-range point) mark free cells
-            targets, hit = kern.endpoint_targets(keys, first, org, res, max_range, grid,
-                                                 g0x, g0y, g0z, gnx, gny, gnz)
-            if outside is not None and outside.size:
-                far_t, _ = kern.endpoint_targets(keys, outside, org, res, max_range, grid,
-                                                 g0x, g0y, g0z, gnx, gny, gnz)
-                targets = np.concatenate([targets, far_t])
             if origin_ok:
-                stats.ray_steps = int(kern.cast_rays(org, targets, res, rf, grid, g0x, g0y, g0z, gny, gnz, threads))
+                stats.ray_steps = kern.cast_rays(org, targets, res, rf, grid, g0x, g0y, g0z, gny, gnz, threads)
             t3 = time.perf_counter()
             stats.ms["raycast"] = (t3 - t2) * 1e3
 
-            # 4. gather free cells and hit cells by shard (resets the grid)
-            free, free_off = kern.collect_free(grid, g0x, g0y, g0z, gnx, gny, gnz)
-            hit_first = first[hit]
-            hit_packed = pack_keys(keys[hit_first])
-            order, hit_off = kern.bucket_by_shard(hit_packed)
-            t4 = time.perf_counter()
-            stats.ms["collect"] = (t4 - t3) * 1e3
+            # 4. free cells in grid order (resets the grid)
+            buf.free, n_free = kern.collect_free(grid, n_cells, g0x, g0y, g0z, gny, gnz, buf.free)
         except BaseException:
-            grid[: gnx * gny * gnz] = 0
+            grid[:n_cells] = 0
             raise
-        stats.endpoints, stats.hits, stats.free_cells = int(first.size), int(hit_first.size), int(free.size)
+        stats.endpoints, stats.hits, stats.free_cells = m, int(np.count_nonzero(hit)), n_free
+        t4 = time.perf_counter()
+        stats.ms["collect"] = (t4 - t3) * 1e3
 
-        # 5. occupancy log-odds, then colour and semantics of the hit cells
-        slots = self._update_occupancy(free, free_off, hit_packed, order, hit_off)
+        # 5. occupancy log-odds (misses, then hits), attribute rows of first hits
+        slots = self._update_occupancy(buf.free, n_free, packed, hit, threads)
+        self._ensure_attributes(self._n_attr + m)
+        rows = buf.rows[:m]
+        self._n_attr = kern.assign_rows(self._attr, slots, hit, self._n_attr, rows)
         t5 = time.perf_counter()
         stats.ms["occupancy"] = (t5 - t4) * 1e3
+
+        # 5. colour and semantics of the hit cells
         if col is not None or sem_l is not None:
-            self._update_attributes(slots, hit_first, col, sem_l, sem_p, threads)
+            k = self.semantics.k
+            kern.update_attributes(rows, first,
+                                   col if col is not None else np.zeros((1, 3), np.uint8), col is not None,
+                                   sem_l if sem_l is not None else np.zeros((1, k), np.uint16),
+                                   sem_p if sem_p is not None else np.zeros((1, k), np.float32), sem_l is not None,
+                                   self._rgb, self._rgb_count, self._sem_labels, self._sem_probs,
+                                   self.semantics.lam, self.semantics.max_confidence, threads)
         stats.ms["attributes"] = (time.perf_counter() - t5) * 1e3
         return stats
 
@@ -326,9 +357,9 @@ class SemanticOctoMap:
             if sem_l.shape != (n, self.semantics.k):
                 raise ConfigError(f"semantics must be ({n}, {self.semantics.k}), got {sem_l.shape}")
             if self.label_set is not None:
-                bad = (sem_l != EMPTY_LABEL) & (sem_l >= len(self.label_set))
-                if bad.any():
-                    raise ConfigError(f"class id {int(sem_l[bad].max())} is outside the map's label set "
+                top = kern.max_class_id(sem_l, int(EMPTY_LABEL))
+                if top >= len(self.label_set):
+                    raise ConfigError(f"class id {top} is outside the map's label set "
                                       f"({len(self.label_set)} classes)")
         return pts, org, col, sem_l, sem_p
 
@@ -359,46 +390,36 @@ class SemanticOctoMap:
             lo[2] -= pad
         return lo, hi, max_range
 
-    def _update_occupancy(self, free: np.ndarray, free_off: np.ndarray, hit_packed: np.ndarray,
-                          order: np.ndarray, hit_off: np.ndarray) -> np.ndarray:
-        """Miss / hit log-odds updates per shard (a shard that fills up pauses, the table grows, it resumes);
-        returns the slot of every hit cell."""
-        progress = free_off[:-1].copy()
-        while True:
-            kern.update_free(self._keys, self._logodds, self._attr, self._counts, self._shard_cap,
-                             free, progress, free_off, self._miss, self._min, self._fill_limit())
-            if (progress >= free_off[1:]).all():
-                break
-            self._grow_for(free_off[1:] - progress)
-        slots = np.full(hit_packed.shape[0], -1, np.int64)
-        progress = hit_off[:-1].copy()
-        grown = False
-        while True:
-            kern.update_hits(self._keys, self._logodds, self._attr, self._counts, self._shard_cap,
-                             hit_packed, order, progress, hit_off, self._hit, self._max, self._fill_limit(), slots)
-            if (progress >= hit_off[1:]).all():
-                break
-            self._grow_for(hit_off[1:] - progress)
-            grown = True
+    def _update_occupancy(self, free: np.ndarray, n_free: int, packed: np.ndarray, hit: np.ndarray,
+                          threads: int) -> np.ndarray:
+        """Miss updates of the free cells, hit updates of the endpoint cells (a shard that fills up pauses, the
+        table grows, the update resumes); returns the slot of every endpoint cell (stale for max-range ones)."""
+        no_slots = np.zeros(0, np.int64)
+        self._update_cells(free, n_free, self._miss, no_slots, threads)
+        hits = packed[hit] if not hit.all() else packed
+        slots = np.empty(hits.shape[0], np.int64)
+        grown = self._update_cells(hits, hits.shape[0], self._hit, slots, threads)
         if self._counts.max() > ht.MAX_LOAD * self._shard_cap:
             self._grow_table(ht.round_capacity(self._shard_cap * ht.GROWTH))
             grown = True
         if grown:  # slots recorded before the table moved are stale
-            slots = ht.lookup_many(self._keys, self._shard_cap, hit_packed)
-        return slots
+            slots = ht.lookup_many(self._keys, self._shard_cap, hits)
+        if hits is packed:
+            return slots
+        out = np.zeros(packed.shape[0], np.int64)
+        out[hit] = slots
+        return out
 
-    def _update_attributes(self, slots: np.ndarray, hit_first: np.ndarray, col: np.ndarray | None,
-                           sem_l: np.ndarray | None, sem_p: np.ndarray | None, threads: int) -> None:
-        """Attribute rows for first-time hits, then colour running means and top-k fusion (in parallel)."""
-        self._ensure_attributes(self._n_attr + int((self._attr[slots] < 0).sum()))
-        self._n_attr = kern.assign_attributes(self._attr, slots, self._n_attr)
-        k = self.semantics.k
-        kern.update_attributes(self._attr, slots, hit_first,
-                               col if col is not None else np.zeros((1, 3), np.uint8), col is not None,
-                               sem_l if sem_l is not None else np.zeros((1, k), np.uint16),
-                               sem_p if sem_p is not None else np.zeros((1, k), np.float32), sem_l is not None,
-                               self._rgb, self._rgb_count, self._sem_labels, self._sem_probs,
-                               self.semantics.lam, self.semantics.max_confidence, threads)
+    def _update_cells(self, cells: np.ndarray, n: int, delta: np.float32, slots: np.ndarray, threads: int) -> bool:
+        """Add ``delta`` to the log-odds of ``cells[:n]``, clamped, growing the table as shards fill; returns
+        whether it grew."""
+        progress = np.zeros(max(1, threads), np.int64)
+        grown = False
+        while not kern.update_cells(cells, n, progress, self._keys, self._logodds, self._attr, self._counts,
+                                    self._shard_cap, delta, self._min, self._max, self._fill_limit(), slots):
+            self._grow_for(int((n - progress).max()))
+            grown = True
+        return grown
 
     def _clip_box(self, lo: np.ndarray, hi: np.ndarray, okey: np.ndarray, max_range: float,
                   origin_ok: bool) -> tuple[np.ndarray, np.ndarray]:
@@ -697,4 +718,5 @@ def compile_kernels() -> float:
     m.semantics_at(pts[:8])
     m.coarsen(1)
     m.tree()
+    kern.compile_parallel_variants()
     return time.perf_counter() - t
