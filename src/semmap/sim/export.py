@@ -5,6 +5,10 @@ PNG), ``rgb.txt``, ``depth.txt``, ``groundtruth.txt``, ``camera.json`` (written 
 :func:`semmap.datasets.tum_writer.write_tum_sequence`), plus ``labelset.json``, ``objects.json`` and
 ``scene.json`` (generator parameters, trajectory kind, frame count, seeds). Timestamps start at 0 and advance
 by 1/30 s; frames are rendered and written one at a time, so memory stays bounded.
+
+``image_size`` stores smaller frames (e.g. 160x120 training data for ``semmap train``): each frame is rendered
+at the camera's full size and then reduced the way a network's input is (colour by pixel-area averaging,
+depth, labels and instances by nearest neighbour), with the intrinsics scaled to match.
 """
 
 from __future__ import annotations
@@ -13,6 +17,7 @@ import json
 from collections.abc import Callable, Iterator
 from pathlib import Path
 
+import cv2
 import numpy as np
 
 from semmap.datasets.tum_writer import write_tum_sequence
@@ -40,33 +45,64 @@ def simulate_sequence(
     noise: bool = True,
     intrinsics: CameraIntrinsics | None = None,
     progress: Callable[[int, int], None] | None = None,
+    image_size: tuple[int, int] | None = None,
+    fps: float = FPS,
 ) -> Path:
     """Render ``frames`` frames of a ``trajectory`` through scene (``scene_seed``, ``kind``, ``size``) into
-    ``out_dir`` (TUM layout plus ground truth) and return the folder. Same arguments, same bytes."""
+    ``out_dir`` (TUM layout plus ground truth) and return the folder. Same arguments, same bytes. A low ``fps``
+    spreads few frames over the whole path (varied views for training data)."""
     if not isinstance(frames, (int, np.integer)) or frames <= 0:
         raise SimulationError(f"frames must be a positive integer, got {frames!r}")
     root = Path(out_dir)
     root.mkdir(parents=True, exist_ok=True)
     scene = generate_scene(scene_seed, kind, size)
-    poses = make_trajectory(scene, trajectory, int(frames), seed=scene_seed, fps=FPS)
+    poses = make_trajectory(scene, trajectory, int(frames), seed=scene_seed, fps=fps)
     renderer = Renderer(scene, intrinsics, noise=KinectNoise(seed=scene_seed) if noise else False)
-    write_tum_sequence(root, render_frames(renderer, poses, progress), depth_scale=DEPTH_SCALE, write_labels=True)
+    frames_out = render_frames(renderer, poses, progress, fps=fps)
+    stored = renderer.intrinsics
+    if image_size is not None:
+        stored = resized_intrinsics(renderer.intrinsics, image_size)
+        frames_out = (reduce_frame(f, stored) for f in frames_out)
+    write_tum_sequence(root, frames_out, depth_scale=DEPTH_SCALE, write_labels=True)
     INDOOR_LABELS.save(root / "labelset.json")
     write_text_atomic(root / "objects.json", json.dumps([o.to_dict() for o in scene.objects], indent=1) + "\n")
-    info = {**scene.params, "trajectory": trajectory, "frames": int(frames), "fps": FPS, "noise": bool(noise),
-            "depth_scale": DEPTH_SCALE, "intrinsics": renderer.intrinsics.to_dict(),
+    info = {**scene.params, "trajectory": trajectory, "frames": int(frames), "fps": fps, "noise": bool(noise),
+            "depth_scale": DEPTH_SCALE, "intrinsics": stored.to_dict(),
             "n_triangles": scene.n_triangles, "n_objects": len(scene.objects)}
     write_text_atomic(root / "scene.json", json.dumps(info, indent=1) + "\n")
     return root
 
 
+def resized_intrinsics(intrinsics: CameraIntrinsics, size: tuple[int, int]) -> CameraIntrinsics:
+    """Intrinsics of images resized to ``size`` (width, height), pixel-centre convention per axis."""
+    w, h = int(size[0]), int(size[1])
+    if w < 8 or h < 8:
+        raise SimulationError(f"image size must be at least 8x8, got {w}x{h}")
+    sx, sy = w / intrinsics.width, h / intrinsics.height
+    return CameraIntrinsics(w, h, intrinsics.fx * sx, intrinsics.fy * sy, (intrinsics.cx + 0.5) * sx - 0.5,
+                            (intrinsics.cy + 0.5) * sy - 0.5)
+
+
+def reduce_frame(frame: Frame, intrinsics: CameraIntrinsics) -> Frame:
+    """``frame`` resized to ``intrinsics``' size: colour area-averaged, depth and id images nearest-neighbour
+    (no blending of depths across edges, no invented class ids)."""
+    size = (intrinsics.width, intrinsics.height)
+
+    def nearest(a: np.ndarray | None) -> np.ndarray | None:
+        return None if a is None else cv2.resize(a, size, interpolation=cv2.INTER_NEAREST)
+
+    instances = None if frame.instances is None else nearest(frame.instances.astype(np.float32)).astype(np.int32)
+    return frame.with_(rgb=cv2.resize(frame.rgb, size, interpolation=cv2.INTER_AREA), depth=nearest(frame.depth),
+                       labels=nearest(frame.labels), instances=instances, intrinsics=intrinsics)
+
+
 def render_frames(renderer: Renderer, poses: np.ndarray,
-                  progress: Callable[[int, int], None] | None = None) -> Iterator[Frame]:
-    """Frames (rgb, depth, labels, instances, pose) rendered lazily along ``poses`` at 30 frames/s."""
+                  progress: Callable[[int, int], None] | None = None, fps: float = FPS) -> Iterator[Frame]:
+    """Frames (rgb, depth, labels, instances, pose) rendered lazily along ``poses`` at ``fps`` frames/s."""
     n = len(poses)
     for i, T in enumerate(poses):
         view = renderer.render(T, frame_index=i)
-        stamp = i / FPS
+        stamp = i / fps
         yield Frame(index=i, timestamp=stamp, rgb=view.rgb, depth=view.depth, intrinsics=renderer.intrinsics,
                     T_world_cam=np.asarray(T, np.float64), labels=view.labels, instances=view.instances,
                     name=f"{stamp:.6f}")
