@@ -1,9 +1,9 @@
 """Runs a dense-prediction network as a segmenter: resize, normalise, batch, infer, resize back, top-k.
 
-The network itself is any ``torch.nn.Module`` mapping (N, 3, h, w) normalised RGB to (N, K, h', w') logits;
-:class:`NetworkSegmenter` does everything around it, so new architectures (CBAM-PSPNet, the RGB-D fusion net)
-slot in by providing a module.  Inference runs in PyTorch or, when faster, in ONNX Runtime from an ONNX file
-exported once and cached.
+The network itself is any ``torch.nn.Module`` mapping (N, 3, h, w) normalised RGB to (N, K, h', w') logits -
+and, when the module says ``uses_depth``, a second input (N, 1, h, w) of depth in metres (the RGB-D network);
+:class:`NetworkSegmenter` does everything around it, so new architectures slot in by providing a module.
+Inference runs in PyTorch or, when faster, in ONNX Runtime from an ONNX file exported once and cached.
 """
 
 from __future__ import annotations
@@ -40,6 +40,9 @@ class NetworkInput:
     multiple: int = 16
     mean: tuple[float, float, float] = IMAGENET_MEAN
     std: tuple[float, float, float] = IMAGENET_STD
+    #: how colour is reduced: ``cv2.INTER_AREA`` (pixel-area averaging, what semmap's own networks train on) or
+    #: ``cv2.INTER_LINEAR`` (what ESPNetv2's measurements were made with)
+    interpolation: int = cv2.INTER_LINEAR
 
     def __post_init__(self) -> None:
         if self.size is None and self.short_side is None:
@@ -65,8 +68,21 @@ class NetworkInput:
         mean = np.asarray(self.mean, np.float32)
         inv_std = 1.0 / np.asarray(self.std, np.float32)
         for i, rgb in enumerate(rgbs):
-            img = cv2.resize(rgb, (w, h), interpolation=cv2.INTER_LINEAR) if rgb.shape[:2] != (h, w) else rgb
+            interp = self.interpolation
+            if interp == cv2.INTER_AREA and (rgb.shape[0] < h or rgb.shape[1] < w):
+                interp = cv2.INTER_LINEAR  # enlarging: nothing to average
+            img = cv2.resize(rgb, (w, h), interpolation=interp) if rgb.shape[:2] != (h, w) else rgb
             out[i] = ((img.astype(np.float32) * scale - mean) * inv_std).transpose(2, 0, 1)
+        return out
+
+    def depth_batch(self, depths: Sequence[np.ndarray], image_shape: tuple[int, int]) -> np.ndarray:
+        """(N, 1, h, w) float32 depth in metres (0 = invalid) at the network input size of images of
+        ``image_shape`` (H, W), resized by nearest neighbour (no depths invented across edges)."""
+        w, h = self.size_for(image_shape[1], image_shape[0])
+        out = np.empty((len(depths), 1, h, w), np.float32)
+        for i, d in enumerate(depths):
+            d = np.nan_to_num(np.asarray(d, np.float32), nan=0.0, posinf=0.0, neginf=0.0)
+            out[i, 0] = cv2.resize(d, (w, h), interpolation=cv2.INTER_NEAREST) if d.shape != (h, w) else d
         return out
 
 
@@ -113,19 +129,31 @@ class NetworkSegmenter:
     def label_set(self) -> LabelSet:
         return self._label_set
 
+    @property
+    def uses_depth(self) -> bool:
+        """Whether the network also takes a depth image."""
+        return bool(getattr(self._model, "uses_depth", False))
+
     # ------------------------------------------------------------------ inference
-    def logits(self, rgbs: Sequence[np.ndarray]) -> np.ndarray:
-        """(N, K, h', w') float32 network output for a batch of RGB images (at network resolution)."""
+    def logits(self, rgbs: Sequence[np.ndarray], depths: Sequence[np.ndarray] | None = None) -> np.ndarray:
+        """(N, K, h', w') float32 network output for a batch of RGB images (and depth images in metres, for a
+        network that uses depth), at network resolution."""
         x = self.net_input.batch(rgbs)
+        inputs = {"image": x}
+        if self.uses_depth:
+            if depths is None:
+                raise ConfigError(f"{self.name}: this network needs depth images")
+            inputs["depth"] = self.net_input.depth_batch(depths, rgbs[0].shape[:2])
         if self.backend == "onnx":
             if x.shape not in self._sessions:
                 self._sessions[x.shape] = _onnx_session(self._model, x.shape, self._cache_dir, self._cache_key,
-                                                        self._threads)
-            return self._sessions[x.shape].run(None, {"image": x})[0]
+                                                        self._threads, with_depth=self.uses_depth)
+            return self._sessions[x.shape].run(None, inputs)[0]
         with self._torch.inference_mode():
-            return self._model(self._torch.from_numpy(x)).numpy()
+            return self._model(*(self._torch.from_numpy(v) for v in inputs.values())).numpy()
 
-    def _top_classes(self, rgbs: Sequence[np.ndarray], k: int) -> list[tuple[np.ndarray, np.ndarray]]:
+    def _top_classes(self, rgbs: Sequence[np.ndarray], k: int,
+                     depths: Sequence[np.ndarray] | None = None) -> list[tuple[np.ndarray, np.ndarray]]:
         """Per image, (labels, probs) of its ``k`` most likely classes at the image's own resolution.
 
         Softmax runs on the network's output grid; probabilities are then sampled bilinearly at each image pixel
@@ -136,7 +164,7 @@ class NetworkSegmenter:
         h, w = rgbs[0].shape[:2]
         if any(r.shape[:2] != (h, w) for r in rgbs):
             raise ConfigError("all images of a batch must have the same size")
-        logits = np.ascontiguousarray(self.logits(rgbs), dtype=np.float32)
+        logits = np.ascontiguousarray(self.logits(rgbs, depths), dtype=np.float32)
         if logits.ndim != 4:
             raise ConfigError(f"{self.name}: network output has shape {logits.shape}, expected (N, K, h, w)")
         if logits.shape[1] != len(self._label_set):
@@ -149,40 +177,67 @@ class NetworkSegmenter:
         return [resample_topk(softmax_channels_last(lg), h, w, sy, oy, sx, ox, k, EMPTY_LABEL) for lg in logits]
 
     def probabilities(self, rgb: np.ndarray, depth: np.ndarray | None = None) -> np.ndarray:
-        """(H, W, K) float16 class probabilities of one image (``depth`` is unused by RGB-only networks)."""
-        return self.probabilities_batch([rgb])[0]
+        """(H, W, K) float16 class probabilities of one image (``depth`` in metres, for RGB-D networks)."""
+        return self.probabilities_batch([rgb], None if depth is None else [depth])[0]
 
-    def probabilities_batch(self, rgbs: Sequence[np.ndarray]) -> np.ndarray:
+    def probabilities_batch(self, rgbs: Sequence[np.ndarray],
+                            depths: Sequence[np.ndarray] | None = None) -> np.ndarray:
         """(N, H, W, K) float16 class probabilities of a batch of equally sized images."""
         n_classes = len(self._label_set)
         out = np.zeros((len(rgbs), *rgbs[0].shape[:2], n_classes), np.float16)
-        for i, (labels, probs) in enumerate(self._top_classes(rgbs, n_classes)):
+        for i, (labels, probs) in enumerate(self._top_classes(rgbs, n_classes, depths)):
             np.put_along_axis(out[i], labels.astype(np.intp), probs.astype(np.float16), axis=-1)
         return out
 
     def predict(self, rgb: np.ndarray, depth: np.ndarray | None = None) -> TopKProbs:
-        """(H, W, k) top-k class distribution of one image."""
-        return self.predict_batch([rgb])[0]
+        """(H, W, k) top-k class distribution of one image (``depth`` in metres, for RGB-D networks)."""
+        return self.predict_batch([rgb], None if depth is None else [depth])[0]
 
-    def predict_batch(self, rgbs: Sequence[np.ndarray]) -> list[TopKProbs]:
+    def predict_batch(self, rgbs: Sequence[np.ndarray],
+                      depths: Sequence[np.ndarray] | None = None) -> list[TopKProbs]:
         """Top-k class distributions of images, run through the network ``batch_size`` at a time."""
         out: list[TopKProbs] = []
         for start in range(0, len(rgbs), self.batch_size):
-            out.extend(TopKProbs(labels, probs)
-                       for labels, probs in self._top_classes(rgbs[start:start + self.batch_size], self.k))
+            stop = start + self.batch_size
+            out.extend(TopKProbs(labels, probs) for labels, probs in
+                       self._top_classes(rgbs[start:stop], self.k, None if depths is None else depths[start:stop]))
         return out
 
     def segment(self, frame: Frame) -> TopKProbs:
         """Class distribution on the frame's depth grid; a frame that keeps its colour camera's own image
-        (``raw_color``) is segmented on that whole view and the result carried onto the depth grid."""
+        (``raw_color``) is segmented on that whole view and the result carried onto the depth grid (RGB-D
+        networks take the colour registered onto the depth image, with the depth)."""
         return self.segment_batch([frame])[0]
 
     def segment_batch(self, frames: Sequence[Frame]) -> list[TopKProbs]:
+        if self.uses_depth:
+            return self.predict_batch([f.rgb for f in frames], [f.depth for f in frames])
         tops = self.predict_batch([f.rgb if f.raw_color is None else f.raw_color.image for f in frames])
         return [TopKProbs(*onto_depth_grid(f, t.labels, t.probs)) for f, t in zip(frames, tops, strict=True)]
 
 
-def _onnx_session(model, shape: tuple[int, ...], cache_dir: Path | None, cache_key: str, threads: int | None):
+def export_onnx(model, path: Path, shape: tuple[int, ...], *, with_depth: bool = False) -> Path:
+    """Export ``model`` to ONNX at input ``shape`` (N, 3, H, W) (inputs ``image`` and, ``with_depth``,
+    ``depth`` (N, 1, H, W); output ``logits``), written atomically."""
+    import torch
+
+    n, _, h, w = shape
+    args = (torch.zeros(n, 3, h, w),) + ((torch.ones(n, 1, h, w),) if with_depth else ())
+    names = ["image", "depth"] if with_depth else ["image"]
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_suffix(".onnx.tmp")
+    with torch.inference_mode(), warnings.catch_warnings():
+        warnings.simplefilter("ignore", DeprecationWarning)  # the TorchScript exporter needs no onnxscript
+        # one graph per input shape is the intent: the tracer's notes on shapes read as constants are noise
+        warnings.simplefilter("ignore", torch.jit.TracerWarning)
+        torch.onnx.export(model, args, str(tmp), input_names=names, output_names=["logits"], opset_version=17,
+                          dynamo=False)
+    tmp.replace(path)
+    return path
+
+
+def _onnx_session(model, shape: tuple[int, ...], cache_dir: Path | None, cache_key: str, threads: int | None,
+                  with_depth: bool = False):
     """An ONNX Runtime session for ``model`` at input ``shape`` (N, 3, H, W), exported once to ``cache_dir``
     (keyed by the weights and the shape)."""
     import onnxruntime as ort
@@ -193,16 +248,8 @@ def _onnx_session(model, shape: tuple[int, ...], cache_dir: Path | None, cache_k
     key = hashlib.sha1(f"{cache_key}|{n}x{w}x{h}|{torch.__version__}".encode()).hexdigest()[:16]
     path = root / f"{type(model).__name__.lower()}-{key}.onnx"
     if not path.is_file():
-        root.mkdir(parents=True, exist_ok=True)
-        tmp = path.with_suffix(".onnx.tmp")
         log.info("exporting %s to ONNX (%s), once", type(model).__name__, path)
-        with torch.inference_mode(), warnings.catch_warnings():
-            warnings.simplefilter("ignore", DeprecationWarning)  # the TorchScript exporter needs no onnxscript
-            # one graph per input shape is the intent: the tracer's notes on shapes read as constants are noise
-            warnings.simplefilter("ignore", torch.jit.TracerWarning)
-            torch.onnx.export(model, (torch.zeros(n, 3, h, w),), str(tmp), input_names=["image"],
-                              output_names=["logits"], opset_version=17, dynamo=False)
-        tmp.replace(path)
+        export_onnx(model, path, shape, with_depth=with_depth)
     options = ort.SessionOptions()
     if threads is not None:
         options.intra_op_num_threads = int(threads)

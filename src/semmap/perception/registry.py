@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 from semmap.errors import ConfigError
@@ -19,7 +20,27 @@ SEGMENTERS = {
     "oracle": "simulated network made from ground-truth labels (simulator sequences)",
     "precomputed": "per-frame label PNGs or .npy/.npz probabilities from a folder (--weights FOLDER)",
     "espnetv2": "ESPNetv2 trained on PASCAL VOC, 21 classes (--weights espnetv2_s_2.0_pascal_384x384.pth)",
+    "fcn": "FCN-8s trained by semmap on simulated scenes (shipped weights/fcn.pt, or --weights RUN/best.pt)",
+    "pspnet": "PSPNet trained by semmap (weights/pspnet.pt)",
+    "cbam-pspnet": "CBAM-PSPNet trained by semmap (weights/cbam-pspnet.pt)",
+    "rgbd-net": "the RGB-D multi-scale network trained by semmap, colour + depth (weights/rgbd-net.pt)",
+    "rgb-only": "the RGB-D network's colour-only twin trained by semmap (weights/rgb-only.pt)",
 }
+#: Segmenters that are semmap's own trained networks (their weight files hold architecture and label set).
+TRAINED_NETWORKS = ("fcn", "pspnet", "cbam-pspnet", "rgbd-net", "rgb-only")
+#: Environment variable naming another folder of shipped weights.
+WEIGHTS_ENV = "SEMMAP_WEIGHTS"
+
+
+def shipped_weights_dir() -> Path:
+    """The repository's ``weights/`` folder (or ``$SEMMAP_WEIGHTS``)."""
+    env = os.environ.get(WEIGHTS_ENV)
+    return Path(env) if env else Path(__file__).resolve().parents[3] / "weights"
+
+
+def shipped_weights(name: str) -> Path:
+    """Path of the shipped weight file of network ``name`` (``weights/<name>.pt``)."""
+    return shipped_weights_dir() / f"{name}.pt"
 
 
 def make_segmenter(name: str, *, weights: Path | None = None, label_set: LabelSet | None = None, k: int = 3,
@@ -55,4 +76,33 @@ def make_segmenter(name: str, *, weights: Path | None = None, label_set: LabelSe
         return NetworkSegmenter(model, PASCAL_VOC, name="espnetv2", net_input=net_input, k=k, backend=backend,
                                 batch_size=batch_size, threads=threads,
                                 cache_key=f"{Path(weights).resolve()}|{stat.st_size}|{stat.st_mtime_ns}|half")
+    if name in TRAINED_NETWORKS:
+        return trained_network_segmenter(name, weights=weights, k=k, backend=backend, batch_size=batch_size,
+                                         input_size=input_size, threads=threads)
     raise ConfigError(f"unknown segmenter {name!r}; choose one of {', '.join(SEGMENTERS)}")
+
+
+def trained_network_segmenter(name: str, *, weights: Path | None = None, k: int = 3, backend: str = "torch",
+                              batch_size: int = 1, input_size: tuple[int, int] | int | None = None,
+                              threads: int | None = None) -> Segmenter:
+    """A segmenter running one of semmap's trained networks from its weight file (default: the shipped one),
+    at the input size it was trained at unless ``input_size`` says otherwise."""
+    import cv2
+
+    from semmap.perception.network import NetworkInput, NetworkSegmenter
+    from semmap.perception.networks.registry import load_weights
+
+    path = Path(weights) if weights is not None else shipped_weights(name)
+    if weights is None and not path.is_file():
+        raise ConfigError(f"--segmenter {name}: no shipped weights at {path}; train them (semmap train) and pass "
+                          f"--weights RUN_DIR/best.pt")
+    loaded = load_weights(path)
+    if loaded.spec.model != name:
+        raise ConfigError(f"{path}: holds a {loaded.spec.model} network, not {name}")
+    size = loaded.input_size if input_size is None else input_size
+    net_input = (NetworkInput(short_side=size, interpolation=cv2.INTER_AREA) if isinstance(size, int)
+                 else NetworkInput(size=tuple(size), short_side=None, interpolation=cv2.INTER_AREA))
+    stat = path.stat()
+    return NetworkSegmenter(loaded.model, loaded.label_set, name=name, net_input=net_input, k=k, backend=backend,
+                            batch_size=batch_size, threads=threads,
+                            cache_key=f"{path.resolve()}|{stat.st_size}|{stat.st_mtime_ns}")

@@ -1,0 +1,158 @@
+"""Networks by name, and their weight files: one ``.pt`` holding the architecture (:class:`NetworkSpec`), the
+label set, the training input size and the state dict (float16 on disk, float32 in memory)."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass, fields, replace
+from pathlib import Path
+
+import torch
+
+from semmap.errors import ConfigError, FormatError
+from semmap.perception.networks.base import SegmentationNet
+from semmap.types import LabelSet
+
+#: name -> what it is (help texts; the names ``semmap train --model`` and ``semmap run --segmenter`` take).
+MODELS: dict[str, str] = {
+    "fcn": "FCN-8s over a ResNet (or VGG-16) backbone",
+    "pspnet": "PSPNet: dilated ResNet, pyramid pooling 1/2/3/6, auxiliary head",
+    "cbam-pspnet": "CBAM-PSPNet: PSPNet with channel + spatial attention in every residual block",
+    "rgbd-net": "RGB-D two-branch VGG-16 with step-by-step fusion and multi-scale fusion module (needs depth)",
+    "rgb-only": "the RGB-D network's colour-only twin",
+}
+#: Marker and version of semmap's network weight files.
+WEIGHTS_FORMAT = "semmap-network"
+WEIGHTS_VERSION = 1
+
+
+@dataclass(frozen=True)
+class NetworkSpec:
+    """Everything that fixes a network's architecture: ``model`` (a :data:`MODELS` name), classes, width
+    multiplier, ResNet depth (FCN / PSPNet / CBAM-PSPNet), FCN backbone, RGB-D fusion-module dilation."""
+
+    model: str
+    num_classes: int
+    width: float = 1.0
+    depth: int = 50
+    backbone: str = "resnet"
+    msff_dilation: int = 12
+
+    def __post_init__(self) -> None:
+        if self.model not in MODELS:
+            raise ConfigError(f"unknown network {self.model!r}; choose one of {', '.join(MODELS)}")
+        if not (math.isfinite(self.width) and 0 < self.width <= 4):
+            raise ConfigError(f"width multiplier must be in (0, 4], got {self.width}")
+
+    @property
+    def uses_depth(self) -> bool:
+        return self.model == "rgbd-net"
+
+    def describe(self) -> str:
+        """Short name with the size, e.g. ``cbam-pspnet-r18-w0.25``."""
+        if self.model in ("rgbd-net", "rgb-only"):
+            return f"{self.model}-vgg16-w{self.width:g}"
+        bb = "vgg16" if self.model == "fcn" and self.backbone == "vgg16" else f"r{self.depth}"
+        return f"{self.model}-{bb}-w{self.width:g}"
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+    @classmethod
+    def from_dict(cls, d: dict) -> NetworkSpec:
+        known = {f.name for f in fields(cls)}
+        return cls(**{k: v for k, v in d.items() if k in known})
+
+
+def build_network(spec: NetworkSpec, *, full_resolution: bool = False) -> SegmentationNet:
+    """A freshly initialised network for ``spec``."""
+    try:
+        if spec.model == "fcn":
+            from semmap.perception.networks.fcn import FCN8s
+
+            return FCN8s(spec.num_classes, backbone=spec.backbone, depth=spec.depth, width=spec.width,
+                         full_resolution=full_resolution)
+        if spec.model == "pspnet":
+            from semmap.perception.networks.pspnet import PSPNet
+
+            return PSPNet(spec.num_classes, depth=spec.depth, width=spec.width, full_resolution=full_resolution)
+        if spec.model == "cbam-pspnet":
+            from semmap.perception.networks.cbam_pspnet import CBAMPSPNet
+
+            return CBAMPSPNet(spec.num_classes, depth=spec.depth, width=spec.width, full_resolution=full_resolution)
+        from semmap.perception.networks.rgbd_net import RGBDNet
+
+        return RGBDNet(spec.num_classes, width=spec.width, use_depth=spec.model == "rgbd-net",
+                       msff_dilation=spec.msff_dilation, full_resolution=full_resolution)
+    except ValueError as exc:
+        raise ConfigError(f"cannot build {spec.describe()}: {exc}") from None
+
+
+def count_parameters(model: torch.nn.Module) -> int:
+    return sum(p.numel() for p in model.parameters())
+
+
+@dataclass(frozen=True)
+class NetworkWeights:
+    """A loaded weight file: the network (eval mode, float32), its spec, label set, training input size
+    (width, height) and the metadata stored with it (training command, data, metrics)."""
+
+    model: SegmentationNet
+    spec: NetworkSpec
+    label_set: LabelSet
+    input_size: tuple[int, int]
+    meta: dict
+
+
+def save_weights(path: str | Path, model: SegmentationNet, spec: NetworkSpec, label_set: LabelSet,
+                 input_size: tuple[int, int], meta: dict | None = None) -> Path:
+    """Write a weight file atomically (float16 tensors: half the size, no measurable accuracy change)."""
+    from semmap.io.atomic import write_bytes_atomic
+
+    state = {k: (v.detach().cpu().half() if v.is_floating_point() else v.detach().cpu())
+             for k, v in model.state_dict().items()}
+    blob = {"format": WEIGHTS_FORMAT, "version": WEIGHTS_VERSION, "spec": spec.to_dict(),
+            "label_set": label_set.to_dict(), "input_size": list(input_size), "meta": meta or {},
+            "state_dict": state}
+    import io
+
+    buf = io.BytesIO()
+    torch.save(blob, buf)
+    return write_bytes_atomic(path, buf.getvalue())
+
+
+def load_weights(path: str | Path, *, full_resolution: bool = False) -> NetworkWeights:
+    """Read a weight file written by :func:`save_weights` (or a training checkpoint); FormatError naming the
+    file when it is not one."""
+    path = Path(path)
+    if not path.is_file():
+        raise FormatError(f"{path}: network weights file not found")
+    try:
+        blob = torch.load(path, map_location="cpu", weights_only=True)
+    except Exception as exc:  # torch raises many types for a corrupt / non-torch file
+        raise FormatError(f"{path}: not a readable PyTorch file ({type(exc).__name__}: {exc})") from None
+    if not isinstance(blob, dict) or blob.get("format") != WEIGHTS_FORMAT:
+        raise FormatError(f"{path}: not a semmap network weights file (no '{WEIGHTS_FORMAT}' marker)")
+    try:
+        spec = NetworkSpec.from_dict(blob["spec"])
+        label_set = LabelSet.from_dict(blob["label_set"])
+        input_size = (int(blob["input_size"][0]), int(blob["input_size"][1]))
+        state = blob["state_dict"]
+    except (KeyError, TypeError, IndexError, ValueError, ConfigError) as exc:
+        raise FormatError(f"{path}: malformed network weights file ({exc})") from None
+    if spec.num_classes != len(label_set):
+        raise FormatError(f"{path}: network predicts {spec.num_classes} classes but its label set has "
+                          f"{len(label_set)}")
+    model = build_network(spec, full_resolution=full_resolution)
+    expected = model.state_dict()
+    bad = sorted(set(expected) ^ set(state))
+    bad += [k for k in expected if k in state and tuple(state[k].shape) != tuple(expected[k].shape)]
+    if bad:
+        raise FormatError(f"{path}: state dict does not match {spec.describe()} ({len(bad)} tensors differ, "
+                          f"e.g. {bad[0]})")
+    model.load_state_dict({k: v.to(expected[k].dtype) for k, v in state.items()})
+    return NetworkWeights(model.eval(), spec, label_set, input_size, dict(blob.get("meta") or {}))
+
+
+def with_classes(spec: NetworkSpec, num_classes: int) -> NetworkSpec:
+    return replace(spec, num_classes=num_classes)
