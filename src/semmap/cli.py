@@ -102,10 +102,12 @@ def run(
                                                     rich_help_panel=_SEMANTICS)] = 0.9,
     lam: Annotated[float, typer.Option("--lambda", help="penalty λ of the top-3 fusion",
                                        rich_help_panel=_SEMANTICS)] = 0.9,
-    segmenter: Annotated[str | None, typer.Option(help="oracle | precomputed | espnetv2 (default: from --semantics)",
+    segmenter: Annotated[str | None, typer.Option(help="oracle | precomputed | espnetv2 | fcn | pspnet | cbam-pspnet "
+                                                       "| rgbd-net | rgb-only (default: from --semantics)",
                                                   rich_help_panel=_SEMANTICS)] = None,
-    weights: Annotated[Path | None, typer.Option(help="network weights (espnetv2), or the predictions folder "
-                                                 "(precomputed)", rich_help_panel=_SEMANTICS)] = None,
+    weights: Annotated[Path | None, typer.Option(help="network weights (espnetv2; semmap's networks default to the "
+                                                 "shipped weights/), or the predictions folder (precomputed)",
+                                                 rich_help_panel=_SEMANTICS)] = None,
     segment_every: Annotated[int, typer.Option(help="segment every k-th frame (others add geometry and colour)",
                                                rich_help_panel=_SEMANTICS)] = 1,
     keyframes: Annotated[bool, typer.Option("--keyframes", help="segment only frames where the camera moved "
@@ -276,14 +278,19 @@ def simulate(
     trajectory: Annotated[str, typer.Option(help="desk | loop | orbit | walk")] = "loop",
     frames: Annotated[int, typer.Option(help="frames to render (30 per second)")] = 300,
     noise: Annotated[bool, typer.Option("--noise/--no-noise", help="Kinect-like depth noise")] = True,
+    image_size: Annotated[str | None, typer.Option(help="store frames reduced to WIDTHxHEIGHT (e.g. 160x120 "
+                                                   "training data for semmap train); rendered at 640x480")] = None,
 ) -> None:
     """Render a procedural indoor scene to a TUM RGB-D folder with labels, instances, objects and scene.json."""
     _setup_logging(False)
     from semmap.sim.export import simulate_sequence
 
+    stored = _size(image_size)
+    if isinstance(stored, int):
+        raise SemmapError(f"--image-size must be WIDTHxHEIGHT, got {image_size!r}")
     with _ProgressCallback("rendering", frames) as callback:
         root = simulate_sequence(out, scene_seed=scene_seed, kind=kind, size=size, trajectory=trajectory,
-                                 frames=frames, noise=noise, progress=callback)
+                                 frames=frames, noise=noise, progress=callback, image_size=stored)
     _console().print(f"wrote {frames} frames to {root} (map it with: semmap run {root} --out OUT)")
 
 
@@ -336,6 +343,88 @@ def demo(
     result = Pipeline(config, segmenter=segmenter, dataset=dataset, ground_truth=ground_truth,
                       progress=progress_bar("simulate + map"), title=f"semmap demo: {dataset.name}").run()
     _print_summary(result.report, result.out_dir)
+
+
+@app.command()
+def train(
+    model: Annotated[str, typer.Option(help="fcn | pspnet | cbam-pspnet | rgbd-net | rgb-only")],
+    data: Annotated[list[Path], typer.Option(help="training folder (semmap simulate output, or images/ + labels/ "
+                                                  "[+ depth/]) or a folder of them; repeat for several")],
+    out: Annotated[Path, typer.Option("--out", "-o", help="run folder: checkpoints, logs, curve, best.pt")],
+    val: Annotated[list[Path] | None, typer.Option(help="validation folder (or folder of them); default: every "
+                                                        "10th training image")] = None,
+    epochs: Annotated[float, typer.Option(help="passes over the training images")] = 12.0,
+    iterations: Annotated[int | None, typer.Option(help="SGD steps (overrides --epochs)")] = None,
+    batch: Annotated[int, typer.Option(help="images per step")] = 8,
+    lr: Annotated[float, typer.Option(help="initial learning rate (poly decay, power 0.9)")] = 0.01,
+    input_size: Annotated[str, typer.Option(help="training input WIDTHxHEIGHT (images are resized to it)")
+                          ] = "160x120",
+    width: Annotated[float, typer.Option(help="width multiplier (1 = the papers' full size)")] = 0.25,
+    resnet_depth: Annotated[int, typer.Option(help="ResNet depth 18 | 34 | 50 (fcn, pspnet, cbam-pspnet)")] = 18,
+    backbone: Annotated[str, typer.Option(help="fcn backbone: resnet | vgg16")] = "resnet",
+    device: Annotated[str, typer.Option(help="cpu | cuda")] = "cpu",
+    resume: Annotated[bool, typer.Option("--resume", help="continue the run in --out from its last checkpoint")
+                      ] = False,
+    seed: Annotated[int, typer.Option(help="seed of initialisation, image order and augmentation")] = 0,
+    threads: Annotated[int | None, typer.Option(help="CPU threads for PyTorch")] = None,
+    eval_every: Annotated[int, typer.Option(help="validate, log and checkpoint every N steps")] = 100,
+    class_map: Annotated[Path | None, typer.Option(help="JSON mapping the data's class ids to the label set")
+                         ] = None,
+    labelset: Annotated[Path | None, typer.Option(help="labelset.json of the classes to train (default: the "
+                                                       "data's)")] = None,
+    depth_scale: Annotated[float | None, typer.Option(help="depth PNG units per metre (default: 5000 for "
+                                                           "simulate/TUM folders, 1000 for plain folders)")] = None,
+    augment: Annotated[bool, typer.Option("--augment/--no-augment", help="flips, scale and colour jitter")] = True,
+) -> None:
+    """Train a segmentation network (median-frequency weighted cross entropy, SGD with poly learning rate) and
+    keep the best checkpoint by validation mIoU (RUN_DIR/best.pt, usable as --weights)."""
+    _setup_logging(False)
+    from semmap.train.trainer import Trainer, TrainSettings
+
+    size = _size(input_size)
+    if not isinstance(size, tuple):
+        raise SemmapError(f"--input-size must be WIDTHxHEIGHT, got {input_size!r}")
+    settings = TrainSettings(model=model, data=tuple(data), out=out, val=tuple(val or ()), epochs=epochs,
+                             iterations=iterations, batch=batch, lr=lr, input_size=size, width=width,
+                             depth=resnet_depth, backbone=backbone, device=device, seed=seed, threads=threads,
+                             eval_every=eval_every, class_map=class_map, label_set=labelset,
+                             depth_scale=depth_scale, augment=augment)
+    trainer = Trainer(settings, resume=resume)
+    _console().print(f"{trainer.spec.describe()}: {len(trainer.train_set)} training and {len(trainer.val_set)} "
+                     f"validation images at {size[0]}x{size[1]}, {trainer.total} steps of {batch}")
+    with _TrainProgress(trainer.total, trainer.iteration) as progress:
+        try:
+            result = trainer.run(progress=progress)
+        except KeyboardInterrupt:
+            print(f"semmap: interrupted; continue with the same command and --resume ({out}/last.pt)",
+                  file=sys.stderr)
+            raise SystemExit(130) from None
+    best = f"{result.best} (val mIoU {result.best_miou:.3f})" if result.best else "none"
+    _console().print(f"done: {result.iterations} steps; best {best}; final {result.final}")
+
+
+class _TrainProgress:
+    """A rich progress bar showing the step, the latest training loss and validation mIoU."""
+
+    def __init__(self, total: int, done: int) -> None:
+        self.total, self.done = total, done
+
+    def __enter__(self):
+        from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
+
+        self._progress = Progress(TextColumn("[bold]training"), BarColumn(), MofNCompleteColumn(),
+                                  TextColumn("{task.fields[info]}"), TimeRemainingColumn(), console=_console())
+        self._progress.__enter__()
+        task = self._progress.add_task("training", total=self.total, completed=self.done, info="")
+
+        def update(i: int, n: int, row: dict) -> None:
+            info = f"loss {row['train_loss']:.3f}  val mIoU {row['val_miou']:.3f}" if row else ""
+            self._progress.update(task, completed=i, total=n, info=info)
+
+        return update
+
+    def __exit__(self, *exc):
+        return self._progress.__exit__(*exc)
 
 
 @app.command()

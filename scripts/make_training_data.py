@@ -1,0 +1,76 @@
+"""Render the simulated training and validation scenes the shipped networks were trained on (weights/).
+
+Seeds are disjoint from every scene the tests, benchmarks and the demo use (scene seeds 0-9):
+
+* train: scene seeds 100-139, 40 scenes cycling the four kinds, three sizes and four trajectory kinds,
+  50 frames each spread over the whole path (2.5 frames/s of camera time), 2000 frames;
+* val:   scene seeds 200-203, one per kind, medium, loop, 20 frames each (best-checkpoint selection only);
+* test:  scene seeds 0-3 (office, kitchen, living_room, bedroom; medium; the demo's loop) are rendered on the
+  fly by benchmarks/bench_networks.py at 640x480 and never written here.
+
+Frames are rendered at 640x480 and stored at the training input size (default 160x120), reduced as the
+segmenter reduces camera images.  Deterministic: same arguments, same bytes.
+
+    python scripts/make_training_data.py --out outputs/train-data [--image-size 160x120]
+"""
+
+from __future__ import annotations
+
+import argparse
+import shutil
+import time
+from pathlib import Path
+
+from semmap.errors import SimulationError
+from semmap.sim.export import simulate_sequence
+from semmap.sim.scene import KINDS, SIZES
+from semmap.sim.trajectory import TRAJECTORY_KINDS
+
+TRAIN_SEEDS = range(100, 140)
+VAL_SEEDS = range(200, 204)
+TRAIN_FRAMES, VAL_FRAMES = 50, 20
+#: Camera time per stored frame is 1 / FPS seconds: 50 frames cover 20 s of the trajectory.
+FPS = 2.5
+
+
+def train_plan() -> list[tuple[int, str, str, str]]:
+    """(seed, kind, size, trajectory) of every training scene."""
+    # every kind meets every trajectory kind and size (kind i % 4, trajectory (i + i // 4) % 4, size (i // 4) % 3)
+    return [(seed, KINDS[i % 4], SIZES[(i // 4) % 3], TRAJECTORY_KINDS[(i + i // 4) % 4])
+            for i, seed in enumerate(TRAIN_SEEDS)]
+
+
+def val_plan() -> list[tuple[int, str, str, str]]:
+    return [(seed, KINDS[i], "medium", "loop") for i, seed in enumerate(VAL_SEEDS)]
+
+
+def render(out: Path, plan, frames: int, image_size: tuple[int, int]) -> None:
+    for seed, kind, size, trajectory in plan:
+        folder = out / f"{kind}-{size}-seed{seed}-{trajectory}"
+        if (folder / "scene.json").is_file():
+            continue
+        t0 = time.perf_counter()
+        try:
+            simulate_sequence(folder, scene_seed=seed, kind=kind, size=size, trajectory=trajectory, frames=frames,
+                              image_size=image_size, fps=FPS)
+        except SimulationError as exc:  # a desk/orbit path may not fit a scene: fall back to the room loop
+            print(f"{folder.name}: {exc}; using a loop", flush=True)
+            shutil.rmtree(folder, ignore_errors=True)
+            folder = out / f"{kind}-{size}-seed{seed}-loop"
+            simulate_sequence(folder, scene_seed=seed, kind=kind, size=size, trajectory="loop", frames=frames,
+                              image_size=image_size, fps=FPS)
+        print(f"{folder.name}: {frames} frames in {time.perf_counter() - t0:.1f} s", flush=True)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--out", type=Path, required=True)
+    parser.add_argument("--image-size", default="160x120", help="stored frame size WIDTHxHEIGHT")
+    args = parser.parse_args()
+    w, h = (int(v) for v in args.image_size.lower().split("x"))
+    render(args.out / "train", train_plan(), TRAIN_FRAMES, (w, h))
+    render(args.out / "val", val_plan(), VAL_FRAMES, (w, h))
+
+
+if __name__ == "__main__":
+    main()
