@@ -280,6 +280,11 @@ def simulate(
     noise: Annotated[bool, typer.Option("--noise/--no-noise", help="Kinect-like depth noise")] = True,
     image_size: Annotated[str | None, typer.Option(help="store frames reduced to WIDTHxHEIGHT (e.g. 160x120 "
                                                    "training data for semmap train); rendered at 640x480")] = None,
+    symmetric: Annotated[bool, typer.Option("--symmetric", help="one room whose geometry maps onto itself under a "
+                                            "180° turn, its halves told apart only by their classes")] = False,
+    trajectory_seed: Annotated[int | None, typer.Option(help="seed of the camera path (default: the scene seed); "
+                                                        "another seed gives another path through the same scene")
+                               ] = None,
 ) -> None:
     """Render a procedural indoor scene to a TUM RGB-D folder with labels, instances, objects and scene.json."""
     _setup_logging(False)
@@ -290,7 +295,8 @@ def simulate(
         raise SemmapError(f"--image-size must be WIDTHxHEIGHT, got {image_size!r}")
     with _ProgressCallback("rendering", frames) as callback:
         root = simulate_sequence(out, scene_seed=scene_seed, kind=kind, size=size, trajectory=trajectory,
-                                 frames=frames, noise=noise, progress=callback, image_size=stored)
+                                 frames=frames, noise=noise, progress=callback, image_size=stored, symmetric=symmetric,
+                                 trajectory_seed=trajectory_seed)
     _console().print(f"wrote {frames} frames to {root} (map it with: semmap run {root} --out OUT)")
 
 

@@ -73,7 +73,8 @@ def scene_of_folder(root) -> Scene | None:
     log = logging.getLogger("semmap")
     try:
         info = json.loads(path.read_text())
-        scene = generate_scene(int(info["seed"]), str(info["kind"]), str(info["size"]))
+        scene = generate_scene(int(info["seed"]), str(info["kind"]), str(info["size"]),
+                               symmetric=bool(info.get("symmetric", False)))
     except (OSError, ValueError, KeyError, TypeError) as exc:
         log.warning("%s: cannot regenerate the simulated scene (%s); no 3D ground truth", path, exc)
         return None

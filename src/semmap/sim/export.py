@@ -47,16 +47,20 @@ def simulate_sequence(
     progress: Callable[[int, int], None] | None = None,
     image_size: tuple[int, int] | None = None,
     fps: float = FPS,
+    symmetric: bool = False,
+    trajectory_seed: int | None = None,
 ) -> Path:
-    """Render ``frames`` frames of a ``trajectory`` through scene (``scene_seed``, ``kind``, ``size``) into
-    ``out_dir`` (TUM layout plus ground truth) and return the folder. Same arguments, same bytes. A low ``fps``
-    spreads few frames over the whole path (varied views for training data)."""
+    """Render ``frames`` frames of a ``trajectory`` through scene (``scene_seed``, ``kind``, ``size``;
+    ``symmetric``: see :mod:`semmap.sim.symmetric`) into ``out_dir`` (TUM layout plus ground truth) and return the
+    folder; the path is drawn from ``trajectory_seed`` (default: the scene seed). Same arguments, same bytes. A low
+    ``fps`` spreads few frames over the whole path (varied views for training data)."""
     if not isinstance(frames, (int, np.integer)) or frames <= 0:
         raise SimulationError(f"frames must be a positive integer, got {frames!r}")
     root = Path(out_dir)
     root.mkdir(parents=True, exist_ok=True)
-    scene = generate_scene(scene_seed, kind, size)
-    poses = make_trajectory(scene, trajectory, int(frames), seed=scene_seed, fps=fps)
+    scene = generate_scene(scene_seed, kind, size, symmetric=symmetric)
+    poses = make_trajectory(scene, trajectory, int(frames), seed=scene_seed if trajectory_seed is None
+                            else trajectory_seed, fps=fps)
     renderer = Renderer(scene, intrinsics, noise=KinectNoise(seed=scene_seed) if noise else False)
     frames_out = render_frames(renderer, poses, progress, fps=fps)
     stored = renderer.intrinsics
@@ -69,6 +73,8 @@ def simulate_sequence(
     info = {**scene.params, "trajectory": trajectory, "frames": int(frames), "fps": fps, "noise": bool(noise),
             "depth_scale": DEPTH_SCALE, "intrinsics": stored.to_dict(),
             "n_triangles": scene.n_triangles, "n_objects": len(scene.objects)}
+    if trajectory_seed is not None:
+        info["trajectory_seed"] = int(trajectory_seed)
     write_text_atomic(root / "scene.json", json.dumps(info, indent=1) + "\n")
     return root
 

@@ -17,6 +17,7 @@ from semmap.sim.labels import INDOOR_LABELS, STUFF_CLASSES
 from semmap.sim.layout import WALL_THICKNESS, Layout, RoomSpec, subtract_rects, yaw_facing
 from semmap.sim.materials import PAINTS, Material, jitter_color, pick
 from semmap.sim.primitives import face_uvs
+from semmap.sim.symmetric import mirror_half
 from semmap.types import LabelSet
 
 KINDS: tuple[str, ...] = ("office", "kitchen", "living_room", "bedroom")
@@ -126,15 +127,19 @@ class Scene:
 
 
 def generate_scene(seed: int, kind: str = "office", size: str = "medium",
-                   second_room: bool | None = None) -> Scene:
+                   second_room: bool | None = None, *, symmetric: bool = False) -> Scene:
     """Furnished ``kind`` room of ``size`` from ``seed`` (deterministic), with a second room behind a door
-    when ``second_room`` is True (None: decided by the seed, more likely for larger sizes)."""
+    when ``second_room`` is True (None: decided by the seed, more likely for larger sizes).  ``symmetric``: one
+    room whose geometry maps onto itself under a 180° turn and whose halves differ only in their classes
+    (:mod:`semmap.sim.symmetric`)."""
     if kind not in KINDS:
         raise SimulationError(f"unknown scene kind {kind!r}; choose one of {', '.join(KINDS)}")
     if size not in SIZES:
         raise SimulationError(f"unknown scene size {size!r}; choose one of {', '.join(SIZES)}")
     if not isinstance(seed, (int, np.integer)) or seed < 0:
         raise SimulationError(f"scene seed must be a non-negative integer, got {seed!r}")
+    if symmetric and second_room:
+        raise SimulationError("a symmetric scene has one room (second_room must not be True)")
     rng = np.random.default_rng([int(seed), KINDS.index(kind), SIZES.index(size), 7919])
     layout = Layout(rng)
 
@@ -142,6 +147,7 @@ def generate_scene(seed: int, kind: str = "office", size: str = "medium",
     H = float(rng.uniform(*CEILING_RANGE))
     layout.rooms.append(RoomSpec("main", kind, np.zeros(3), np.array([W, D, H])))
     has_second = bool(rng.random() < SECOND_ROOM_P[size]) if second_room is None else bool(second_room)
+    has_second = has_second and not symmetric
     params: dict = {"generator_version": GENERATOR_VERSION, "seed": int(seed), "kind": kind, "size": size,
                     "second_room": has_second}
     openings: list[tuple[np.ndarray, np.ndarray]] = []
@@ -161,6 +167,9 @@ def generate_scene(seed: int, kind: str = "office", size: str = "medium",
         _add_fixtures(layout, i, rng, exterior_door=(i == 0), taken_walls=door_walls.get(i, []))
     for i, room in enumerate(layout.rooms):
         furnish(layout, i, room.kind, size if i == 0 else "small")
+    if symmetric:
+        mirror_half(layout, 0)
+        params["symmetric"] = True
     params["rooms"] = [{"name": r.name, "kind": r.kind, "min": [round(float(v), 6) for v in r.lo],
                         "max": [round(float(v), 6) for v in r.hi]} for r in layout.rooms]
     return _assemble(layout, rng, openings, params)
