@@ -69,3 +69,50 @@ def octomap_states(tree, resolution: float) -> dict[tuple[int, int, int], bool]:
                 for dz in range(n):
                     out[(int(lo[0] + dx), int(lo[1] + dy), int(lo[2] + dz))] = occ
     return out
+
+
+def likelihood_scores(R, t, pts, labels, probs, others, prior, lut_geo, lut_sem, d2_scale, f_scale, use_semantics,
+                      eps, log_rand):
+    """Per-particle sum of tabulated log-likelihoods, one particle and point at a time (localization kernel)."""
+    n_cls = prior.class_q.shape[1]
+    out = np.zeros(len(R))
+    for i in range(len(R)):
+        for j in range(len(pts)):
+            x = R[i] @ pts[j].astype(np.float64) + t[i]
+            ijk = np.floor((x - prior.origin) / prior.resolution).astype(int)
+            if (ijk < 0).any() or (ijk >= np.asarray(prior.shape)).any():
+                out[i] += log_rand
+                continue
+            v = prior.nearest[(ijk[0] * prior.shape[1] + ijk[1]) * prior.shape[2] + ijk[2]]
+            if v < 0:
+                out[i] += log_rand
+                continue
+            d2 = float(np.sum((x - prior.centers[v]) ** 2))
+            qd = min(int(d2 * d2_scale + 0.5), len(lut_geo) - 1)
+            if not use_semantics or others[j] < 0:
+                out[i] += lut_geo[qd]
+                continue
+            pm = {int(c): prior.class_q[v, c] / 255.0 for c in labels[j] if 0 < c < n_cls}
+            s = sum(float(p) * pm[int(c)] for c, p in zip(labels[j], probs[j], strict=True) if 0 < c < n_cls)
+            rest = n_cls - 1 - len(pm)
+            if rest > 0:
+                s += others[j] * max(1.0 - sum(pm.values()), 0.0) / rest
+            f = (1 - eps) * (n_cls - 1) * s + eps
+            out[i] += lut_sem[qd, min(int(f * f_scale + 0.5), lut_sem.shape[1] - 1)]
+    return out
+
+
+def cosine_scores(R, t, pts, local_labels, prior):
+    """The paper's cosine weight per particle, one particle at a time (localization kernel)."""
+    out = np.zeros(len(R))
+    a = local_labels.astype(np.float64)
+    for i in range(len(R)):
+        x = pts.astype(np.float64) @ R[i].T + t[i]
+        ijk = np.floor((x - prior.origin) / prior.resolution).astype(int)
+        inside = ((ijk >= 0) & (ijk < np.asarray(prior.shape))).all(axis=1)
+        b = np.zeros(len(pts))
+        flat = (ijk[inside, 0] * prior.shape[1] + ijk[inside, 1]) * prior.shape[2] + ijk[inside, 2]
+        b[inside] = prior.top_label[flat]
+        nb = np.linalg.norm(b)
+        out[i] = a @ b / (np.linalg.norm(a) * nb) if nb > 0 and np.linalg.norm(a) > 0 else 0.0
+    return out

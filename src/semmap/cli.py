@@ -487,6 +487,66 @@ def track(
     typer.echo(json.dumps(summary, indent=2))
 
 
+@app.command()
+def localize(
+    map_path: Annotated[Path, typer.Argument(metavar="MAP", help="map.semmap written by semmap run (or its folder)")],
+    sequence: Annotated[Path, typer.Argument(metavar="SEQ", help="RGB-D sequence to localize (TUM / 7-Scenes folder)")],
+    out: Annotated[Path, typer.Option("--out", "-o", help="output folder")],
+    model: Annotated[str, typer.Option(help="semantic | geometry | cosine (the paper's score)")] = "semantic",
+    particles: Annotated[int, typer.Option(help="number of particles")] = 2000,
+    init: Annotated[str, typer.Option(help="global (anywhere in the map) | tracking (around --init-pose or the "
+                                           "first frame's ground truth)")] = "global",
+    init_pose: Annotated[str | None, typer.Option(help="tracking start: 'tx ty tz qx qy qz qw'")] = None,
+    mode: Annotated[str, typer.Option(help="6dof | ground (x, y, yaw; height and tilt known)")] = "6dof",
+    motion: Annotated[str, typer.Option(help="odometry (semmap's dense odometry) | gt-noisy (ground truth with "
+                                             "drift, experiments) | PATH of a TUM trajectory")] = "odometry",
+    motion_noise: Annotated[float, typer.Option(help="gt-noisy: drift as a fraction of each motion")] = 0.05,
+    segmenter: Annotated[str, typer.Option(help="auto (oracle when the sequence has label images) | oracle | "
+                                                "espnetv2 | precomputed | none")] = "auto",
+    weights: Annotated[Path | None, typer.Option(help="network weights (espnetv2) or predictions folder "
+                                                 "(precomputed)")] = None,
+    height: Annotated[float | None, typer.Option(help="ground mode: camera height (m); default: from ground "
+                                                 "truth")] = None,
+    pitch_deg: Annotated[float, typer.Option(help="ground mode with --height: camera pitch (°, down < 0)")] = 0.0,
+    roll_deg: Annotated[float, typer.Option(help="ground mode with --height: camera roll (°)")] = 0.0,
+    points: Annotated[int, typer.Option(help="points per scan")] = 400,
+    stride: Annotated[int, typer.Option(help="use every k-th frame")] = 1,
+    max_frames: Annotated[int | None, typer.Option(help="use at most N frames")] = None,
+    seed: Annotated[int, typer.Option(help="random seed")] = 0,
+    gif: Annotated[bool, typer.Option("--gif", help="also write particles.gif")] = False,
+) -> None:
+    """Monte-Carlo localization of a sequence's camera in a prior map: writes localization.txt, localization.npz,
+    report.json, report.md, particles.png, errors.png (with ground truth) and optionally particles.gif."""
+    _setup_logging(False)
+    from semmap.localization.filter import FilterSettings
+    from semmap.localization.motion import MotionMode
+    from semmap.localization.observation import ObservationKind
+    from semmap.localization.run import InitMode
+    from semmap.localization.sequence import LocalizeOptions, localize_sequence
+    from semmap.types import pose_from_tum
+
+    def choice(enum, value: str, what: str):
+        try:
+            return enum(value)
+        except ValueError:
+            raise SemmapError(f"unknown {what} {value!r}; choose from {', '.join(e.value for e in enum)}") from None
+
+    start = None
+    if init_pose is not None:
+        try:
+            start = pose_from_tum([float(v) for v in init_pose.replace(",", " ").split()])
+        except (ValueError, IndexError):
+            raise SemmapError(f"--init-pose must be 7 numbers 'tx ty tz qx qy qz qw', got {init_pose!r}") from None
+    settings = FilterSettings(particles=particles, mode=choice(MotionMode, mode, "mode"),
+                              model=choice(ObservationKind, model, "model"))
+    options = LocalizeOptions(settings=settings, init=choice(InitMode, init, "initialisation"), init_pose=start,
+                              motion=motion, motion_noise=motion_noise, segmenter=segmenter, weights=weights,
+                              height=height, pitch_deg=pitch_deg, roll_deg=roll_deg, points=points, stride=stride,
+                              max_frames=max_frames, seed=seed, gif=gif)
+    result, files = localize_sequence(map_path, sequence, out, options, progress=progress_bar("localizing"))
+    typer.echo(json.dumps({**result.summary(), "files": sorted(files)}, indent=2))
+
+
 @app.command("eval-traj")
 def eval_traj(
     gt: Annotated[Path, typer.Argument(help="reference: a TUM trajectory file, or a dataset folder with poses")],

@@ -1,0 +1,169 @@
+"""numba kernels of the particle filter: motion composition and the per-particle scores, parallel over particles.
+
+They take only contiguous arrays and scalars; :mod:`semmap.localization.filter` and
+:mod:`semmap.localization.observation` validate and unpack first.  Grids are the flat arrays of
+:class:`~semmap.localization.prior.PriorMap` (cell ``(ix, iy, iz)`` at ``(ix * ny + iy) * nz + iz``).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numba as nb
+
+
+@nb.njit(cache=True, parallel=True)
+def propagate_6dof(R, t, uR, ut, noise):
+    """In place ``T_i <- T_i · u · Exp(noise_i)``: each particle (R (N, 3, 3), t (N, 3)) moved by the relative
+    camera motion u = (uR, ut) and then by its own perturbation ``noise`` (N, 6) = (translation, rotation
+    vector) in the moved camera's frame (Rodrigues' formula for Exp)."""
+    n = R.shape[0]
+    for i in nb.prange(n):
+        wx, wy, wz = noise[i, 3], noise[i, 4], noise[i, 5]
+        th2 = wx * wx + wy * wy + wz * wz
+        if th2 < 1e-16:
+            a, b = 1.0, 0.5
+        else:
+            th = math.sqrt(th2)
+            a = math.sin(th) / th
+            b = (1.0 - math.cos(th)) / th2
+        e00, e01, e02 = 1.0 - b * (wy * wy + wz * wz), -a * wz + b * wx * wy, a * wy + b * wx * wz
+        e10, e11, e12 = a * wz + b * wx * wy, 1.0 - b * (wx * wx + wz * wz), -a * wx + b * wy * wz
+        e20, e21, e22 = -a * wy + b * wx * wz, a * wx + b * wy * wz, 1.0 - b * (wx * wx + wy * wy)
+        for r in range(3):
+            q0, q1, q2 = R[i, r, 0], R[i, r, 1], R[i, r, 2]
+            m0 = q0 * uR[0, 0] + q1 * uR[1, 0] + q2 * uR[2, 0]  # row r of R · uR
+            m1 = q0 * uR[0, 1] + q1 * uR[1, 1] + q2 * uR[2, 1]
+            m2 = q0 * uR[0, 2] + q1 * uR[1, 2] + q2 * uR[2, 2]
+            t[i, r] += q0 * ut[0] + q1 * ut[1] + q2 * ut[2] + m0 * noise[i, 0] + m1 * noise[i, 1] + m2 * noise[i, 2]
+            R[i, r, 0] = m0 * e00 + m1 * e10 + m2 * e20
+            R[i, r, 1] = m0 * e01 + m1 * e11 + m2 * e21
+            R[i, r, 2] = m0 * e02 + m1 * e12 + m2 * e22
+
+
+@nb.njit(cache=True, parallel=True, fastmath=True)
+def score_likelihood(R, t, pts, labels, probs, others, origin, inv_res, nx, ny, nz, nearest, centers, class_q,
+                     use_semantics, eps, lut_geo, lut_sem, d2_scale, f_scale, log_rand, out):
+    """Sum over the scan's points of log p(point | particle) for each particle (Thrun's likelihood field with a
+    class term): ``log(z_hit · exp(-d²/2σ²) · f + z_rand)`` with d the distance from the point, placed by the
+    particle, to the nearest occupied voxel's centre, and f = ``(1 - eps) · C' · Σ_c q(c) P_map(c) + eps`` the
+    agreement of the point's class distribution q with the voxel's P_map (C' real classes, so that an
+    uninformative class gives f = 1); f = 1 for points without classes (``others < 0``) or with
+    ``use_semantics`` off.  Points off the grid or farther than the cutoff score ``log_rand`` = log(z_rand).
+
+    The mixture is read from tables (no exp/log per point): ``lut_geo[round(d² · d2_scale)]`` for f = 1 and
+    ``lut_sem[round(d² · d2_scale), round(f · f_scale)]``, the last row standing for every larger distance.
+    R (N, 3, 3), t (N, 3) float64 camera poses; pts (P, 3) float32 camera-frame points; labels/probs (P, k)
+    top-k sets, others (P,) their "others" mass; class_q (M, C) uint8 voxel class probabilities x 255;
+    result in out (N,)."""
+    n = R.shape[0]
+    n_pts = pts.shape[0]
+    k = labels.shape[1]
+    n_cls = class_q.shape[1]
+    real = n_cls - 1
+    last_d = lut_geo.shape[0] - 1
+    last_f = lut_sem.shape[1] - 1
+    q_scale = 1.0 / 255.0
+    ox, oy, oz = origin[0], origin[1], origin[2]
+    for i in nb.prange(n):
+        r00, r01, r02 = R[i, 0, 0], R[i, 0, 1], R[i, 0, 2]
+        r10, r11, r12 = R[i, 1, 0], R[i, 1, 1], R[i, 1, 2]
+        r20, r21, r22 = R[i, 2, 0], R[i, 2, 1], R[i, 2, 2]
+        t0, t1, t2 = t[i, 0], t[i, 1], t[i, 2]
+        acc = 0.0
+        for j in range(n_pts):
+            px, py, pz = pts[j, 0], pts[j, 1], pts[j, 2]
+            x = r00 * px + r01 * py + r02 * pz + t0
+            y = r10 * px + r11 * py + r12 * pz + t1
+            z = r20 * px + r21 * py + r22 * pz + t2
+            fx = (x - ox) * inv_res
+            fy = (y - oy) * inv_res
+            fz = (z - oz) * inv_res
+            if fx < 0.0 or fy < 0.0 or fz < 0.0 or fx >= nx or fy >= ny or fz >= nz:
+                acc += log_rand
+                continue
+            v = nearest[(int(fx) * ny + int(fy)) * nz + int(fz)]
+            if v < 0:
+                acc += log_rand
+                continue
+            dx = x - centers[v, 0]
+            dy = y - centers[v, 1]
+            dz = z - centers[v, 2]
+            qd = min(int((dx * dx + dy * dy + dz * dz) * d2_scale + 0.5), last_d)
+            if not use_semantics or others[j] < 0.0:
+                acc += lut_geo[qd]
+                continue
+            s = 0.0
+            in_set = 0.0
+            n_valid = 0
+            for c in range(k):
+                lab = labels[j, c]
+                if lab > 0 and lab < n_cls:
+                    pm = class_q[v, lab] * q_scale
+                    s += probs[j, c] * pm
+                    in_set += pm
+                    n_valid += 1
+            rest_classes = real - n_valid
+            if rest_classes > 0:
+                s += others[j] * max(1.0 - in_set, 0.0) / rest_classes
+            f = (1.0 - eps) * real * s + eps
+            acc += lut_sem[qd, min(int(f * f_scale + 0.5), last_f)]
+        out[i] = acc
+
+
+@nb.njit(cache=True, parallel=True, fastmath=True)
+def score_cosine(R, t, pts, local_labels, origin, inv_res, nx, ny, nz, top_label, out):
+    """The paper's weight (Sec. IV-C): cosine similarity of the local map's class labels (P,) with the prior map's
+    labels at the same voxels, for each particle placing the local voxels (P, 3, camera frame) in the world.
+    Labels are compared as the numbers they are, as described; cells the map lacks read 0."""
+    n = R.shape[0]
+    n_pts = pts.shape[0]
+    norm_a = 0.0
+    for j in range(n_pts):
+        norm_a += float(local_labels[j]) * float(local_labels[j])
+    norm_a = math.sqrt(norm_a)
+    ox, oy, oz = origin[0], origin[1], origin[2]
+    for i in nb.prange(n):
+        r00, r01, r02 = R[i, 0, 0], R[i, 0, 1], R[i, 0, 2]
+        r10, r11, r12 = R[i, 1, 0], R[i, 1, 1], R[i, 1, 2]
+        r20, r21, r22 = R[i, 2, 0], R[i, 2, 1], R[i, 2, 2]
+        t0, t1, t2 = t[i, 0], t[i, 1], t[i, 2]
+        dot = 0.0
+        norm_b = 0.0
+        for j in range(n_pts):
+            px, py, pz = pts[j, 0], pts[j, 1], pts[j, 2]
+            fx = (r00 * px + r01 * py + r02 * pz + t0 - ox) * inv_res
+            fy = (r10 * px + r11 * py + r12 * pz + t1 - oy) * inv_res
+            fz = (r20 * px + r21 * py + r22 * pz + t2 - oz) * inv_res
+            if fx < 0.0 or fy < 0.0 or fz < 0.0 or fx >= nx or fy >= ny or fz >= nz:
+                continue
+            b = float(top_label[(int(fx) * ny + int(fy)) * nz + int(fz)])
+            dot += float(local_labels[j]) * b
+            norm_b += b * b
+        out[i] = dot / (norm_a * math.sqrt(norm_b)) if norm_b > 0.0 and norm_a > 0.0 else 0.0
+
+
+@nb.njit(cache=True)
+def inlier_fraction(R, t, pts, origin, inv_res, nx, ny, nz, nearest, centers, max_d2):
+    """Share of the scan's points (P, 3, camera frame) that, placed by the pose (R, t), lie within sqrt(max_d2)
+    of an occupied voxel centre: how well one pose explains the scan."""
+    n_pts = pts.shape[0]
+    if n_pts == 0:
+        return 0.0
+    hits = 0
+    for j in range(n_pts):
+        x = R[0, 0] * pts[j, 0] + R[0, 1] * pts[j, 1] + R[0, 2] * pts[j, 2] + t[0]
+        y = R[1, 0] * pts[j, 0] + R[1, 1] * pts[j, 1] + R[1, 2] * pts[j, 2] + t[1]
+        z = R[2, 0] * pts[j, 0] + R[2, 1] * pts[j, 1] + R[2, 2] * pts[j, 2] + t[2]
+        fx = (x - origin[0]) * inv_res
+        fy = (y - origin[1]) * inv_res
+        fz = (z - origin[2]) * inv_res
+        if fx < 0.0 or fy < 0.0 or fz < 0.0 or fx >= nx or fy >= ny or fz >= nz:
+            continue
+        v = nearest[(int(fx) * ny + int(fy)) * nz + int(fz)]
+        if v < 0:
+            continue
+        dx, dy, dz = x - centers[v, 0], y - centers[v, 1], z - centers[v, 2]
+        if dx * dx + dy * dy + dz * dz <= max_d2:
+            hits += 1
+    return hits / n_pts
