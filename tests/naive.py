@@ -87,7 +87,8 @@ def likelihood_scores(R, t, pts, labels, probs, others, prior, lut_geo, lut_sem,
             if v < 0:
                 out[i] += log_rand
                 continue
-            d2 = float(np.sum((x - prior.centers[v]) ** 2))
+            cell = np.floor((prior.centers[v].astype(np.float64) - prior.origin) / prior.resolution)
+            d2 = float(np.sum((x - (prior.origin + (cell + 0.5) * prior.resolution)) ** 2))
             qd = min(int(d2 * d2_scale + 0.5), len(lut_geo) - 1)
             if not use_semantics or others[j] < 0:
                 out[i] += lut_geo[qd]

@@ -42,7 +42,7 @@ def propagate_6dof(R, t, uR, ut, noise):
 
 
 @nb.njit(cache=True, parallel=True, fastmath=True)
-def score_likelihood(R, t, pts, labels, probs, others, origin, inv_res, nx, ny, nz, nearest, centers, class_q,
+def score_likelihood(R, t, pts, labels, probs, others, origin, res, nx, ny, nz, nearest_packed, class_q,
                      use_semantics, eps, lut_geo, lut_sem, d2_scale, f_scale, log_rand, out):
     """Sum over the scan's points of log p(point | particle) for each particle (Thrun's likelihood field with a
     class term): ``log(z_hit · exp(-d²/2σ²) · f + z_rand)`` with d the distance from the point, placed by the
@@ -53,6 +53,8 @@ def score_likelihood(R, t, pts, labels, probs, others, origin, inv_res, nx, ny, 
 
     The mixture is read from tables (no exp/log per point): ``lut_geo[round(d² · d2_scale)]`` for f = 1 and
     ``lut_sem[round(d² · d2_scale), round(f · f_scale)]``, the last row standing for every larger distance.
+    The cell record (:func:`~semmap.localization.prior.pack_nearest`) gives the voxel and its cell offset, so
+    the distance needs no second memory access; the class row is read only for points near a surface.
     R (N, 3, 3), t (N, 3) float64 camera poses; pts (P, 3) float32 camera-frame points; labels/probs (P, k)
     top-k sets, others (P,) their "others" mass; class_q (M, C) uint8 voxel class probabilities x 255;
     result in out (N,)."""
@@ -64,6 +66,8 @@ def score_likelihood(R, t, pts, labels, probs, others, origin, inv_res, nx, ny, 
     last_d = lut_geo.shape[0] - 1
     last_f = lut_sem.shape[1] - 1
     q_scale = 1.0 / 255.0
+    inv_res = 1.0 / res
+    d2_cells = d2_scale * res * res
     ox, oy, oz = origin[0], origin[1], origin[2]
     for i in nb.prange(n):
         r00, r01, r02 = R[i, 0, 0], R[i, 0, 1], R[i, 0, 2]
@@ -73,23 +77,26 @@ def score_likelihood(R, t, pts, labels, probs, others, origin, inv_res, nx, ny, 
         acc = 0.0
         for j in range(n_pts):
             px, py, pz = pts[j, 0], pts[j, 1], pts[j, 2]
-            x = r00 * px + r01 * py + r02 * pz + t0
-            y = r10 * px + r11 * py + r12 * pz + t1
-            z = r20 * px + r21 * py + r22 * pz + t2
-            fx = (x - ox) * inv_res
-            fy = (y - oy) * inv_res
-            fz = (z - oz) * inv_res
+            fx = (r00 * px + r01 * py + r02 * pz + t0 - ox) * inv_res
+            fy = (r10 * px + r11 * py + r12 * pz + t1 - oy) * inv_res
+            fz = (r20 * px + r21 * py + r22 * pz + t2 - oz) * inv_res
             if fx < 0.0 or fy < 0.0 or fz < 0.0 or fx >= nx or fy >= ny or fz >= nz:
                 acc += log_rand
                 continue
-            v = nearest[(int(fx) * ny + int(fy)) * nz + int(fz)]
-            if v < 0:
+            ix, iy, iz = int(fx), int(fy), int(fz)
+            rec = nearest_packed[(ix * ny + iy) * nz + iz]
+            if rec < 0:
                 acc += log_rand
                 continue
-            dx = x - centers[v, 0]
-            dy = y - centers[v, 1]
-            dz = z - centers[v, 2]
-            qd = min(int((dx * dx + dy * dy + dz * dz) * d2_scale + 0.5), last_d)
+            # distance to the nearest voxel's centre, in cells: that voxel lies at the cell offset in the record
+            dx = fx - (ix + ((rec >> 32) & 0xFF) - 128) - 0.5
+            dy = fy - (iy + ((rec >> 40) & 0xFF) - 128) - 0.5
+            dz = fz - (iz + ((rec >> 48) & 0xFF) - 128) - 0.5
+            qd = min(int((dx * dx + dy * dy + dz * dz) * d2_cells + 0.5), last_d)
+            if qd == last_d:
+                acc += log_rand
+                continue
+            v = rec & 0xFFFFFFFF
             if not use_semantics or others[j] < 0.0:
                 acc += lut_geo[qd]
                 continue

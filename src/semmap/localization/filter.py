@@ -28,6 +28,8 @@ from semmap.types import make_pose
 MODE_BIN_M, MODE_BIN_RAD = 0.25, math.radians(30)
 #: Particles within these distances of the strongest mode form the cluster the estimate is taken from.
 CLUSTER_RADIUS_M, CLUSTER_RADIUS_RAD = 0.5, math.radians(30)
+#: The cluster's covariance is taken over at most this many of its particles (evenly spaced).
+COVARIANCE_SAMPLES = 2000
 
 
 @dataclass(frozen=True)
@@ -320,10 +322,14 @@ class ParticleFilter:
         mean_t = wc @ self.t[cluster]
         U, _, Vt = np.linalg.svd(np.einsum("n,nij->ij", wc, self.R[cluster]))
         mean_R = U @ np.diag([1.0, 1.0, np.sign(np.linalg.det(U @ Vt))]) @ Vt
-        d = np.empty((int(cluster.sum()), 6))
-        d[:, :3] = self.t[cluster] - mean_t
-        d[:, 3:] = Rotation.from_matrix(np.einsum("ji,njk->nik", mean_R, self.R[cluster])).as_rotvec() @ mean_R.T
-        cov = (d * wc[:, None]).T @ d
+        # covariance from at most COVARIANCE_SAMPLES evenly taken cluster members (weights renormalised)
+        members = np.flatnonzero(cluster)
+        take = slice(None, None, max(1, len(members) // COVARIANCE_SAMPLES))
+        members, wm = members[take], wc[take] / wc[take].sum()
+        d = np.empty((len(members), 6))
+        d[:, :3] = self.t[members] - mean_t
+        d[:, 3:] = Rotation.from_matrix(np.einsum("ji,njk->nik", mean_R, self.R[members])).as_rotvec() @ mean_R.T
+        cov = (d * wm[:, None]).T @ d
         spread_m = float(np.sqrt(max(np.linalg.eigvalsh(cov[:3, :3]).max(), 0.0)))
         spread_deg = float(np.degrees(np.sqrt(max(np.linalg.eigvalsh(cov[3:, 3:]).max(), 0.0))))
         T = make_pose(mean_R, mean_t)

@@ -120,10 +120,11 @@ def make_scan(depth: np.ndarray, intrinsics: CameraIntrinsics, semantics: TopKPr
 def _fused_labels(voxel: np.ndarray, labels: np.ndarray, probs: np.ndarray, num_classes: int) -> np.ndarray:
     """Most probable class of each voxel (ids 0..V-1 per point) from the summed class sets of its points."""
     n_cls = max(num_classes, int(labels[labels != EMPTY_LABEL].max(initial=0)) + 1)
-    acc = np.zeros((int(voxel.max()) + 1, n_cls), np.float32)
+    n_vox = int(voxel.max()) + 1
     valid = labels != EMPTY_LABEL
-    rows = np.broadcast_to(voxel[:, None], labels.shape)
-    np.add.at(acc, (rows[valid], labels[valid].astype(np.int64)), probs[valid])
+    rows = np.broadcast_to(voxel[:, None], labels.shape)[valid]
+    flat = np.bincount(rows * n_cls + labels[valid], weights=probs[valid], minlength=n_vox * n_cls)
+    acc = flat.reshape(n_vox, n_cls)
     return acc.argmax(axis=1).astype(np.uint16)
 
 
@@ -149,8 +150,8 @@ def score(kind: ObservationKind, prior: PriorMap, R: np.ndarray, t: np.ndarray, 
         raise ConfigError("the semantic model needs a prior map with classes (use --model geometry)")
     class_q = prior.class_q if prior.class_q is not None else np.zeros((1, 2), np.uint8)
     tables = likelihood_tables(params, max(prior.num_classes - 1, 1))
-    kern.score_likelihood(R, t, scan.points, scan.labels, scan.probs, scan.others, prior.origin, inv_res, nx, ny, nz,
-                          prior.nearest, prior.centers, class_q, semantic, params.semantic_floor, tables.geo,
+    kern.score_likelihood(R, t, scan.points, scan.labels, scan.probs, scan.others, prior.origin, prior.resolution,
+                          nx, ny, nz, prior.nearest_packed, class_q, semantic, params.semantic_floor, tables.geo,
                           tables.sem, tables.d2_scale, tables.f_scale, math.log(params.z_rand), out)
     out *= params.effective_points / len(scan)
     return out

@@ -25,6 +25,8 @@ DEFAULT_CUTOFF_M = 0.5
 GRID_MARGIN_M = 0.5
 #: Global initialisation samples camera positions at least this far (m) from any occupied voxel.
 DEFAULT_CLEARANCE_M = 0.2
+#: Largest cell offset to a nearest voxel that the packed grid holds (int8 range); bounds the cutoff.
+MAX_OFFSET_CELLS = 127
 #: Largest lookup grid accepted (cells); bigger maps need a coarser resolution.
 MAX_GRID_CELLS = 200_000_000
 #: Floor and ceiling heights are these percentiles of the occupied voxels' heights.
@@ -40,6 +42,7 @@ class PriorMap:
     origin: np.ndarray  # (3,) float64 world position of the grid's lower corner
     shape: tuple[int, int, int]
     nearest: np.ndarray  # (cells,) int32 nearest occupied voxel within ``cutoff``, -1 = none
+    nearest_packed: np.ndarray  # (cells,) int64 the same voxel | its cell offset (dx, dy, dz) + 128 << 32, 40, 48
     centers: np.ndarray  # (M, 3) float32 occupied voxel centres
     class_probs: np.ndarray | None  # (M, C) float32 class distribution per occupied voxel (None: no semantics)
     class_q: np.ndarray | None  # (M, C) uint8 the same x 255, rounded (one cache line per voxel in the kernel)
@@ -78,8 +81,9 @@ class PriorMap:
         return {"resolution": self.resolution, "grid_shape": list(self.shape), "occupied_voxels": self.num_occupied,
                 "classes": self.num_classes, "floor_z": round(self.floor_z, 3), "ceiling_z": round(self.ceiling_z, 3),
                 "free_cells_with_clearance": int(self.free_clear.sum()),
-                "grid_bytes": int(self.nearest.nbytes + self.top_label.nbytes + self.free_clear.nbytes
-                                  + self.centers.nbytes + (0 if self.class_q is None else self.class_q.nbytes))}
+                "grid_bytes": int(sum(a.nbytes for a in (self.nearest, self.nearest_packed, self.top_label,
+                                                         self.free_clear, self.centers))
+                                  + (0 if self.class_q is None else self.class_q.nbytes))}
 
 
 def dense_class_probs(labels: np.ndarray, probs: np.ndarray, num_classes: int) -> np.ndarray:
@@ -102,6 +106,17 @@ def dense_class_probs(labels: np.ndarray, probs: np.ndarray, num_classes: int) -
     return out
 
 
+def pack_nearest(nearest: np.ndarray, offset: np.ndarray) -> np.ndarray:
+    """One int64 per cell: the nearest voxel's id (low 32 bits) and the offset (3, ...) in cells from the cell to
+    that voxel's cell (+128, one byte each at bits 32, 40, 48); -1 where there is none.  The scoring kernel gets
+    the endpoint distance from the cell record alone, without reading the voxel's centre."""
+    out = nearest.astype(np.int64) & 0xFFFFFFFF
+    for axis, shift in enumerate((32, 40, 48)):
+        out |= (offset[axis].astype(np.int64) + 128) << shift
+    out[nearest < 0] = -1
+    return out
+
+
 def build_prior(occupied_centers: np.ndarray, resolution: float, *, free_centers: np.ndarray | None = None,
                 labels: np.ndarray | None = None, probs: np.ndarray | None = None,
                 label_set: LabelSet | None = None, cutoff: float = DEFAULT_CUTOFF_M,
@@ -121,6 +136,7 @@ def build_prior(occupied_centers: np.ndarray, resolution: float, *, free_centers
     hi_cell = np.floor(known.max(axis=0) / res).astype(np.int64) + margin
     shape = tuple(int(v) for v in hi_cell - lo_cell + 1)
     cells = shape[0] * shape[1] * shape[2]
+    cutoff = min(float(cutoff), MAX_OFFSET_CELLS * res)
     if cells > MAX_GRID_CELLS:
         raise ConfigError(f"the prior map spans {shape} cells of {res} m ({cells:,}); more than {MAX_GRID_CELLS:,} "
                           f"do not fit a lookup grid (map at a coarser resolution)")
@@ -144,6 +160,7 @@ def build_prior(occupied_centers: np.ndarray, resolution: float, *, free_centers
     dist, idx = ndimage.distance_transform_edt(~occ_grid, return_indices=True)
     nearest = voxel_of[idx[0], idx[1], idx[2]]
     nearest[dist * res > cutoff + 1e-9] = -1
+    packed = pack_nearest(nearest, idx - np.indices(shape, dtype=np.int32))
     free_grid = np.zeros(shape, bool)
     if len(free):
         free_grid[tuple(ijk_of(free).T)] = True
@@ -161,6 +178,7 @@ def build_prior(occupied_centers: np.ndarray, resolution: float, *, free_centers
     known_z = known[:, 2]  # the ceiling may be unmapped (cameras look down): the known space's top bounds it then
     class_q = None if class_probs is None else np.round(class_probs * 255.0).astype(np.uint8)
     return PriorMap(res, origin.astype(np.float64), shape, np.ascontiguousarray(nearest.reshape(-1), np.int32),
+                    packed.reshape(-1),
                     np.ascontiguousarray(occ, np.float32), class_probs, class_q, top.reshape(-1),
                     free_clear.reshape(-1),
                     float(np.percentile(z, FLOOR_PERCENTILE)),
