@@ -341,7 +341,9 @@ def small_office_map(tmp_path_factory, office):
     from semmap.geometry import backproject_world
     from semmap.io.native import save_map
     from semmap.maps.semantic_octomap import SemanticOctoMap
+    from semmap.maps.voxel_grid import SemanticVoxelGrid
     from semmap.sim.export import simulate_sequence
+    from semmap.types import Observation
 
     _, _, frames = office
     root = tmp_path_factory.mktemp("loc")
@@ -351,6 +353,13 @@ def small_office_map(tmp_path_factory, office):
         flat = f.semantics.reshape_flat()
         m.insert_points(pts, f.T_world_cam[:3, 3], semantics=TopKProbs(flat.labels[pix], flat.probs[pix]))
     save_map(root / "map.semmap", m)
+    grid = SemanticVoxelGrid(RES, label_set=INDOOR_LABELS)
+    for f in frames:
+        pts, pix = backproject_world(f.depth, f.intrinsics, f.T_world_cam)
+        flat = f.semantics.reshape_flat()
+        grid.integrate(Observation(pts, f.T_world_cam[:3, 3], np.zeros((len(pts), 3), np.uint8),
+                                   TopKProbs(flat.labels[pix], flat.probs[pix])))
+    grid.save(root)
     seq = simulate_sequence(root / "seq", scene_seed=0, kind="office", size="small", frames=24, trajectory_seed=1,
                             intrinsics=CAMERA)
     return root / "map.semmap", seq
@@ -390,3 +399,19 @@ def test_localize_command_reports_bad_input_in_one_line(small_office_map, tmp_pa
         localize_sequence(map_path, seq, tmp_path / "o", LocalizeOptions(segmenter="none"))
     with pytest.raises(ConfigError, match="neither"):
         localize_sequence(map_path, seq, tmp_path / "o", LocalizeOptions(motion="no-such-source"))
+
+
+def test_a_voxel_grid_map_localizes_like_the_octree(small_office_map, office):
+    from semmap.localization.prior import load_prior
+
+    scene, _, frames = office
+    map_path, _ = small_office_map
+    octree, grid = load_prior(map_path), load_prior(map_path.parent / "voxelgrid.semmap")
+    assert grid.num_classes == octree.num_classes == len(INDOOR_LABELS)
+    assert abs(grid.num_occupied - octree.num_occupied) < 0.2 * octree.num_occupied
+    # without free-space cells, global samples come from empty cells above a mapped floor, inside the room
+    pf = ParticleFilter(grid, FilterSettings(particles=500), seed=0)
+    pf.init_global()
+    assert scene.inside_rooms(pf.t).mean() > 0.95
+    s = _run(grid, frames[:15], init=InitMode.TRACKING, particles=300).summary()
+    assert s["converged_to_truth"] and s["pos_err_m_after_convergence"]["median"] < 0.05

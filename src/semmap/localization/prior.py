@@ -119,10 +119,12 @@ def pack_nearest(nearest: np.ndarray, offset: np.ndarray) -> np.ndarray:
 
 def build_prior(occupied_centers: np.ndarray, resolution: float, *, free_centers: np.ndarray | None = None,
                 labels: np.ndarray | None = None, probs: np.ndarray | None = None,
-                label_set: LabelSet | None = None, cutoff: float = DEFAULT_CUTOFF_M,
-                clearance: float = DEFAULT_CLEARANCE_M) -> PriorMap:
-    """Lookup grids of a voxel map given its occupied voxel centres (M, 3), optional known-free voxel centres
-    and top-k class sets (M, k) of the occupied voxels (with their ``label_set``)."""
+                dense_probs: np.ndarray | None = None, label_set: LabelSet | None = None,
+                cutoff: float = DEFAULT_CUTOFF_M, clearance: float = DEFAULT_CLEARANCE_M) -> PriorMap:
+    """Lookup grids of a voxel map given its occupied voxel centres (M, 3), the class distributions of those
+    voxels (top-k sets ``labels``/``probs`` (M, k), or ``dense_probs`` (M, C)) with their ``label_set``, and the
+    known-free voxel centres.  Without free voxels, free space is taken to be the empty cells above a mapped
+    surface (a floor seen below them), which keeps global initialisation off the outside of the walls."""
     occ = np.asarray(occupied_centers, np.float64).reshape(-1, 3)
     if len(occ) == 0:
         raise ConfigError("the prior map has no occupied voxels to localize against")
@@ -152,6 +154,8 @@ def build_prior(occupied_centers: np.ndarray, resolution: float, *, free_centers
     if labels is not None and probs is not None:
         labels = np.asarray(labels).reshape(len(order), -1)[order]
         probs = np.asarray(probs).reshape(len(order), -1)[order]
+    if dense_probs is not None:
+        dense_probs = np.asarray(dense_probs, np.float32).reshape(len(order), -1)[order]
     occ_grid = np.zeros(shape, bool)
     occ_grid[tuple(occ_ijk.T)] = True
     voxel_of = np.full(shape, -1, np.int32)
@@ -164,11 +168,23 @@ def build_prior(occupied_centers: np.ndarray, resolution: float, *, free_centers
     free_grid = np.zeros(shape, bool)
     if len(free):
         free_grid[tuple(ijk_of(free).T)] = True
+    else:  # no free-space information: empty cells with a mapped surface somewhere below them
+        free_grid = np.maximum.accumulate(occ_grid, axis=2) & ~occ_grid
     free_clear = free_grid & ~occ_grid & (dist * res >= clearance)
 
     class_probs = None
     top = np.zeros(shape, np.uint16)
-    if labels is not None and probs is not None and label_set is not None:
+    if dense_probs is not None and label_set is not None:
+        if dense_probs.shape[1] != len(label_set):
+            raise ConfigError(f"class distributions have {dense_probs.shape[1]} classes, the label set "
+                              f"{len(label_set)}")
+        class_probs = np.ascontiguousarray(dense_probs, np.float32)
+        class_probs[:, 0] = 0.0  # "unknown" is no class a point can be matched to
+        class_probs /= np.maximum(class_probs.sum(axis=1, keepdims=True), 1e-12)
+        no_evidence = class_probs.sum(axis=1) < 0.5
+        class_probs[no_evidence, 1:] = 1.0 / (len(label_set) - 1)
+        top[tuple(occ_ijk.T)] = np.where(no_evidence, 0, class_probs.argmax(axis=1))
+    elif labels is not None and probs is not None and label_set is not None:
         labels = np.asarray(labels, np.uint16).reshape(len(occ), -1)
         probs = np.asarray(probs, np.float32).reshape(len(occ), -1)
         class_probs = dense_class_probs(labels, probs, len(label_set))
@@ -199,13 +215,41 @@ def prior_from_octomap(m, *, cutoff: float = DEFAULT_CUTOFF_M, clearance: float 
                        label_set=m.label_set, cutoff=cutoff, clearance=clearance)
 
 
+def prior_from_grid_map(m, *, cutoff: float = DEFAULT_CUTOFF_M, clearance: float = DEFAULT_CLEARANCE_M) -> PriorMap:
+    """Lookup grids of a :class:`~semmap.maps.voxel_grid.SemanticVoxelGrid` (or point map): its occupied voxels
+    with their full class distributions; free space from its occupancy OctoMap when it keeps one."""
+    cloud = m.cloud()
+    dense = m.class_probs() if m.label_set is not None else None
+    free = None
+    geometry = getattr(m, "geometry", None)
+    if geometry is not None:
+        cells = geometry.cells()
+        from semmap.keys import keys_to_coords, unpack_keys
+
+        free = keys_to_coords(unpack_keys(cells.packed[~geometry.is_occupied(cells.logodds)]), m.resolution)
+    return build_prior(cloud.centers, m.resolution, free_centers=free, dense_probs=dense, label_set=m.label_set,
+                       cutoff=cutoff, clearance=clearance)
+
+
+#: Map files of a run folder, in the order ``load_prior`` looks for them.
+MAP_FILES = ("map.semmap", "voxelgrid.semmap", "points.semmap")
+
+
 def load_prior(path: str | Path, **kwargs) -> PriorMap:
-    """Lookup grids of a map file written by semmap: a ``.semmap`` file, or a run folder holding ``map.semmap``."""
+    """Lookup grids of a map file written by semmap: the octree's ``map.semmap``, a voxel grid's
+    ``voxelgrid.semmap`` (or a point map's), or a run folder holding one of them."""
     path = Path(path)
     if path.is_dir():
-        if not (path / "map.semmap").is_file():
-            raise FormatError(f"{path}: folder has no map.semmap (map a sequence first with semmap run)")
-        path = path / "map.semmap"
+        found = next((path / name for name in MAP_FILES if (path / name).is_file()), None)
+        if found is None:
+            raise FormatError(f"{path}: folder has none of {', '.join(MAP_FILES)} (map a sequence first with "
+                              f"semmap run)")
+        path = found
+    from semmap.io.grid_files import load_grid, read_header
     from semmap.io.native import load_map
 
-    return prior_from_octomap(load_map(path), **kwargs)
+    try:
+        read_header(path)
+    except FormatError:  # not a grid map file: the octree's (whose reader says what is wrong, if anything)
+        return prior_from_octomap(load_map(path), **kwargs)
+    return prior_from_grid_map(load_grid(path), **kwargs)
