@@ -560,3 +560,89 @@ class Trajectory:
     def positions(self) -> np.ndarray:
         """(N, 3) camera centres in the world frame."""
         return self.poses[:, :3, 3]
+
+
+# --------------------------------------------------------------------------------------------------
+# Object instances
+# --------------------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class Instances:
+    """Object instances found in one frame, as an instance source hands them to the tracker and the object map.
+
+    ``ids`` (H, W) int32 is 0 where there is no instance and ``i + 1`` on detection ``i``'s mask (masks never
+    overlap); per detection ``class_ids`` (N,) int32 (of the source's label set), ``scores`` (N,) float32,
+    ``boxes`` (N, 4) float32 pixel extents ``x0, y0, x1, y1`` (inclusive), optional ``features`` (N, D) float32
+    unit-length appearance descriptors, and ``track_ids`` (N,) int32 once a tracker has named them (0 = none).
+    """
+
+    ids: np.ndarray
+    class_ids: np.ndarray
+    scores: np.ndarray
+    boxes: np.ndarray
+    features: np.ndarray | None = None
+    track_ids: np.ndarray | None = None
+
+    def __post_init__(self) -> None:
+        n = len(self.class_ids)
+        if self.ids.ndim != 2:
+            raise ConfigError(f"instance id image must be 2-D, got shape {self.ids.shape}")
+        if len(self.scores) != n or self.boxes.shape != (n, 4):
+            raise ConfigError(f"instances: {n} classes but {len(self.scores)} scores and boxes {self.boxes.shape}")
+        for what, arr in (("features", self.features), ("track ids", self.track_ids)):
+            if arr is not None and len(arr) != n:
+                raise ConfigError(f"instances: {n} detections but {len(arr)} {what}")
+
+    def __len__(self) -> int:
+        return len(self.class_ids)
+
+    @property
+    def pixel_counts(self) -> np.ndarray:
+        """(N,) int64 mask sizes in pixels."""
+        return np.bincount(self.ids.ravel(), minlength=len(self) + 1)[1:len(self) + 1]
+
+    def with_(self, **changes) -> Instances:
+        """Copy with some fields replaced."""
+        from dataclasses import replace
+
+        return replace(self, **changes)
+
+    @classmethod
+    def empty(cls, height: int, width: int) -> Instances:
+        return cls(np.zeros((height, width), np.int32), np.zeros(0, np.int32), np.zeros(0, np.float32),
+                   np.zeros((0, 4), np.float32))
+
+    @classmethod
+    def from_id_image(cls, ids: np.ndarray, class_ids: np.ndarray, scores: np.ndarray,
+                      features: np.ndarray | None = None) -> Instances:
+        """Instances of an id image (0 = none, i + 1 = detection i) with boxes measured from the masks;
+        detections whose mask is empty are dropped and the rest renumbered."""
+        ids = np.ascontiguousarray(ids, np.int32)
+        class_ids = np.asarray(class_ids, np.int32).reshape(-1)
+        scores = np.asarray(scores, np.float32).reshape(-1)
+        n = len(class_ids)
+        if ids.size and int(ids.max()) > n:
+            raise ConfigError(f"instance id image names detection {int(ids.max())} but only {n} are given")
+        boxes, present = mask_boxes(ids, n)
+        if not present.all():
+            renumber = np.zeros(n + 1, np.int32)
+            renumber[1:][present] = np.arange(1, int(present.sum()) + 1, dtype=np.int32)
+            ids = renumber[ids]
+            class_ids, scores, boxes = class_ids[present], scores[present], boxes[present]
+            features = None if features is None else features[present]
+        return cls(ids, class_ids, scores, boxes, None if features is None else np.asarray(features, np.float32))
+
+
+def mask_boxes(ids: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray]:
+    """Pixel extents (n, 4) float32 ``x0, y0, x1, y1`` (inclusive) of masks 1..n of an id image, and which
+    masks are non-empty (one C pass, ``scipy.ndimage.find_objects``)."""
+    from scipy.ndimage import find_objects
+
+    boxes = np.zeros((n, 4), np.float32)
+    present = np.zeros(n, bool)
+    if n == 0:
+        return boxes, present
+    for i, sl in enumerate(find_objects(np.asarray(ids, np.int32), max_label=n)):
+        if sl is not None:
+            present[i] = True
+            boxes[i] = (sl[1].start, sl[0].start, sl[1].stop - 1, sl[0].stop - 1)
+    return boxes, present

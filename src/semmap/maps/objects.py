@@ -1,0 +1,437 @@
+"""The object-oriented map: one point cloud per object instance, with a class, a centroid and a history.
+
+What *Multi-Objective Location and Mapping Based on Deep Learning and Visual SLAM* (Sec. 3.3-3.4) builds, per
+keyframe and tracked detection (:class:`~semmap.types.Instances` with track ids):
+
+1. the mask's pixels with depth are back-projected (every ``pixel_stride``-th row and column);
+2. statistical outlier removal (eq. 18): a point whose mean distance to its neighbours exceeds ``t = m + k s``
+   (mean and standard deviation of those distances over the detection) is dropped, which removes the depth of
+   whatever a mask bled onto. The K-neighbourhood of a point is its (up to 8) neighbours on the depth image's
+   pixel grid within the same mask, as for an organised cloud: one linear pass (``_object_kernels.py``) where a
+   k-d tree over all mask points took 100 ms per keyframe;
+3. the voxel filter keeps, per ``voxel`` cell, the point nearest the cell's centre;
+4. association (eqs. 16-17, 21-22): the new cloud B belongs to an existing object A when the weighted score
+   ``P = w . (P_ID, D, M)`` exceeds ``K``, with ``P_ID`` = 1 if A was seen under B's track id, ``D`` the centroid
+   distance (eqs. 16-17; its term is ``1 - d / 0.1 m``, so only distances below the paper's 0.1 m count) and ``M``
+   the overlap of eq. 21, ``AB / (A + B - AB)`` over cells of ``overlap_voxel``, between B and A's cloud of the
+   keyframe A was last seen in (the paper's two images), or, when larger, the share of B's cells A already holds
+   (a partial view of a part A has: a table's edge at the image border); its term is ``M / 0.8``, reaching 1
+   at the paper's threshold. Objects of another class are candidates only through the track id. The detections of one
+   keyframe are assigned one-to-one (``linear_sum_assignment`` on the scores), since two masks of one image are
+   two objects; a sighting that holds most of two or more objects of its class (a mask that merged neighbours)
+   is left out;
+5. objects become real after ``min_sightings`` keyframes (the paper's three sightings against false detections);
+6. objects that turn out to be one are merged: after each keyframe, the objects it touched are scored against
+   their neighbours of the same class with the same ``P``, where for two accumulated clouds, which may each
+   hold another side of the object, ``M`` is the share of the smaller cloud's cells the larger one has, at the
+   overlap cell or at the coarser ``merge_voxel`` (the paper's octree of eq. 21, one level up), whichever is
+   larger; two
+   objects the segmenter told apart in the same keyframes (books side by side) are never merged.
+
+Every object keeps score-weighted class votes, its cells, points and colours, track ids, sightings and the first
+and last frame it was seen in; its centroid is the mean of its points (eq. 16).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.optimize import linear_sum_assignment
+
+from semmap.errors import ConfigError
+from semmap.geometry import pixel_rays
+from semmap.maps._object_kernels import grid_neighbour_distances
+from semmap.types import CameraIntrinsics, Instances, LabelSet
+
+#: Cell keys are packed as three 21-bit signed fields: +-1e6 cells (10 km at 1 cm).
+_KEY_BITS = 21
+_KEY_OFFSET = 1 << (_KEY_BITS - 1)
+#: A sighting holding this share of each of two or more objects' last clouds merged them: it is left out.
+SPAN_SHARE = 0.5
+#: Objects must span this many merge cells each before their coarse overlap counts (a book spans two or three).
+MIN_COARSE_CELLS = 8
+#: Two objects detected apart in at least this many keyframes are never merged.
+MIN_SEEN_APART = 1
+
+
+@dataclass(frozen=True)
+class ObjectMapParams:
+    """Settings of :class:`ObjectMap` (paper values where it gives them: 0.1 m, 0.8, 3 sightings)."""
+
+    voxel: float = 0.01  #: voxel filter cell (m)
+    pixel_stride: int = 3  #: back-project every k-th mask pixel row and column (3: about the 1 cm cell at 1.5 m)
+    min_depth: float = 0.1
+    max_depth: float = 4.0  #: farther depth is too noisy for object clouds (m)
+    sor_k: float = 1.0  #: k of eq. 18, t = m + k s
+    min_points: int = 8  #: detections with fewer points after filtering are ignored
+    centroid_distance: float = 0.1  #: eq. 17's threshold (m)
+    overlap_voxel: float = 0.03  #: cell of the overlap test of eq. 21 (m)
+    #: coarser cell (m) at which two accumulated objects' overlap is also measured when deciding a merge: two
+    #: partial clouds of one desk, seen from its two sides, share few 3 cm cells but most 10 cm ones
+    merge_voxel: float = 0.1
+    overlap_threshold: float = 0.8  #: eq. 21's threshold
+    weights: tuple[float, float, float] = (0.35, 0.25, 0.4)  #: w of eq. 22 for (P_ID, D, M)
+    score_threshold: float = 0.33  #: K of eq. 22
+    min_sightings: int = 3  #: keyframes before an object is real
+    search_radius: float = 1.0  #: objects whose centroid is farther (m) are not compared (but by track id)
+
+    def __post_init__(self) -> None:
+        if min(self.voxel, self.overlap_voxel, self.centroid_distance, self.overlap_threshold) <= 0:
+            raise ConfigError("object map: voxel, overlap_voxel, centroid_distance and overlap_threshold must be > 0")
+        if self.pixel_stride < 1 or self.min_sightings < 1 or self.min_points < 1:
+            raise ConfigError("object map: pixel_stride, min_points and min_sightings must be >= 1")
+        if not 0 <= self.min_depth < self.max_depth:
+            raise ConfigError(f"object map: depth range [{self.min_depth}, {self.max_depth}] is empty")
+        if len(self.weights) != 3 or min(self.weights) < 0:
+            raise ConfigError(f"object map: eq. 22 needs three non-negative weights, got {self.weights}")
+
+
+@dataclass
+class MapObject:
+    """One object: its cloud (one point per ``voxel`` cell, sorted by cell key) and what was seen of it."""
+
+    id: int
+    votes: np.ndarray  # (K,) score-weighted class votes
+    keys: np.ndarray  # (M,) int64 sorted cell keys
+    points: np.ndarray  # (M, 3) float32 world points
+    colors: np.ndarray  # (M, 3) uint8
+    cells: np.ndarray  # sorted overlap-cell keys of everything seen
+    last_cells: np.ndarray  # sorted overlap-cell keys of the last keyframe's sighting
+    coarse: np.ndarray  # sorted merge-cell keys of everything seen
+    track_ids: set[int] = field(default_factory=set)
+    keyframes: set[int] = field(default_factory=set)  # keyframes it was seen in
+    sightings: int = 0
+    first_frame: int = 0
+    last_frame: int = 0
+    _last_keyframe: int = -1
+    _point_sum: np.ndarray = field(default_factory=lambda: np.zeros(3))
+
+    @property
+    def class_id(self) -> int:
+        return int(np.argmax(self.votes))
+
+    @property
+    def confidence(self) -> float:
+        """Share of the class votes its class holds."""
+        total = float(self.votes.sum())
+        return float(self.votes.max()) / total if total > 0 else 0.0
+
+    @property
+    def centroid(self) -> np.ndarray:
+        """Mean of the object's points (eq. 16)."""
+        return self._point_sum / max(len(self.points), 1)
+
+    def __len__(self) -> int:
+        return len(self.keys)
+
+
+@dataclass(frozen=True)
+class Sighting:
+    """One detection's filtered cloud in one keyframe (world frame), before association."""
+
+    detection: int
+    class_id: int
+    score: float
+    track_id: int
+    keys: np.ndarray
+    points: np.ndarray
+    colors: np.ndarray
+    cells: np.ndarray
+    centroid: np.ndarray
+    points_cam: np.ndarray  # the filtered points in the camera frame (for pose constraints)
+    raw_points: int  # points before the filters
+
+
+class ObjectMap:
+    """Objects accumulated over keyframes (see the module docstring); ``integrate`` once per keyframe."""
+
+    def __init__(self, label_set: LabelSet, params: ObjectMapParams | None = None) -> None:
+        self.label_set = label_set
+        self.params = ObjectMapParams() if params is None else params
+        self.objects: dict[int, MapObject] = {}
+        self.merged_into: dict[int, int] = {}
+        self._next_id = 1
+        self.keyframes = 0
+        self.points_in = 0  # points back-projected from masks (before any filter)
+        self.points_after_sor = 0
+        self.merged_masks = 0  # sightings left out because they covered several objects
+
+    # ------------------------------------------------------------------ queries
+    def real_objects(self) -> list[MapObject]:
+        """Objects seen in at least ``min_sightings`` keyframes, by id."""
+        return [o for _, o in sorted(self.objects.items()) if o.sightings >= self.params.min_sightings]
+
+    def objects_of_class(self, name: str) -> list[MapObject]:
+        """Real objects whose class is ``name``."""
+        cid = self.label_set.id_of(name)
+        return [o for o in self.real_objects() if o.class_id == cid]
+
+    def nearest(self, point: np.ndarray, class_name: str | None = None) -> tuple[MapObject | None, float]:
+        """The real object (of ``class_name``, if given) whose cloud comes closest to ``point``, and the distance."""
+        candidates = self.objects_of_class(class_name) if class_name else self.real_objects()
+        best, best_d = None, np.inf
+        p = np.asarray(point, np.float64).reshape(3)
+        for o in candidates:
+            d = float(np.sqrt(((o.points - p) ** 2).sum(axis=1).min()))
+            if d < best_d:
+                best, best_d = o, d
+        return best, best_d
+
+    def resolve(self, object_id: int) -> int:
+        """The id an object id lives on under after merges."""
+        while object_id in self.merged_into:
+            object_id = self.merged_into[object_id]
+        return object_id
+
+    # ------------------------------------------------------------------ integration
+    def integrate(self, instances: Instances, depth: np.ndarray, rgb: np.ndarray, intrinsics: CameraIntrinsics,
+                  T_world_cam: np.ndarray, frame_index: int) -> np.ndarray:
+        """Add one keyframe's tracked detections; returns the object id each joined (0: too few points)."""
+        sightings = self.sightings(instances, depth, rgb, intrinsics, T_world_cam)
+        self.keyframes += 1
+        assigned = np.zeros(len(instances), np.int64)
+        touched: list[int] = []
+        matches = self._associate(sightings)
+        for i, s in enumerate(sightings):
+            obj = matches.get(i)
+            if obj is None:
+                obj = self._new_object(s, frame_index)
+            else:
+                self._add(obj, s, frame_index)
+            assigned[s.detection] = obj.id
+            touched.append(obj.id)
+        self._index()
+        for obj_id in dict.fromkeys(touched):
+            self._merge_around(obj_id)
+        return np.array([self.resolve(int(i)) if i else 0 for i in assigned], np.int64)
+
+    def sightings(self, instances: Instances, depth: np.ndarray, rgb: np.ndarray, intrinsics: CameraIntrinsics,
+                  T_world_cam: np.ndarray) -> list[Sighting]:
+        """Each detection's cloud after back-projection, outlier removal (eq. 18) and the voxel filter."""
+        p = self.params
+        s = p.pixel_stride
+        d = np.asarray(depth[::s, ::s], np.float64)
+        ids = np.where((d >= p.min_depth) & (d <= p.max_depth) & np.isfinite(d), instances.ids[::s, ::s], 0)
+        ids = np.ascontiguousarray(ids, np.int32)
+        rays = pixel_rays(intrinsics)
+        x = rays.x[::s][None, :] * d
+        y = rays.y[::s][:, None] * d
+        # statistical outlier removal (eq. 18) with each point's grid neighbours in its mask as its K-neighbourhood
+        mean_d = grid_neighbour_distances(ids, x, np.ascontiguousarray(y), d)
+        v, u = np.nonzero(ids)
+        det = ids[v, u].astype(np.int64) - 1
+        counts = np.bincount(det, minlength=len(instances))
+        self.points_in += len(det)
+        keep = outlier_mask(mean_d[v, u], det, len(instances), p.sor_k) & (counts >= p.min_points)[det]
+        v, u, det = v[keep], u[keep], det[keep]
+        pts = np.column_stack([x[v, u], y[v, u], d[v, u]])
+        cols = rgb[v * s, u * s]
+        self.points_after_sor += len(pts)
+        world = pts @ T_world_cam[:3, :3].T + T_world_cam[:3, 3]
+        # voxel filter: per (detection, cell) the point nearest the cell centre
+        cell = np.floor(world / p.voxel)
+        keys = pack_cells(cell.astype(np.int64))
+        off = ((world / p.voxel - cell - 0.5) ** 2).sum(axis=1)
+        order = np.lexsort((off, keys, det))
+        first = np.ones(len(order), bool)
+        first[1:] = (det[order][1:] != det[order][:-1]) | (keys[order][1:] != keys[order][:-1])
+        rep = order[first]
+        rep_det = det[rep]
+        out: list[Sighting] = []
+        bounds = np.searchsorted(rep_det, np.arange(len(instances) + 1))
+        tracks = instances.track_ids if instances.track_ids is not None else np.zeros(len(instances), np.int32)
+        for k in range(len(instances)):
+            r = rep[bounds[k]:bounds[k + 1]]
+            if len(r) < p.min_points:
+                continue
+            w = world[r]
+            cells = np.unique(pack_cells(np.floor(w / p.overlap_voxel).astype(np.int64)))
+            out.append(Sighting(k, int(instances.class_ids[k]), float(instances.scores[k]), int(tracks[k]),
+                                keys[r], w.astype(np.float32), cols[r], cells, w.mean(axis=0), pts[r],
+                                int(counts[k])))
+        return out
+
+    # ------------------------------------------------------------------ association
+    def score(self, same_track: bool, distance: float, overlap: float) -> float:
+        """Eq. 22: ``P = w . (P_ID, D, M)`` with the distance and overlap terms scaled to the paper's thresholds."""
+        p = self.params
+        d_term = max(0.0, 1.0 - distance / p.centroid_distance)
+        m_term = min(1.0, overlap / p.overlap_threshold)
+        w = p.weights
+        return w[0] * float(same_track) + w[1] * d_term + w[2] * m_term
+
+    def _associate(self, sightings: list[Sighting]) -> dict[int, MapObject]:
+        """Sighting index -> the existing object it belongs to by eq. 22: one-to-one per keyframe (two
+        detections of one image are two objects), the assignment with the highest total score above ``K``."""
+        pairs: dict[tuple[int, int], float] = {}
+        self._index()
+        for i, s in enumerate(sightings):
+            candidates = self._candidates(s.centroid, s.class_id, s.track_id)
+            if self._spans_several(s, candidates):
+                self.merged_masks += 1
+                continue
+            for obj in candidates:
+                same = s.track_id > 0 and s.track_id in obj.track_ids
+                dist = float(np.linalg.norm(obj.centroid - s.centroid))
+                overlap = max(overlap_iou(s.cells, obj.last_cells), overlap_share(s.cells, obj.cells))
+                score = self.score(same, dist, overlap)
+                if score > self.params.score_threshold:
+                    pairs[i, obj.id] = score
+        if not pairs:
+            return {}
+        obj_ids = sorted({o for _, o in pairs})
+        col = {o: j for j, o in enumerate(obj_ids)}
+        gain = np.zeros((len(sightings), len(obj_ids)))
+        for (i, o), score in pairs.items():
+            gain[i, col[o]] = score
+        rows, cols = linear_sum_assignment(-gain)
+        return {int(r): self.objects[obj_ids[c]] for r, c in zip(rows, cols, strict=True) if gain[r, c] > 0}
+
+    def _spans_several(self, s: Sighting, candidates: list[MapObject]) -> bool:
+        """Whether the sighting covers most of two or more objects of its class: a mask that merged neighbours
+        (books side by side) would otherwise glue them into one object."""
+        covered = 0
+        for obj in candidates:
+            if obj.class_id == s.class_id and len(obj.last_cells) and \
+                    overlap_share(obj.last_cells, s.cells) >= SPAN_SHARE:
+                covered += 1
+        return covered >= 2
+
+    def _index(self) -> None:
+        """Snapshot of every object's id, class and centroid (arrays) and which objects each track id saw."""
+        objs = list(self.objects.values())
+        self._ix_ids = np.array([o.id for o in objs], np.int64)
+        self._ix_cls = np.array([o.class_id for o in objs], np.int64)
+        self._ix_cen = np.array([o.centroid for o in objs]).reshape(-1, 3)
+        self._ix_track: dict[int, list[int]] = {}
+        for o in objs:
+            for t in o.track_ids:
+                self._ix_track.setdefault(t, []).append(o.id)
+
+    def _candidates(self, centroid: np.ndarray, class_id: int, track_id: int) -> list[MapObject]:
+        """Objects of ``class_id`` within ``search_radius`` of ``centroid``, and those seen under ``track_id``."""
+        near = (self._ix_cls == class_id) & (((self._ix_cen - centroid) ** 2).sum(axis=1)
+                                              <= self.params.search_radius**2)
+        ids = set(self._ix_ids[near].tolist())
+        if track_id > 0:
+            ids.update(self._ix_track.get(track_id, ()))
+        return [self.objects[i] for i in sorted(ids) if i in self.objects]
+
+    def _new_object(self, s: Sighting, frame_index: int) -> MapObject:
+        votes = np.zeros(len(self.label_set))
+        obj = MapObject(self._next_id, votes, s.keys[:0], s.points[:0], s.colors[:0], s.cells[:0], s.cells[:0],
+                        s.cells[:0], first_frame=frame_index)
+        self._next_id += 1
+        self.objects[obj.id] = obj
+        self._add(obj, s, frame_index)
+        return obj
+
+    def _add(self, obj: MapObject, s: Sighting, frame_index: int) -> None:
+        obj.votes[min(s.class_id, len(obj.votes) - 1)] += s.score
+        if s.track_id > 0:
+            obj.track_ids.add(s.track_id)
+        obj.keyframes.add(self.keyframes)
+        if obj._last_keyframe != self.keyframes:  # two pieces of one object in a keyframe: one sighting
+            obj.sightings += 1
+            obj.last_cells = s.cells
+        else:
+            obj.last_cells = np.union1d(obj.last_cells, s.cells)
+        obj._last_keyframe = self.keyframes
+        obj.last_frame = frame_index
+        new = ~np.isin(s.keys, obj.keys, assume_unique=True)  # cells the object already has keep their point
+        keys = np.concatenate([obj.keys, s.keys[new]])
+        order = np.argsort(keys, kind="stable")
+        obj.keys = keys[order]
+        obj.points = np.concatenate([obj.points, s.points[new]])[order]
+        obj._point_sum = obj._point_sum + s.points[new].sum(axis=0, dtype=np.float64)
+        obj.colors = np.concatenate([obj.colors, s.colors[new]])[order]
+        obj.cells = np.union1d(obj.cells, s.cells)
+        obj.coarse = np.union1d(obj.coarse, pack_cells(np.floor(s.points / self.params.merge_voxel).astype(np.int64)))
+
+    # ------------------------------------------------------------------ merging
+    def _merge_around(self, obj_id: int) -> None:
+        """Merge ``obj_id`` with any neighbour of its class that eq. 22 says is the same object."""
+        obj_id = self.resolve(obj_id)
+        obj = self.objects.get(obj_id)
+        if obj is None:
+            return
+        for other in self._candidates(obj.centroid, obj.class_id, -1):
+            if other.id == obj.id or other.class_id != obj.class_id or other.id not in self.objects:
+                continue
+            if len(obj.keyframes & other.keyframes) >= MIN_SEEN_APART:
+                continue  # the segmenter told them apart in the same images: two objects side by side
+            same = bool(obj.track_ids & other.track_ids)
+            dist = float(np.linalg.norm(obj.centroid - other.centroid))
+            overlap = overlap_containment(obj.cells, other.cells)
+            if min(len(obj.coarse), len(other.coarse)) >= MIN_COARSE_CELLS:  # large objects only: not two books
+                overlap = max(overlap, overlap_containment(obj.coarse, other.coarse))
+            if self.score(same, dist, overlap) > self.params.score_threshold:
+                keep, gone = (obj, other) if obj.id < other.id else (other, obj)
+                self._absorb(keep, gone)
+                obj = keep
+
+    def _absorb(self, keep: MapObject, gone: MapObject) -> None:
+        keep.votes += gone.votes
+        keep.track_ids |= gone.track_ids
+        keep.keyframes |= gone.keyframes
+        keep.sightings = keep.sightings + gone.sightings
+        keep.first_frame = min(keep.first_frame, gone.first_frame)
+        keep.last_frame = max(keep.last_frame, gone.last_frame)
+        keep.last_cells = np.union1d(keep.last_cells, gone.last_cells) if gone._last_keyframe == self.keyframes \
+            else keep.last_cells
+        new = ~np.isin(gone.keys, keep.keys, assume_unique=True)
+        keys = np.concatenate([keep.keys, gone.keys[new]])
+        order = np.argsort(keys, kind="stable")
+        keep.keys = keys[order]
+        keep.points = np.concatenate([keep.points, gone.points[new]])[order]
+        keep._point_sum = keep._point_sum + gone.points[new].sum(axis=0, dtype=np.float64)
+        keep.colors = np.concatenate([keep.colors, gone.colors[new]])[order]
+        keep.cells = np.union1d(keep.cells, gone.cells)
+        keep.coarse = np.union1d(keep.coarse, gone.coarse)
+        del self.objects[gone.id]
+        self.merged_into[gone.id] = keep.id
+
+
+def outlier_mask(mean_distance: np.ndarray, groups: np.ndarray, n_groups: int, k: float) -> np.ndarray:
+    """(N,) bool: points kept by statistical outlier removal (eq. 18): a point goes when its mean neighbour
+    distance exceeds ``t = m + k s``, the mean and standard deviation of those distances over its group (points
+    without a neighbour, ``inf``, always go and are left out of the statistics)."""
+    finite = np.isfinite(mean_distance)
+    g = groups[finite]
+    dist = mean_distance[finite]
+    cnt = np.bincount(g, minlength=n_groups)
+    m = np.bincount(g, weights=dist, minlength=n_groups) / np.maximum(cnt, 1)
+    var = np.bincount(g, weights=(dist - m[g]) ** 2, minlength=n_groups) / np.maximum(cnt, 1)
+    t = m + k * np.sqrt(var)
+    return finite & (np.where(finite, mean_distance, 0.0) <= t[groups])
+
+
+def pack_cells(cells: np.ndarray) -> np.ndarray:
+    """(N,) int64 keys of (N, 3) integer cell coordinates (21 bits each, offset to stay non-negative)."""
+    c = np.asarray(cells, np.int64) + _KEY_OFFSET
+    if c.size and (c.min() < 0 or c.max() >= 1 << _KEY_BITS):
+        raise ConfigError("object map: point coordinates out of range (more than a million cells from the origin)")
+    return (c[:, 0] << (2 * _KEY_BITS)) | (c[:, 1] << _KEY_BITS) | c[:, 2]
+
+
+def overlap_iou(a: np.ndarray, b: np.ndarray) -> float:
+    """Eq. 21, ``M = AB / (A + B - AB)``, of two sorted unique cell-key arrays."""
+    if len(a) == 0 or len(b) == 0:
+        return 0.0
+    ab = len(np.intersect1d(a, b, assume_unique=True))
+    return ab / (len(a) + len(b) - ab)
+
+
+def overlap_share(a: np.ndarray, b: np.ndarray) -> float:
+    """``AB / A``: the share of cell set ``a`` that ``b`` also holds."""
+    if len(a) == 0:
+        return 0.0
+    return len(np.intersect1d(a, b, assume_unique=True)) / len(a)
+
+
+def overlap_containment(a: np.ndarray, b: np.ndarray) -> float:
+    """``AB / min(A, B)``: the share of the smaller cell set the larger one also holds."""
+    if len(a) == 0 or len(b) == 0:
+        return 0.0
+    return len(np.intersect1d(a, b, assume_unique=True)) / min(len(a), len(b))

@@ -1,0 +1,98 @@
+"""Instances from any semantic segmenter: connected regions of one object class, cut at depth discontinuities.
+
+A semantic segmentation says "chair" but not which chair. Two chairs side by side are one region of the class
+image, yet the depth image jumps between them (the nearer one occludes the farther) or the floor shows between
+them. So pixels are cut wherever the class changes or the depth jumps by more than ``DEPTH_JUMP_REL`` of the
+depth (at least ``DEPTH_JUMP_MIN``), and the rest is split into 4-connected components in one OpenCV pass over
+the whole image; a component is an instance of its class when it is large enough and its class is an object
+class. The cut pixels (a one-pixel seam along every outline) belong to no instance, which also keeps the mixed
+depth of object edges out of the object clouds.
+"""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+
+from semmap.errors import ConfigError
+from semmap.perception.base import Segmenter
+from semmap.perception.instances.base import thing_classes
+from semmap.types import Frame, Instances, LabelSet, TopKProbs
+
+#: Depth jump (fraction of the depth) between neighbouring pixels that separates two instances.
+DEPTH_JUMP_REL = 0.04
+#: ... but never less than this (metres): Kinect depth noise between neighbours stays below it up to ~3 m.
+DEPTH_JUMP_MIN = 0.03
+#: Components smaller than this share of the image are dropped (300 px at 640x480).
+MIN_AREA_FRACTION = 300 / (640 * 480)
+
+
+class ComponentInstances:
+    """:class:`~semmap.perception.instances.InstanceSource` over a :class:`~semmap.perception.base.Segmenter`."""
+
+    name = "components"
+
+    def __init__(self, segmenter: Segmenter, *, min_area_fraction: float = MIN_AREA_FRACTION,
+                 depth_jump_rel: float = DEPTH_JUMP_REL, depth_jump_min: float = DEPTH_JUMP_MIN) -> None:
+        if not 0.0 <= min_area_fraction < 1.0 or depth_jump_rel <= 0 or depth_jump_min < 0:
+            raise ConfigError("components: min_area_fraction in [0, 1), depth_jump_rel > 0, depth_jump_min >= 0")
+        self.segmenter = segmenter
+        self.min_area_fraction = float(min_area_fraction)
+        self.depth_jump_rel, self.depth_jump_min = float(depth_jump_rel), float(depth_jump_min)
+        self._things = thing_classes(segmenter.label_set)
+
+    @property
+    def label_set(self) -> LabelSet:
+        return self.segmenter.label_set
+
+    def detect(self, frame: Frame, semantics: TopKProbs | None = None) -> Instances:
+        """Instances of ``frame`` from ``semantics`` (the segmenter runs when they are not given)."""
+        if semantics is None:
+            semantics = self.segmenter.segment(frame)
+        return components(semantics.labels[..., 0], semantics.probs[..., 0], frame.depth, self._things,
+                          min_pixels=max(1, round(self.min_area_fraction * frame.depth.size)),
+                          depth_jump_rel=self.depth_jump_rel, depth_jump_min=self.depth_jump_min)
+
+
+def components(labels: np.ndarray, confidence: np.ndarray, depth: np.ndarray, things: np.ndarray, *,
+               min_pixels: int, depth_jump_rel: float = DEPTH_JUMP_REL,
+               depth_jump_min: float = DEPTH_JUMP_MIN) -> Instances:
+    """Instances of a class image (H, W) with its per-pixel confidence and depth (metres, 0 = invalid): connected
+    regions of one object class (``things`` (K,) bool) without a class change or a depth jump inside, of at least
+    ``min_pixels`` pixels; score = mean confidence."""
+    labels = np.asarray(labels).astype(np.int64)
+    if labels.shape != depth.shape:
+        raise ConfigError(f"class image {labels.shape} and depth {depth.shape} differ in size")
+    is_thing = np.zeros(max(int(labels.max(initial=0)) + 1, len(things)), bool)
+    is_thing[: len(things)] = things
+    cut = _seams(labels, np.asarray(depth, np.float32), depth_jump_rel, depth_jump_min)
+    region = is_thing[labels] & ~cut
+    n, comp, stats, _ = cv2.connectedComponentsWithStats(region.astype(np.uint8), connectivity=4, ltype=cv2.CV_32S)
+    if n <= 1:
+        return Instances.empty(*labels.shape)
+    area = stats[1:, cv2.CC_STAT_AREA]
+    flat = comp.ravel()
+    inside = flat > 0
+    # class of each component: every pixel of a component has the same class (class changes are cut)
+    cls = np.zeros(n, np.int64)
+    cls[flat[inside]] = labels.ravel()[inside]
+    conf = np.bincount(flat, weights=np.asarray(confidence, np.float64).ravel(), minlength=n)[1:] / np.maximum(area, 1)
+    big = area >= min_pixels
+    renumber = np.zeros(n, np.int32)
+    renumber[1:][big] = np.arange(1, int(big.sum()) + 1)
+    return Instances.from_id_image(renumber[comp], cls[1:][big], conf[big].astype(np.float32))
+
+
+def _seams(labels: np.ndarray, depth: np.ndarray, rel: float, floor: float) -> np.ndarray:
+    """(H, W) bool: pixels whose right or lower neighbour has another class or lies across a depth jump."""
+    cut = np.zeros(labels.shape, bool)
+    for axis in (0, 1):
+        a = [slice(None), slice(None)]
+        b = [slice(None), slice(None)]
+        a[axis], b[axis] = slice(None, -1), slice(1, None)
+        la, lb = labels[tuple(a)], labels[tuple(b)]
+        da, db = depth[tuple(a)], depth[tuple(b)]
+        both = (da > 0) & (db > 0)
+        jump = both & (np.abs(da - db) > np.maximum(floor, rel * np.minimum(da, db)))
+        cut[tuple(a)] |= (la != lb) | jump
+    return cut
