@@ -24,6 +24,7 @@ _MAPPING = "Mapping"
 _SEMANTICS = "Semantics"
 _OUTPUT = "Output"
 _POSES = "Poses"
+_OBJECTS = "Objects"
 _ROS = "ROS bags"
 _MAPS = "Maps and fusion"
 
@@ -120,7 +121,9 @@ def run(
                                                    rich_help_panel=_SEMANTICS)
                           ] = None,
     poses: Annotated[str, typer.Option(help="gt (the dataset's) | slam | slam-noloop | slam-orb | slam-features | "
-                                            "odometry | PATH of a TUM trajectory", rich_help_panel=_POSES)] = "gt",
+                                            "odometry | X-objects (tracker X with object-constrained keyframes, "
+                                            "needs --instances) | PATH of a TUM trajectory",
+                                       rich_help_panel=_POSES)] = "gt",
     color_mode: Annotated[str, typer.Option(help="class | rgb: voxel colour in map.ot",
                                             rich_help_panel=_OUTPUT)] = "class",
     rerun: Annotated[Path | None, typer.Option(help="log images, poses and the growing map to this rerun "
@@ -147,15 +150,23 @@ def run(
                                       rich_help_panel=_MAPS)] = False,
     crf_every: Annotated[int, typer.Option(help="with --crf, also refine every N keyframes while mapping",
                                            rich_help_panel=_MAPS)] = 0,
+    instances: Annotated[str | None, typer.Option(help="oracle | components | maskrcnn: also build the object map "
+                                                   "(objects.json, objects.ply)", rich_help_panel=_OBJECTS)] = None,
+    instance_weights: Annotated[Path | None, typer.Option(help="Mask R-CNN weights (--instances maskrcnn)",
+                                                          rich_help_panel=_OBJECTS)] = None,
+    instance_errors: Annotated[str, typer.Option(help="oracle instances' errors: exact | maskrcnn-like | noisy",
+                                                 rich_help_panel=_OBJECTS)] = "maskrcnn-like",
     verbose: Annotated[bool, typer.Option("--verbose", "-v", help="debug logging")] = False,
 ) -> None:
-    """Map an RGB-D sequence: writes map.ot, map.bt, map.semmap (and voxelgrid.* / points.* for --maps),
-    preview.png, trajectory.txt, report.json, report.md and config.json."""
+    """Map an RGB-D sequence: writes map.ot, map.bt, map.semmap (and voxelgrid.* / points.* for --maps,
+    objects.json / objects.ply for --instances), preview.png, trajectory.txt, report.json, report.md and
+    config.json."""
     _setup_logging(verbose)
     from semmap.config import (
         CrfConfig,
         InputConfig,
         MappingConfig,
+        ObjectsConfig,
         OutputConfig,
         PosesConfig,
         RosConfig,
@@ -183,12 +194,15 @@ def run(
                                   fusion=fusion, class_prior=class_prior),
         poses=PosesConfig(source=poses),
         crf=CrfConfig(enabled=crf, every=crf_every),
+        objects=ObjectsConfig(instances=instances, weights=instance_weights, errors=instance_errors),
         output=OutputConfig(out=out, color_mode=parse_color_mode(color_mode), rerun=rerun, rerun_spawn=rerun_spawn,
                             rerun_map_every=rerun_map_every),
     ))
-    result = Pipeline(config, segmenter=_segmenter(config), progress=progress_bar("mapping"),
+    run_segmenter = _segmenter(config)
+    result = Pipeline(config, segmenter=run_segmenter, progress=progress_bar("mapping"),
                       track_progress=progress_bar(f"tracking ({poses})"),
-                      ground_truth=_simulated_ground_truth(dataset)).run()
+                      ground_truth=_simulated_ground_truth(dataset),
+                      instances=_instance_source(config, run_segmenter)).run()
     _print_summary(result.report, result.out_dir)
 
 
@@ -228,6 +242,23 @@ def _segmenter(config):
     return make_segmenter(name, weights=s.weights, label_set=label_set, k=s.k, label_confidence=s.label_confidence,
                           oracle_preset=s.oracle_preset, seed=s.seed, backend=s.backend, batch_size=s.batch_size,
                           input_size=s.input_size)
+
+
+def _instance_source(config, segmenter):
+    """The instance source ``--instances`` names (None without it)."""
+    o = config.objects
+    if o.instances is None:
+        return None
+    from semmap.perception.instances import make_instance_source
+
+    label_set = None
+    if segmenter is None:
+        from semmap.datasets import open_dataset
+
+        c = config.input
+        label_set = open_dataset(c.dataset, c.format, labels=c.labels, max_frames=1, ros=c.ros.options()).label_set
+    return make_instance_source(o.instances, label_set=label_set, segmenter=segmenter, weights=o.weights,
+                                preset=o.errors, seed=o.seed)
 
 
 def _size(text: str | None) -> tuple[int, int] | int | None:

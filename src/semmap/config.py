@@ -151,6 +151,13 @@ class OutputConfig(_Section):
     rerun_map_every: int = Field(10, ge=1, description="frames between two logs of the whole map")
 
 
+class ObjectsConfig(_Section):
+    instances: str | None = Field(None, description="oracle | components | maskrcnn: build the object map (None: no)")
+    weights: Path | None = Field(None, description="Mask R-CNN state dict (--instances maskrcnn)")
+    errors: str = Field("maskrcnn-like", description="oracle instances' error preset: exact | maskrcnn-like | noisy")
+    seed: int = 0
+
+
 class RunConfig(_Section):
     """Everything one ``semmap run`` needs."""
 
@@ -159,6 +166,7 @@ class RunConfig(_Section):
     semantics: SemanticsConfig = SemanticsConfig()
     poses: PosesConfig = PosesConfig()
     crf: CrfConfig = CrfConfig()
+    objects: ObjectsConfig = ObjectsConfig()
     output: OutputConfig
 
     def to_json(self) -> str:

@@ -27,7 +27,9 @@ from semmap.geometry import backproject_world, pixel_normals
 from semmap.io.atomic import write_text_atomic
 from semmap.maps.base import SemanticMap
 from semmap.maps.registry import compile_kernels, get_map
+from semmap.object_stage import ObjectStage
 from semmap.perception.base import Segmenter
+from semmap.perception.instances.base import InstanceSource
 from semmap.perception.schedule import Scheduler, SegmentationSchedule, with_semantics
 from semmap.types import Frame, LabelSet, MapCloud, MapKind, Observation, TopKProbs, Trajectory, muted_grey
 from semmap.viz.preview import CEILING_MARGIN, perspective, side_by_side, top_down, up_vector, write_png
@@ -167,9 +169,12 @@ class Pipeline:
     def __init__(self, config: RunConfig, *, segmenter: Segmenter | None = None,
                  progress: Callable[[Iterator, int], Iterator] | None = None, dataset: Dataset | None = None,
                  ground_truth: GroundTruthFn | None = None, title: str = "semmap run",
-                 track_progress: Callable[[Iterator, int], Iterator] | None = None):
+                 track_progress: Callable[[Iterator, int], Iterator] | None = None,
+                 instances: InstanceSource | None = None):
         self.config = config
         self.segmenter = segmenter
+        self.instances = instances  # an instance source builds the object map beside the maps
+        self._objects: ObjectStage | None = None
         self.progress = progress or (lambda it, n: it)
         self.track_progress = track_progress
         self.dataset = dataset
@@ -191,6 +196,7 @@ class Pipeline:
         mapper = Mapper(maps, min_depth=self.config.mapping.min_depth, max_depth=self.config.mapping.max_depth,
                         pixel_stride=self.config.mapping.pixel_stride)
         pose_of = self._pose_source(dataset)
+        self._objects = ObjectStage(self.instances) if self.instances is not None else None
         timings, poses, no_pose = self._integrate_all(dataset, mapper, label_set, pose_of)
         self._viewer.finish(maps[0])
         crf = self._refine(maps, poses) if self.config.crf.enabled else {}
@@ -198,6 +204,8 @@ class Pipeline:
         report = self._report(dataset, mapper, timings, poses, no_pose, sizes)
         report["startup_s"] = round(startup_s, 3)
         report.update(self._trajectory_outputs(pose_of, files))
+        if self._objects is not None:
+            report["objects"] = self._objects.report(mapper.keyframes)
         report.update(self._evaluate(maps[0]))
         if maps[0].kind in crf and "miou_3d_before" in crf[maps[0].kind]:
             report["miou_3d_before_crf"] = crf[maps[0].kind]["miou_3d_before"]
@@ -288,11 +296,14 @@ class Pipeline:
         source = self.config.poses.source
         if source == "gt":
             return FramePoses("gt")
-        from semmap.poses.track import METHODS, track_dataset
+        from semmap.object_slam import OBJECT_METHODS, make_pose_tracker
+        from semmap.poses.base import estimate_trajectory
+        from semmap.poses.track import METHODS
 
-        if source in METHODS:
+        if source in METHODS or source in OBJECT_METHODS:
             t0 = time.perf_counter()
-            trajectory = track_dataset(dataset, source, progress=self.track_progress)
+            tracker = make_pose_tracker(source, instances=self.instances)
+            trajectory = estimate_trajectory(tracker, dataset, total=len(dataset), progress=self.track_progress)
             tracking_s = time.perf_counter() - t0
             if len(trajectory) == 0:
                 raise ConfigError(f"{self.config.input.dataset}: the {source} tracker lost every frame")
@@ -302,8 +313,8 @@ class Pipeline:
 
         path = Path(source)
         if not path.is_file():
-            raise ConfigError(f"--poses must be gt, a tracker ({', '.join(METHODS)}) or a trajectory file; "
-                              f"{path} does not exist")
+            raise ConfigError(f"--poses must be gt, a tracker ({', '.join(METHODS + OBJECT_METHODS)}) or a "
+                              f"trajectory file; {path} does not exist")
         return FramePoses(str(path), lookup=TrajectoryPoses.from_file(path,
                                                                       max_time_diff=self.config.poses.max_time_diff))
 
@@ -347,6 +358,10 @@ class Pipeline:
                     self._score_segmentation(sem, frame.labels, len(label_set))
             for name, ms in mapper.integrate(frame, T, sem).items():
                 timings[name] += ms
+            if self._objects is not None:  # instances and tracks every frame, the object map on keyframes
+                t_obj = time.perf_counter()
+                self._objects.step(frame, T, sem, mapper.last_was_keyframe)
+                timings["objects"] += (time.perf_counter() - t_obj) * 1e3
             every = self.config.crf.every
             if self.config.crf.enabled and every and mapper.last_was_keyframe and mapper.keyframes % every == 0:
                 t_crf = time.perf_counter()
@@ -398,11 +413,18 @@ class Pipeline:
         for m in maps:
             sizes.update(m.save(out))
         files = {name: out / name for name in sizes}
+        if self._objects is not None:
+            sizes.update(self._objects.write(out, up_vector(poses)))
+            files.update({name: out / name for name in ("objects.json", "objects.ply")})
         if self.config.output.preview:
             for i, m in enumerate(maps):  # preview.png of the primary map, preview_<kind>.png of the others
                 name = "preview.png" if i == 0 else f"preview_{m.kind.value}.png"
                 files[name] = out / name
-                sizes[name] = write_png(files[name], render_preview(m.cloud(), m.label_set, poses))
+                image = render_preview(m.cloud(), m.label_set, poses)
+                if i == 0 and self._objects is not None:  # the objects with their ids beside it
+                    panel = self._objects.panel(up_vector(poses), size=image.shape[0] - 28)
+                    image = side_by_side([image, panel], ["", "objects (top-down): id class"])
+                sizes[name] = write_png(files[name], image)
         write_text_atomic(out / "config.json", self.config.to_json())
         files["config"] = out / "config.json"
         return files, sizes

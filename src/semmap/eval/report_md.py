@@ -54,6 +54,8 @@ def render_report_md(report: dict, *, title: str = "semmap run", plots: dict[str
               *_plot(plots, "storage", "storage per representation")]
     if "maps" in report:
         lines += _maps_section(report["maps"])
+    if "objects" in report:
+        lines += _objects_section(report["objects"])
     lines += ["## Timings (ms per frame)", "", "| stage | ms |", "|---|---|"]
     lines += [f"| {k} | {v:.2f} |" for k, v in report["ms_per_frame"].items()]
     lines += ["", *_plot(plots, "timings", "time per stage")]
@@ -84,6 +86,29 @@ def _counts_line(report: dict) -> str:
     if "points" in report:
         return f"Points: {report['points']:,} (from {report['keyframes_integrated']} keyframes)."
     return f"Voxels: {report['voxels']:,}, occupied: {report['occupied_voxels']:,}."
+
+
+def _objects_section(o: dict) -> list[str]:
+    """The object map: counts, its accuracy when there was ground truth, and a table of the objects."""
+    lines = ["## Objects", "",
+             f"{o['objects']} objects (seen in at least 3 keyframes; {o['candidates']} candidates seen less) from "
+             f"`{o['instance_source']}` instances over {o['keyframes']} keyframes: "
+             + ", ".join(f"{n} {c}" for c, n in o["per_class"].items()) + ".", "",
+             f"Points: {o['points_in_masks']:,} in the masks, {o['points_after_outlier_removal']:,} after outlier "
+             f"removal, {o['points_in_objects']:,} in the objects after the voxel filter. Tracking "
+             f"{o['ms_per_frame']['tracking']:.1f} ms per frame, the object map {o['ms_per_keyframe']:.1f} ms per "
+             "keyframe.", ""]
+    if "count_error" in o:
+        lines += [f"Against ground truth: object count error {100 * o['count_error']:.1f} % over all classes "
+                  f"({o['objects_ground_truth']} objects visible; eq. 24 on the totals "
+                  f"{100 * o['count_error_eq24']:.1f} %), {o['id_switches']} identity switches.", ""]
+    lines += ["| id | class | confidence | centroid (m) | points | sightings |", "|---|---|---|---|---|---|"]
+    lines += [f"| {r['id']} | {r['class']} | {r['confidence']:.2f} | "
+              f"{', '.join(f'{c:.2f}' for c in r['centroid'])} | {r['points']:,} | {r['sightings']} |"
+              for r in o["table"]]
+    if len(o["table"]) < o["objects"]:
+        lines.append(f"| … | {o['objects'] - len(o['table'])} more in objects.json | | | | |")
+    return [*lines, ""]
 
 
 def _maps_section(maps: dict) -> list[str]:

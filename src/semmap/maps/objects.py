@@ -139,8 +139,23 @@ class Sighting:
     colors: np.ndarray
     cells: np.ndarray
     centroid: np.ndarray
-    points_cam: np.ndarray  # the filtered points in the camera frame (for pose constraints)
-    raw_points: int  # points before the filters
+    points_cam: np.ndarray  # the same points in the camera frame (for pose constraints)
+
+
+@dataclass(frozen=True)
+class CameraClouds:
+    """One keyframe's detections as filtered camera-frame points (what a keyframe keeps for later placement)."""
+
+    points: np.ndarray  # (P, 3) float32 camera frame, outliers removed
+    colors: np.ndarray  # (P, 3) uint8
+    detection: np.ndarray  # (P,) int64 detection index of each point
+    class_ids: np.ndarray  # (N,) int32
+    scores: np.ndarray  # (N,) float32
+    track_ids: np.ndarray  # (N,) int32, 0 = none
+
+    @property
+    def n(self) -> int:
+        return len(self.class_ids)
 
 
 class ObjectMap:
@@ -188,9 +203,13 @@ class ObjectMap:
     def integrate(self, instances: Instances, depth: np.ndarray, rgb: np.ndarray, intrinsics: CameraIntrinsics,
                   T_world_cam: np.ndarray, frame_index: int) -> np.ndarray:
         """Add one keyframe's tracked detections; returns the object id each joined (0: too few points)."""
-        sightings = self.sightings(instances, depth, rgb, intrinsics, T_world_cam)
+        return self.integrate_clouds(self.extract(instances, depth, rgb, intrinsics), T_world_cam, frame_index)
+
+    def integrate_clouds(self, clouds: CameraClouds, T_world_cam: np.ndarray, frame_index: int) -> np.ndarray:
+        """Add one keyframe's filtered detection clouds seen from ``T_world_cam`` (see :meth:`integrate`)."""
+        sightings = self.place(clouds, T_world_cam)
         self.keyframes += 1
-        assigned = np.zeros(len(instances), np.int64)
+        assigned = np.zeros(clouds.n, np.int64)
         touched: list[int] = []
         matches = self._associate(sightings)
         for i, s in enumerate(sightings):
@@ -206,9 +225,9 @@ class ObjectMap:
             self._merge_around(obj_id)
         return np.array([self.resolve(int(i)) if i else 0 for i in assigned], np.int64)
 
-    def sightings(self, instances: Instances, depth: np.ndarray, rgb: np.ndarray, intrinsics: CameraIntrinsics,
-                  T_world_cam: np.ndarray) -> list[Sighting]:
-        """Each detection's cloud after back-projection, outlier removal (eq. 18) and the voxel filter."""
+    def extract(self, instances: Instances, depth: np.ndarray, rgb: np.ndarray,
+                intrinsics: CameraIntrinsics) -> CameraClouds:
+        """Each detection's points in the camera frame after back-projection and outlier removal (eq. 18)."""
         p = self.params
         s = p.pixel_stride
         d = np.asarray(depth[::s, ::s], np.float64)
@@ -225,11 +244,18 @@ class ObjectMap:
         self.points_in += len(det)
         keep = outlier_mask(mean_d[v, u], det, len(instances), p.sor_k) & (counts >= p.min_points)[det]
         v, u, det = v[keep], u[keep], det[keep]
-        pts = np.column_stack([x[v, u], y[v, u], d[v, u]])
-        cols = rgb[v * s, u * s]
-        self.points_after_sor += len(pts)
+        self.points_after_sor += len(det)
+        tracks = instances.track_ids if instances.track_ids is not None else np.zeros(len(instances), np.int32)
+        return CameraClouds(np.column_stack([x[v, u], y[v, u], d[v, u]]).astype(np.float32), rgb[v * s, u * s], det,
+                            np.asarray(instances.class_ids, np.int32), np.asarray(instances.scores, np.float32),
+                            np.asarray(tracks, np.int32))
+
+    def place(self, clouds: CameraClouds, T_world_cam: np.ndarray) -> list[Sighting]:
+        """Each detection's cloud in the world, voxel-filtered (per cell the point nearest its centre)."""
+        p = self.params
+        pts = clouds.points.astype(np.float64)
+        det = clouds.detection
         world = pts @ T_world_cam[:3, :3].T + T_world_cam[:3, 3]
-        # voxel filter: per (detection, cell) the point nearest the cell centre
         cell = np.floor(world / p.voxel)
         keys = pack_cells(cell.astype(np.int64))
         off = ((world / p.voxel - cell - 0.5) ** 2).sum(axis=1)
@@ -237,19 +263,16 @@ class ObjectMap:
         first = np.ones(len(order), bool)
         first[1:] = (det[order][1:] != det[order][:-1]) | (keys[order][1:] != keys[order][:-1])
         rep = order[first]
-        rep_det = det[rep]
+        bounds = np.searchsorted(det[rep], np.arange(clouds.n + 1))
         out: list[Sighting] = []
-        bounds = np.searchsorted(rep_det, np.arange(len(instances) + 1))
-        tracks = instances.track_ids if instances.track_ids is not None else np.zeros(len(instances), np.int32)
-        for k in range(len(instances)):
+        for k in range(clouds.n):
             r = rep[bounds[k]:bounds[k + 1]]
             if len(r) < p.min_points:
                 continue
             w = world[r]
             cells = np.unique(pack_cells(np.floor(w / p.overlap_voxel).astype(np.int64)))
-            out.append(Sighting(k, int(instances.class_ids[k]), float(instances.scores[k]), int(tracks[k]),
-                                keys[r], w.astype(np.float32), cols[r], cells, w.mean(axis=0), pts[r],
-                                int(counts[k])))
+            out.append(Sighting(k, int(clouds.class_ids[k]), float(clouds.scores[k]), int(clouds.track_ids[k]),
+                                keys[r], w.astype(np.float32), clouds.colors[r], cells, w.mean(axis=0), pts[r]))
         return out
 
     # ------------------------------------------------------------------ association
@@ -435,3 +458,39 @@ def overlap_containment(a: np.ndarray, b: np.ndarray) -> float:
     if len(a) == 0 or len(b) == 0:
         return 0.0
     return len(np.intersect1d(a, b, assume_unique=True)) / min(len(a), len(b))
+
+
+@dataclass(frozen=True)
+class OrientedBox:
+    """A box upright along ``up``: centre (3,), rotation (3, 3) whose columns are its axes (the third = up), and
+    full edge lengths (3,) along them (metres)."""
+
+    center: np.ndarray
+    rotation: np.ndarray
+    extent: np.ndarray
+
+
+def upright_box(points: np.ndarray, up: np.ndarray) -> OrientedBox:
+    """The box standing upright on ``up`` with the smallest footprint around ``points``: furniture stands
+    upright, so only its heading is free, and the heading comes from the minimum-area rectangle of the points'
+    horizontal positions (``cv2.minAreaRect``, rotating calipers on their convex hull)."""
+    import cv2
+
+    pts = np.asarray(points, np.float64).reshape(-1, 3)
+    up = np.asarray(up, np.float64) / np.linalg.norm(up)
+    ref = np.array([1.0, 0.0, 0.0]) if abs(up[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
+    e1 = ref - up * (ref @ up)
+    e1 /= np.linalg.norm(e1)
+    e2 = np.cross(up, e1)
+    if len(pts) >= 3:
+        h = np.column_stack([pts @ e1, pts @ e2])
+        origin = h.mean(axis=0)
+        (_, _), (_, _), angle = cv2.minAreaRect((h - origin).astype(np.float32))
+        a = np.radians(angle)
+        e1, e2 = np.cos(a) * e1 + np.sin(a) * e2, -np.sin(a) * e1 + np.cos(a) * e2
+    R = np.column_stack([e1, e2, up])
+    if np.linalg.det(R) < 0:
+        R[:, 1] = -R[:, 1]
+    local = pts @ R
+    lo, hi = local.min(axis=0), local.max(axis=0)
+    return OrientedBox(R @ ((lo + hi) / 2), R, hi - lo)

@@ -18,6 +18,8 @@ class InstanceSource(Protocol):
 
     #: Short name used in reports (``oracle``, ``components``, ``maskrcnn``).
     name: str
+    #: True when :meth:`detect` builds on the run's class probabilities (frames without them are skipped).
+    needs_semantics: bool
 
     @property
     def label_set(self) -> LabelSet: ...

@@ -28,26 +28,32 @@ MIN_AREA_FRACTION = 300 / (640 * 480)
 
 
 class ComponentInstances:
-    """:class:`~semmap.perception.instances.InstanceSource` over a :class:`~semmap.perception.base.Segmenter`."""
+    """:class:`~semmap.perception.instances.InstanceSource` over class probabilities of ``label_set``: the run's
+    (any :class:`~semmap.perception.base.Segmenter`, or label images), or ``segmenter``'s when none are given."""
 
     name = "components"
+    needs_semantics = True
 
-    def __init__(self, segmenter: Segmenter, *, min_area_fraction: float = MIN_AREA_FRACTION,
-                 depth_jump_rel: float = DEPTH_JUMP_REL, depth_jump_min: float = DEPTH_JUMP_MIN) -> None:
+    def __init__(self, label_set: LabelSet, segmenter: Segmenter | None = None, *,
+                 min_area_fraction: float = MIN_AREA_FRACTION, depth_jump_rel: float = DEPTH_JUMP_REL,
+                 depth_jump_min: float = DEPTH_JUMP_MIN) -> None:
         if not 0.0 <= min_area_fraction < 1.0 or depth_jump_rel <= 0 or depth_jump_min < 0:
             raise ConfigError("components: min_area_fraction in [0, 1), depth_jump_rel > 0, depth_jump_min >= 0")
         self.segmenter = segmenter
+        self._label_set = label_set
         self.min_area_fraction = float(min_area_fraction)
         self.depth_jump_rel, self.depth_jump_min = float(depth_jump_rel), float(depth_jump_min)
-        self._things = thing_classes(segmenter.label_set)
+        self._things = thing_classes(label_set)
 
     @property
     def label_set(self) -> LabelSet:
-        return self.segmenter.label_set
+        return self._label_set
 
     def detect(self, frame: Frame, semantics: TopKProbs | None = None) -> Instances:
         """Instances of ``frame`` from ``semantics`` (the segmenter runs when they are not given)."""
         if semantics is None:
+            if self.segmenter is None:
+                raise ConfigError("components: no class probabilities for this frame and no segmenter to make them")
             semantics = self.segmenter.segment(frame)
         return components(semantics.labels[..., 0], semantics.probs[..., 0], frame.depth, self._things,
                           min_pixels=max(1, round(self.min_area_fraction * frame.depth.size)),

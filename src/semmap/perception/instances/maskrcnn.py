@@ -11,6 +11,7 @@ representation of each final box (what DeepSORT's re-identification network prov
 
 from __future__ import annotations
 
+import pickle
 from pathlib import Path
 
 import numpy as np
@@ -47,6 +48,7 @@ class MaskRcnnInstances:
     """:class:`~semmap.perception.instances.InstanceSource` running a torchvision Mask R-CNN on the CPU."""
 
     name = "maskrcnn"
+    needs_semantics = False
 
     def __init__(self, model: torch.nn.Module, label_set: LabelSet, *, score_threshold: float = SCORE_THRESHOLD,
                  mask_threshold: float = MASK_THRESHOLD, features: bool = True) -> None:
@@ -67,7 +69,7 @@ class MaskRcnnInstances:
         path = Path(path)
         try:
             state = torch.load(path, map_location="cpu", weights_only=True)
-        except (OSError, RuntimeError, ValueError, EOFError) as exc:
+        except (OSError, RuntimeError, ValueError, EOFError, pickle.UnpicklingError) as exc:
             raise ConfigError(f"{path}: cannot read Mask R-CNN weights: {exc}") from None
         state = state.get("model", state) if isinstance(state, dict) else state
         key = "roi_heads.box_predictor.cls_score.weight"

@@ -63,6 +63,7 @@ class OracleInstances:
     """:class:`~semmap.perception.instances.InstanceSource` made from ground-truth instance and label images."""
 
     name = "oracle"
+    needs_semantics = False
 
     def __init__(self, label_set: LabelSet, *, preset: str = "maskrcnn-like", seed: int = 0, **overrides) -> None:
         if preset not in INSTANCE_PRESETS:

@@ -20,7 +20,7 @@ INSTANCE_SOURCES = {
 def make_instance_source(name: str, *, label_set: LabelSet | None = None, segmenter: Segmenter | None = None,
                          weights: Path | None = None, preset: str = "maskrcnn-like", seed: int = 0) -> InstanceSource:
     """Build the instance source ``name``; ``label_set`` is the dataset's (the oracle reports its classes),
-    ``segmenter`` the run's (``components`` splits its classes into instances)."""
+    ``segmenter`` the run's (``components`` splits its classes into instances, or the dataset's labels')."""
     if name == "oracle":
         from semmap.perception.instances.oracle import OracleInstances
 
@@ -32,9 +32,10 @@ def make_instance_source(name: str, *, label_set: LabelSet | None = None, segmen
     if name == "components":
         from semmap.perception.instances.components import ComponentInstances
 
-        if segmenter is None:
-            raise ConfigError("--instances components needs a segmenter (--segmenter or --semantics oracle)")
-        return ComponentInstances(segmenter)
+        if segmenter is None and label_set is None:
+            raise ConfigError("--instances components needs class probabilities: a segmenter (--segmenter, "
+                              "--semantics oracle) or labelled frames")
+        return ComponentInstances(segmenter.label_set if segmenter is not None else label_set, segmenter)
     if name == "maskrcnn":
         from semmap.perception.instances.maskrcnn import MaskRcnnInstances
 

@@ -1,0 +1,200 @@
+"""The object map: outlier removal (eq. 18), association (eqs. 16-22), three sightings, merging, queries, files."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from object_helpers import OBJECT_CAMERA, box_frames
+from semmap.errors import FormatError
+from semmap.io.objects import read_objects_json, read_objects_ply, write_objects_json, write_objects_ply
+from semmap.maps._object_kernels import grid_neighbour_distances
+from semmap.maps.objects import ObjectMap, ObjectMapParams, outlier_mask, overlap_iou, pack_cells, upright_box
+from semmap.perception.instances.oracle import OracleInstances
+from semmap.perception.tracking import DeepSort
+from semmap.sim.labels import INDOOR_LABELS
+from semmap.types import Instances
+
+CHAIR, TABLE = INDOOR_LABELS.id_of("chair"), INDOOR_LABELS.id_of("table")
+BOXES = [(np.array([-0.2, -0.8, 0.0]), np.array([0.2, -0.4, 0.8])),
+         (np.array([0.8, 0.1, 0.0]), np.array([1.2, 0.5, 0.8])),
+         (np.array([0.2, 0.9, 0.0]), np.array([1.2, 1.5, 0.75]))]
+CLASSES = [CHAIR, CHAIR, TABLE]
+
+
+def _map_run(frames, source, *, every: int = 3, params: ObjectMapParams | None = None):
+    """Track every frame, integrate every ``every``-th: the map and each keyframe's object ids."""
+    omap = ObjectMap(INDOOR_LABELS, params or ObjectMapParams(pixel_stride=1))
+    tracker = DeepSort(num_classes=len(INDOOR_LABELS))
+    assigned = []
+    for f in frames:
+        inst = tracker.update(source.detect(f), f, f.T_world_cam)
+        if f.index % every == 0:
+            assigned.append((f, inst, omap.integrate(inst, f.depth, f.rgb, f.intrinsics, f.T_world_cam, f.index)))
+    return omap, assigned
+
+
+@pytest.fixture(scope="module")
+def arc_frames():
+    return box_frames(BOXES, CLASSES, 30)
+
+
+def _inside(points: np.ndarray, box, margin: float = 0.015) -> np.ndarray:
+    lo, hi = box
+    return np.all((points >= lo - margin) & (points <= hi + margin), axis=1)
+
+
+def test_each_box_becomes_one_object_of_its_class_on_its_surface(arc_frames):
+    omap, _ = _map_run(arc_frames, OracleInstances(INDOOR_LABELS, preset="exact", min_pixels=30))
+    real = omap.real_objects()
+    assert sorted(o.class_id for o in real) == sorted(CLASSES)
+    for o in real:
+        inside = [_inside(o.points, b).mean() for b in BOXES]
+        assert max(inside) > 0.99  # its points lie on one box
+        assert o.sightings == 10 and o.first_frame == 0 and o.last_frame == 27
+    assert len(omap.objects_of_class("chair")) == 2
+    near, dist = omap.nearest(np.array([1.0, 0.3, 0.4]), "chair")
+    assert near is not None and _inside(near.points, BOXES[1]).all() and dist < 0.25
+
+
+def test_noisy_instances_still_give_one_object_per_box(arc_frames):
+    omap, _ = _map_run(arc_frames, OracleInstances(INDOOR_LABELS, preset="noisy", seed=2, min_pixels=30))
+    real = omap.real_objects()
+    assert sorted(o.class_id for o in real) == sorted(CLASSES)
+
+
+def test_objects_need_three_sightings(arc_frames):
+    omap, _ = _map_run(arc_frames[:7], OracleInstances(INDOOR_LABELS, preset="exact", min_pixels=30), every=3)
+    assert omap.keyframes == 3 and len(omap.real_objects()) == 3
+    short, _ = _map_run(arc_frames[:4], OracleInstances(INDOOR_LABELS, preset="exact", min_pixels=30), every=3)
+    assert short.keyframes == 2 and short.real_objects() == [] and len(short.objects) == 3
+
+
+def test_a_second_pass_joins_the_objects_of_the_first():
+    """The boxes seen in two passes whose views overlap, the tracker reset between them (new track ids): the
+    second pass's clouds join the first pass's objects through overlap and distance, not track ids."""
+    source = OracleInstances(INDOOR_LABELS, preset="exact", min_pixels=30)
+    omap = ObjectMap(INDOOR_LABELS, ObjectMapParams(pixel_stride=1))
+    passes = (box_frames(BOXES, CLASSES, 12, arc_deg=40, start_deg=-45),
+              box_frames(BOXES, CLASSES, 12, arc_deg=50, start_deg=-15))
+    for p, frames in enumerate(passes):
+        tracker = DeepSort(num_classes=len(INDOOR_LABELS))
+        tracker._next_id = 100 * (p + 1)  # track ids never repeat
+        for f in frames:
+            inst = tracker.update(source.detect(f), f, f.T_world_cam)
+            if f.index % 3 == 0:
+                omap.integrate(inst, f.depth, f.rgb, f.intrinsics, f.T_world_cam, 100 * p + f.index)
+    real = omap.real_objects()
+    assert len(real) == 3 and all(o.first_frame < 100 < o.last_frame for o in real)
+
+
+def test_side_by_side_objects_of_one_class_stay_apart():
+    boxes = [(np.array([0.0, 0.0, 0.0]), np.array([0.3, 0.3, 0.6])),
+             (np.array([0.31, 0.0, 0.0]), np.array([0.61, 0.3, 0.6]))]  # 1 cm apart, centroids 31 cm
+    frames = box_frames(boxes, [CHAIR, CHAIR], 18, radius=1.8)
+    omap, _ = _map_run(frames, OracleInstances(INDOOR_LABELS, preset="exact", min_pixels=30))
+    assert len(omap.real_objects()) == 2
+
+
+def test_outlier_removal_drops_depth_a_mask_bled_onto(arc_frames):
+    f = arc_frames[0]
+    ids = (f.instances == 1).astype(np.int32)
+    chair = ids == 1
+    ring = np.zeros_like(chair)
+    for row in np.flatnonzero(chair.any(axis=1)):
+        ring[row, np.flatnonzero(chair[row]).max() + 1] = True  # a 1 px seam of background given to the chair ...
+    ids[ring & (f.instances == 0)] = 1
+    depth = f.depth.copy()
+    depth[ring & (f.instances == 0)] = depth[chair].max() + 0.8  # ... where the depth is the floor behind
+    assert (ring & (f.instances == 0)).sum() > 10
+    inst = Instances.from_id_image(ids, [CHAIR], [1.0])
+    for k, clean in ((1.0, True), (1e6, False)):  # with eq. 18, and with a threshold nothing exceeds
+        omap = ObjectMap(INDOOR_LABELS, ObjectMapParams(pixel_stride=1, sor_k=k))
+        clouds = omap.extract(inst, depth, f.rgb, OBJECT_CAMERA)
+        world = clouds.points @ f.T_world_cam[:3, :3].T + f.T_world_cam[:3, 3]
+        assert (_inside(world, BOXES[0], 0.02).mean() > 0.995) == clean
+
+
+def test_outlier_mask_is_eq_18_per_group():
+    rng = np.random.default_rng(3)
+    d = rng.gamma(2.0, 0.01, 400)
+    groups = rng.integers(0, 3, 400)
+    d[::50] = np.inf  # no neighbour at all
+    kept = outlier_mask(d, groups, 3, 1.0)
+    for g in range(3):
+        finite = d[(groups == g) & np.isfinite(d)]
+        t = finite.mean() + 1.0 * finite.std()  # t = m + k s
+        sel = groups == g
+        assert np.array_equal(kept[sel], np.isfinite(d[sel]) & (d[sel] <= t))
+
+
+def test_grid_neighbour_distances_match_a_naive_loop():
+    rng = np.random.default_rng(4)
+    ids = rng.integers(0, 3, (9, 11)).astype(np.int32)
+    x, y, z = (rng.random((9, 11)) for _ in range(3))
+    out = grid_neighbour_distances(ids, x, y, z)
+    for v in range(9):
+        for u in range(11):
+            if ids[v, u] == 0:
+                assert np.isnan(out[v, u])
+                continue
+            ds = [np.sqrt((x[a, b] - x[v, u]) ** 2 + (y[a, b] - y[v, u]) ** 2 + (z[a, b] - z[v, u]) ** 2)
+                  for a in range(max(v - 1, 0), min(v + 2, 9)) for b in range(max(u - 1, 0), min(u + 2, 11))
+                  if (a, b) != (v, u) and ids[a, b] == ids[v, u]]
+            assert out[v, u] == (pytest.approx(np.mean(ds)) if ds else np.inf)
+
+
+def test_eq_22_score_needs_more_than_a_close_centroid():
+    omap = ObjectMap(INDOOR_LABELS)
+    k = omap.params.score_threshold
+    assert omap.score(False, 0.0, 0.0) < k  # two books side by side: close centroids alone do not make one object
+    assert omap.score(False, 0.2, 0.8) > k  # the paper's overlap criterion alone does
+    assert omap.score(True, 0.05, 0.1) > k
+    assert omap.score(True, 0.5, 0.0) > omap.score(False, 0.5, 0.0)
+    a = np.unique(pack_cells(np.array([[0, 0, 0], [1, 0, 0], [2, 0, 0]])))
+    b = np.unique(pack_cells(np.array([[1, 0, 0], [2, 0, 0], [3, 0, 0]])))
+    assert overlap_iou(a, b) == pytest.approx(2 / 4)  # eq. 21
+
+
+@settings(max_examples=30, deadline=None)
+@given(st.floats(0, 2 * np.pi), st.floats(0.05, 2.0), st.floats(0.05, 1.0), st.floats(0.05, 1.5))
+def test_upright_box_holds_its_points_and_stands_on_up(yaw, a, b, c):
+    rng = np.random.default_rng(0)
+    local = rng.uniform(-0.5, 0.5, (200, 3)) * [a, b, c]
+    R = np.array([[np.cos(yaw), -np.sin(yaw), 0], [np.sin(yaw), np.cos(yaw), 0], [0, 0, 1]])
+    pts = local @ R.T + [1.0, 2.0, 0.5]
+    box = upright_box(pts, np.array([0.0, 0.0, 1.0]))
+    assert np.allclose(box.rotation.T @ box.rotation, np.eye(3), atol=1e-9)
+    assert np.allclose(box.rotation[:, 2], [0, 0, 1])
+    inner = (pts - box.center) @ box.rotation
+    assert np.all(np.abs(inner) <= box.extent / 2 + 1e-9)
+    assert np.prod(box.extent) <= a * b * c * 1.02 + 1e-9  # tight: no bigger than the true box, whatever the heading
+
+
+def test_object_files_round_trip(arc_frames, tmp_path):
+    omap, _ = _map_run(arc_frames[:10], OracleInstances(INDOOR_LABELS, preset="exact", min_pixels=30))
+    real = omap.real_objects()
+    up = np.array([0.0, 0.0, 1.0])
+    write_objects_json(tmp_path / "objects.json", real, INDOOR_LABELS, up)
+    records = read_objects_json(tmp_path / "objects.json")
+    assert [r["id"] for r in records] == [o.id for o in real]
+    for r, o in zip(records, real, strict=True):
+        assert r["class"] == INDOOR_LABELS.names[o.class_id] and r["points"] == len(o)
+        assert np.allclose(r["centroid"], o.centroid, atol=1e-6) and r["sightings"] == o.sightings
+    write_objects_ply(tmp_path / "objects.ply", real)
+    ply = read_objects_ply(tmp_path / "objects.ply")
+    assert len(ply["points"]) == sum(len(o) for o in real)
+    for o in real:
+        sel = ply["object"] == o.id
+        assert np.array_equal(ply["points"][sel], o.points) and np.all(ply["label"][sel] == o.class_id)
+        assert len(np.unique(ply["colors"][sel], axis=0)) == 1
+    (tmp_path / "bad.json").write_text(json.dumps({"format": "semmap-objects", "objects": [{"id": 1}]}))
+    with pytest.raises(FormatError, match="object 0"):
+        read_objects_json(tmp_path / "bad.json")
+    (tmp_path / "cut.ply").write_bytes((tmp_path / "objects.ply").read_bytes()[:-5])
+    with pytest.raises(FormatError, match="truncated"):
+        read_objects_ply(tmp_path / "cut.ply")
