@@ -142,12 +142,17 @@ def test_sequence_without_groundtruth_has_no_poses(tum_seq: Path) -> None:
     assert all(f.T_world_cam is None for f in TumDataset(tum_seq))
 
 
-def test_nan_in_groundtruth_raises_naming_the_file_and_line(tum_seq: Path) -> None:
+def test_nan_in_groundtruth_leaves_those_frames_without_pose_or_stops_when_strict(
+        tum_seq: Path, caplog: pytest.LogCaptureFixture) -> None:
     lines = (tum_seq / "groundtruth.txt").read_text().splitlines()
     lines[3] = f"{_stamp(1)} 0 0 nan 0 0 0 1"
     (tum_seq / "groundtruth.txt").write_text("\n".join(lines) + "\n")
+    with caplog.at_level(logging.WARNING, logger="semmap"):
+        frames = list(TumDataset(tum_seq))
+    assert frames[1].T_world_cam is None and frames[0].T_world_cam is not None  # the pipeline skips it: no pose
+    assert "groundtruth.txt: 1 poses have non-finite entries (lines 4)" in caplog.text
     with pytest.raises(DatasetError, match=r"groundtruth.txt:4: pose has non-finite"):
-        TumDataset(tum_seq)
+        TumDataset(tum_seq, strict=True)
 
 
 def test_missing_depth_file_is_skipped_with_a_warning(tum_seq: Path,
@@ -180,11 +185,13 @@ def test_truncated_png_is_skipped_with_a_warning_naming_it(tum_seq: Path,
     assert len(ds.skipped) == 1
 
 
-def test_image_size_not_matching_the_intrinsics_raises(tum_seq: Path) -> None:
+def test_image_size_not_matching_the_intrinsics_skips_the_frame_or_stops_when_strict(tum_seq: Path) -> None:
     wrong = CameraIntrinsics(64, 48, 60.0, 60.0, 31.5, 23.5)
     (tum_seq / "camera.json").write_text(json.dumps(wrong.to_dict()))
-    with pytest.raises(DatasetError, match=r"rgb/.*\.png: colour image is 32x24, expected 64x48"):
-        next(iter(TumDataset(tum_seq)))
+    ds = TumDataset(tum_seq)
+    assert list(ds) == [] and "colour image is 32x24, expected 64x48" in ds.skipped[0].reason
+    with pytest.raises(DatasetError, match=r"rgb/.*\.png: colour image is 32x24, expected 64x48.*--strict"):
+        next(iter(TumDataset(tum_seq, strict=True)))
 
 
 def test_intrinsics_come_from_the_argument_camera_json_sequence_name_or_default(tmp_path: Path) -> None:
@@ -240,12 +247,14 @@ def test_sevenscenes_depth_65535_is_invalid(scenes_seq: Path) -> None:
     assert (first.depth[0, :5] == 0).all() and first.depth[1, 0] == pytest.approx(1.5)
 
 
-def test_nan_pose_in_sevenscenes_raises_naming_the_file(scenes_seq: Path) -> None:
+def test_nan_pose_in_sevenscenes_skips_the_frame_or_stops_when_strict(scenes_seq: Path) -> None:
     bad = np.eye(4)
     bad[1, 3] = np.nan
     np.savetxt(scenes_seq / "frame-000002.pose.txt", bad)
+    ds = SevenScenesDataset(scenes_seq)
+    assert [f.index for f in ds] == [0, 1, 3] and ds.skipped[0].reason.startswith("pose has non-finite")
     with pytest.raises(DatasetError, match=r"frame-000002\.pose\.txt: pose has non-finite"):
-        list(SevenScenesDataset(scenes_seq))
+        list(SevenScenesDataset(scenes_seq, strict=True))
 
 
 def test_missing_pose_file_in_sevenscenes_skips_the_frame(scenes_seq: Path,
@@ -258,10 +267,11 @@ def test_missing_pose_file_in_sevenscenes_skips_the_frame(scenes_seq: Path,
     assert "frame-000001.pose.txt" in caplog.text
 
 
-def test_depth_of_another_size_raises_naming_the_file(scenes_seq: Path) -> None:
+def test_depth_of_another_size_skips_the_frame_or_stops_when_strict(scenes_seq: Path) -> None:
     write_png(scenes_seq / "frame-000003.depth.png", np.ones((12, 16), np.uint16))
+    assert [f.index for f in SevenScenesDataset(scenes_seq)] == [0, 1, 2]
     with pytest.raises(DatasetError, match=r"frame-000003\.depth\.png: depth image is 16x12, expected 32x24"):
-        list(SevenScenesDataset(scenes_seq))
+        list(SevenScenesDataset(scenes_seq, strict=True))
 
 
 def test_sevenscenes_reads_jpeg_colour(tmp_path: Path) -> None:

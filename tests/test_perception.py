@@ -245,7 +245,9 @@ def test_eval_folders_resize_ignore_and_report_missing(tmp_path):
     pred = np.zeros((2, 3), np.uint8)
     pred[:, 2] = 1  # half resolution: upsampled by nearest neighbour
     write_png(pred_dir / "a.png", pred)
-    r = evaluate_label_folders(pred_dir, gt_dir, 2)
+    with pytest.raises(DatasetError, match=r"a\.png: prediction is 3x2, its ground truth a\.png 6x4 \(pass --resize"):
+        evaluate_label_folders(pred_dir, gt_dir, 2)
+    r = evaluate_label_folders(pred_dir, gt_dir, 2, resize=True)
     assert r.images == 1 and r.missing == ("b",)
     assert r.confusion.tolist() == [[11, 0], [4, 8]]  # column 3 of the upsampled prediction is class 0
     d = r.to_dict()

@@ -82,6 +82,9 @@ def run(
     stride: Annotated[int, typer.Option(help="use every k-th frame", rich_help_panel=_INPUT)] = 1,
     raw_color: Annotated[bool, typer.Option("--raw-color", help="7-Scenes: keep colour as stored instead of "
                                             "registering it onto the depth image", rich_help_panel=_INPUT)] = False,
+    strict: Annotated[bool, typer.Option("--strict", help="stop at the first unusable frame (missing or corrupt "
+                                         "file, wrong image size, non-finite pose) instead of skipping it",
+                                         rich_help_panel=_INPUT)] = False,
     rgb_topic: Annotated[str | None, typer.Option(help="ROS bag: colour image topic", rich_help_panel=_ROS)] = None,
     depth_topic: Annotated[str | None, typer.Option(help="ROS bag: depth image topic", rich_help_panel=_ROS)] = None,
     camera_info_topic: Annotated[str | None, typer.Option(help="ROS bag: CameraInfo topic",
@@ -181,10 +184,10 @@ def run(
 
     config = _validated(lambda: RunConfig(
         input=InputConfig(dataset=dataset, format=format, labels=labels, stride=stride, max_frames=max_frames,
-                          raw_color=raw_color, ros=RosConfig(rgb_topic=rgb_topic, depth_topic=depth_topic,
-                                                             camera_info_topic=camera_info_topic,
-                                                             pose_topic=pose_topic, world_frame=world_frame,
-                                                             camera_frame=camera_frame)),
+                          raw_color=raw_color, strict=strict,
+                          ros=RosConfig(rgb_topic=rgb_topic, depth_topic=depth_topic,
+                                        camera_info_topic=camera_info_topic, pose_topic=pose_topic,
+                                        world_frame=world_frame, camera_frame=camera_frame)),
         mapping=MappingConfig(resolution=resolution, min_depth=min_depth, max_depth=max_depth,
                               max_range=max_range, pixel_stride=pixel_stride, maps=kinds, state_dtype=state_dtype,
                               free_space=free_space, point_resolution=point_resolution),
@@ -650,6 +653,8 @@ def eval_seg(
     num_classes: Annotated[int, typer.Option(help="number of classes K (ids 0..K-1)")] = 21,
     ignore: Annotated[int, typer.Option(help="ground-truth id left out (255: VOC boundaries; -1: none)")] = 255,
     out: Annotated[Path | None, typer.Option(help="also write the scores as JSON here")] = None,
+    resize: Annotated[bool, typer.Option("--resize", help="resize predictions of another size than their ground "
+                                         "truth (nearest neighbour) instead of refusing them")] = False,
 ) -> None:
     """Segmentation accuracy of predicted label images: MIoU and MPA (eqs. 11-12), per-class IoU and accuracy,
     confusion matrix."""
@@ -657,10 +662,11 @@ def eval_seg(
     from semmap.eval.segmentation import evaluate_label_folders
     from semmap.io.atomic import write_text_atomic
 
-    result = evaluate_label_folders(pred_dir, gt_dir, num_classes, ignore=None if ignore < 0 else ignore)
+    result = evaluate_label_folders(pred_dir, gt_dir, num_classes, ignore=None if ignore < 0 else ignore,
+                                    resize=resize)
     d = result.to_dict()
     if out is not None:
-        write_text_atomic(out, json.dumps(d, indent=2))
+        write_text_atomic(out, json.dumps(d, indent=2, allow_nan=False))
     summary = {k: v for k, v in d.items() if k != "confusion"}
     typer.echo(json.dumps(summary, indent=2))
 

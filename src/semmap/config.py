@@ -59,6 +59,7 @@ class InputConfig(_Section):
     max_frames: int | None = Field(None, ge=1)
     raw_color: bool = Field(False, description="keep colour unregistered (7-Scenes colour is registered to depth)")
     ros: RosConfig = RosConfig()
+    strict: bool = Field(False, description="stop at the first frame that cannot be used instead of skipping it")
 
 
 class MappingConfig(_Section):

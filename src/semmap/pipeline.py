@@ -25,6 +25,7 @@ from semmap.eval.report_plots import write_report_plots
 from semmap.eval.semantic import confusion, evaluate_2d, evaluate_cloud_3d
 from semmap.geometry import backproject_world, pixel_normals
 from semmap.io.atomic import write_text_atomic
+from semmap.keys import TREE_MAX_VAL
 from semmap.maps.base import SemanticMap
 from semmap.maps.registry import compile_kernels, get_map
 from semmap.object_stage import ObjectStage
@@ -199,6 +200,7 @@ class Pipeline:
         self._objects = ObjectStage(self.instances) if self.instances is not None else None
         timings, poses, no_pose = self._integrate_all(dataset, mapper, label_set, pose_of)
         self._viewer.finish(maps[0])
+        self._warn_if_empty(maps[0], mapper, poses)
         crf = self._refine(maps, poses) if self.config.crf.enabled else {}
         files, sizes = self._write_outputs(maps, poses)
         report = self._report(dataset, mapper, timings, poses, no_pose, sizes)
@@ -228,7 +230,7 @@ class Pipeline:
             return self.dataset
         c = self.config.input
         return open_dataset(c.dataset, c.format, labels=c.labels, stride=c.stride, max_frames=c.max_frames,
-                            raw_color=c.raw_color, ros=c.ros.options())
+                            raw_color=c.raw_color, ros=c.ros.options(), strict=c.strict)
 
     def _label_set(self, dataset: Dataset) -> LabelSet | None:
         """The classes of the map: the segmenter's, the dataset's, a generic set when label images come
@@ -374,6 +376,24 @@ class Pipeline:
             raise ConfigError(f"{self.config.input.dataset}: no frame could be mapped "
                               f"({len(dataset.skipped)} unreadable, {len(no_pose)} without pose){hint}")
         return timings, poses, no_pose
+
+    def _warn_if_empty(self, primary: SemanticMap, mapper: Mapper, poses: list[np.ndarray]) -> None:
+        """A run whose frames added nothing to the map says so, with the likely reason."""
+        if len(primary.cloud()):
+            return
+        m = self.config.mapping
+        reasons = []
+        reach = TREE_MAX_VAL * m.resolution
+        far = max((float(np.abs(np.asarray(T)[:3, 3]).max()) for T in poses), default=0.0)
+        if far >= reach:
+            reasons.append(f"camera poses lie up to {far:,.0f} m from the origin, beyond the ±{reach:,.0f} m a map of "
+                           f"resolution {m.resolution} m can hold")
+        if mapper.points_integrated == 0:
+            reasons.append(f"no depth pixel lies between --min-depth {m.min_depth} and --max-depth {m.max_depth} m")
+        if 0 <= m.max_range < m.resolution:
+            reasons.append(f"--max-range {m.max_range} m leaves every reading beyond range")
+        log.warning("%d frames added nothing to the map: no voxel is occupied (%s)", len(poses),
+                    "; ".join(reasons) or "check the poses and depth units")
 
     def _posed_frames(self, dataset: Dataset, timings: dict[str, float], no_pose: list[str], pose_of: FramePoses):
         """``(frame, T_world_cam)`` for every readable frame with a pose, behind the progress bar; frames

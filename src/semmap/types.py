@@ -161,9 +161,12 @@ class LabelSet:
 
     @classmethod
     def load(cls, path: str | Path) -> LabelSet:
+        from semmap.io.safe_files import read_text_limited
+
+        text = read_text_limited(path, what="label set", error=lambda reason: DatasetError(f"{path}: {reason}"))
         try:
-            return cls.from_dict(json.loads(Path(path).read_text()))
-        except (OSError, json.JSONDecodeError) as exc:
+            return cls.from_dict(json.loads(text))
+        except (json.JSONDecodeError, AttributeError) as exc:
             raise DatasetError(f"{path}: cannot read label set: {exc}") from exc
         except ConfigError as exc:
             raise DatasetError(f"{path}: {exc}") from exc

@@ -51,6 +51,7 @@ def open_dataset(
     max_frames: int | None = None,
     raw_color: bool = False,
     ros: dict | None = None,
+    strict: bool = False,
     **kwargs,
 ) -> Dataset:
     """Open the sequence at ``path`` with the reader for ``format`` ("auto" detects it).
@@ -58,13 +59,14 @@ def open_dataset(
     ``labels`` is an optional folder of per-frame label PNGs (see :class:`LabelFolder`); ``raw_color`` keeps
     colour as stored where the reader would register it onto the depth image (7-Scenes); ``kwargs`` go to the
     reader (e.g. ``depth_scale`` for TUM); ``ros`` holds the ROS bag reader's topic and frame options (ignored
-    by the other readers).
+    by the other readers); ``strict`` stops at the first frame that cannot be used instead of skipping it.
     """
     name = detect_format(path) if format == "auto" else format
     if name == "rosbag":
         if not Path(path).exists():
             raise DatasetError(f"{path}: ROS bag does not exist")
-        return RosbagDataset(path, labels_dir=labels, stride=stride, max_frames=max_frames, **(ros or {}), **kwargs)
+        return RosbagDataset(path, labels_dir=labels, stride=stride, max_frames=max_frames, strict=strict,
+                             **(ros or {}), **kwargs)
     root = ensure_folder(path)
     if name == "7scenes":
         kwargs["register_color"] = not raw_color
@@ -72,7 +74,7 @@ def open_dataset(
         reader = READERS[name]
     except KeyError:
         raise DatasetError(f"unknown dataset format {name!r}; known: auto, {', '.join(READERS)}") from None
-    return reader(root, labels_dir=labels, stride=stride, max_frames=max_frames, **kwargs)
+    return reader(root, labels_dir=labels, stride=stride, max_frames=max_frames, strict=strict, **kwargs)
 
 
 __all__ = [

@@ -1,8 +1,9 @@
 """What every dataset reader shares: the ``Dataset`` protocol, image loading and the skip-a-bad-frame rule.
 
-Rule for damaged input: a *missing or undecodable* file costs one frame (a warning naming the file, the frame
-recorded in ``skipped``); a file that decodes but is *inconsistent* (wrong size, wrong channels, a non-finite
-pose) means the sequence is wrong and raises :class:`DatasetError` naming the file.
+One skip policy for damaged input: a frame whose file is missing or undecodable, whose image has the wrong size or
+whose pose is not finite costs that frame (a warning naming the file, the frame recorded in ``skipped`` and the
+report); with ``strict`` the first such frame stops the run with a :class:`DatasetError` naming the file. A
+sequence that is wrong as a whole (no frames, unreadable index files, unknown format) raises at once.
 """
 
 from __future__ import annotations
@@ -18,6 +19,7 @@ import cv2
 import numpy as np
 
 from semmap.errors import ConfigError, DatasetError
+from semmap.io.safe_files import MAX_IMAGE_BYTES, read_bytes_limited
 from semmap.types import CameraIntrinsics, Frame, LabelSet
 
 LOG = logging.getLogger("semmap")
@@ -68,12 +70,8 @@ class Dataset(Protocol):
 def _decode(path: str | Path) -> np.ndarray:
     """Image as stored (any depth and channels); :class:`UnreadableFileError` if missing or corrupt."""
     path = Path(path)
-    try:
-        data = path.read_bytes()
-    except FileNotFoundError:
-        raise UnreadableFileError(path, "file is missing") from None
-    except OSError as exc:
-        raise UnreadableFileError(path, f"cannot read file: {exc.strerror or exc}") from None
+    data = read_bytes_limited(path, MAX_IMAGE_BYTES, what="image file",
+                              error=lambda reason: UnreadableFileError(path, reason))
     if not data:
         raise UnreadableFileError(path, "file is empty")
     try:
@@ -125,11 +123,12 @@ def read_label_image(path: str | Path) -> np.ndarray:
 
 
 def check_image_size(image: np.ndarray, intrinsics: CameraIntrinsics, path: str | Path, what: str) -> None:
-    """Raise :class:`DatasetError` naming ``path`` unless the image matches the camera size."""
+    """Raise :class:`UnreadableFileError` (the frame is skipped) naming ``path`` unless the image matches the
+    camera size."""
     h, w = image.shape[:2]
     if (w, h) != (intrinsics.width, intrinsics.height):
-        raise DatasetError(f"{path}: {what} image is {w}x{h}, "
-                           f"expected {intrinsics.width}x{intrinsics.height} (the camera intrinsics)")
+        raise UnreadableFileError(path, f"{what} image is {w}x{h}, "
+                                  f"expected {intrinsics.width}x{intrinsics.height} (the camera intrinsics)")
 
 
 def image_size(paths: Sequence[Path], where: str | Path) -> tuple[int, int]:
@@ -147,14 +146,23 @@ def image_size(paths: Sequence[Path], where: str | Path) -> tuple[int, int]:
 # --------------------------------------------------------------------------------------------------
 # Iteration
 # --------------------------------------------------------------------------------------------------
-def load_or_skip(load: Callable[[], Frame], name: str, skipped: list[SkippedFrame]) -> Frame | None:
-    """``load()``, or None with a warning and a ``skipped`` entry when a file of the frame is unreadable."""
+def load_or_skip(load: Callable[[], Frame], name: str, skipped: list[SkippedFrame], *,
+                 strict: bool = False) -> Frame | None:
+    """``load()``, or None with a warning and a ``skipped`` entry when the frame cannot be used (``strict``: a
+    :class:`DatasetError` instead)."""
     try:
         return load()
     except UnreadableFileError as exc:
-        LOG.warning("skipping frame %s: %s: %s", name, exc.path, exc.reason)
-        skipped.append(SkippedFrame(name, exc.path, exc.reason))
+        skip_frame(name, exc.path, exc.reason, skipped, strict=strict)
         return None
+
+
+def skip_frame(name: str, path: str, reason: str, skipped: list[SkippedFrame], *, strict: bool = False) -> None:
+    """Record a frame left out (a warning and a ``skipped`` entry), or stop the run when ``strict``."""
+    if strict:
+        raise DatasetError(f"{path}: {reason} (frame {name}; without --strict such a frame is skipped)")
+    LOG.warning("skipping frame %s: %s: %s", name, path, reason)
+    skipped.append(SkippedFrame(name, path, reason))
 
 
 T = TypeVar("T")
@@ -187,8 +195,9 @@ class SequenceReader(ABC, Generic[R]):
     """
 
     def __init__(self, root: Path, refs: Sequence[R], *, stride: int, max_frames: int | None,
-                 intrinsics: CameraIntrinsics, label_set: LabelSet | None) -> None:
+                 intrinsics: CameraIntrinsics, label_set: LabelSet | None, strict: bool = False) -> None:
         self._root = root
+        self._strict = strict
         self._refs = select_frames(refs, stride, max_frames)
         self._skipped: list[SkippedFrame] = []
         self._intrinsics = intrinsics
@@ -221,7 +230,7 @@ class SequenceReader(ABC, Generic[R]):
     def __iter__(self) -> Iterator[Frame]:
         self._skipped.clear()
         for ref in self._refs:
-            frame = load_or_skip(lambda ref=ref: self._load(ref), ref.name, self._skipped)
+            frame = load_or_skip(lambda ref=ref: self._load(ref), ref.name, self._skipped, strict=self._strict)
             if frame is not None:
                 yield frame
 

@@ -22,9 +22,10 @@ import numpy as np
 
 from semmap.datasets._ros_images import decode_color, decode_depth
 from semmap.datasets._ros_tf import TransformTree
-from semmap.datasets.base import SkippedFrame, UnreadableFileError, check_image_size, select_frames
+from semmap.datasets.base import SkippedFrame, UnreadableFileError, check_image_size, select_frames, skip_frame
 from semmap.datasets.tum import associate
 from semmap.errors import DatasetError
+from semmap.io.safe_files import regular_file_size
 from semmap.types import CameraIntrinsics, Frame, make_pose, quat_xyzw_to_rot
 
 LOG = logging.getLogger("semmap")
@@ -52,6 +53,13 @@ def bag_paths(path: Path) -> list[Path]:
     """What ``AnyReader`` opens for ``path``: the ``.bag`` file, or the ROS 2 folder (also from a file inside it)."""
     if not path.exists():
         raise DatasetError(f"{path}: does not exist")
+    error = lambda reason: DatasetError(f"{path}: {reason}")  # noqa: E731
+    if path.is_dir():
+        for entry in path.iterdir():  # rosbags opens every storage file: none may be a FIFO or a device
+            if not entry.is_dir():
+                regular_file_size(entry, what="ROS bag file", error=lambda r, e=entry: DatasetError(f"{e}: {r}"))
+    else:
+        regular_file_size(path, what="ROS bag", error=error)
     if path.is_file() and path.suffix in (".mcap", ".db3"):
         if not (path.parent / "metadata.yaml").is_file():
             raise DatasetError(f"{path}: a ROS 2 storage file needs the bag folder's metadata.yaml beside it")
@@ -115,7 +123,7 @@ class RosbagDataset:
     def __init__(self, path: str | Path, *, rgb_topic: str | None = None, depth_topic: str | None = None,
                  camera_info_topic: str | None = None, pose_topic: str | None = None, world_frame: str | None = None,
                  camera_frame: str | None = None, max_time_diff: float = 0.02, stride: int = 1,
-                 max_frames: int | None = None, labels_dir=None) -> None:
+                 max_frames: int | None = None, labels_dir=None, strict: bool = False) -> None:
         from rosbags.highlevel import AnyReader
 
         if labels_dir is not None:
@@ -124,6 +132,7 @@ class RosbagDataset:
         self._path = Path(path)
         self._paths = bag_paths(self._path)
         self._max_time_diff = float(max_time_diff)
+        self._strict = strict
         self._skipped: list[SkippedFrame] = []
         self._open = AnyReader
         self._pose_parent: str | None = None
@@ -227,14 +236,17 @@ class RosbagDataset:
             self._skip(pair.name, *failure)
             return None
         rgb, depth = images[self._rgb_topic], images[self._depth_topic]
-        check_image_size(rgb, self._intrinsics, f"{self._path}:{self._rgb_topic}", "colour")
-        check_image_size(depth, self._intrinsics, f"{self._path}:{self._depth_topic}", "depth")
+        try:
+            check_image_size(rgb, self._intrinsics, f"{self._path}:{self._rgb_topic}", "colour")
+            check_image_size(depth, self._intrinsics, f"{self._path}:{self._depth_topic}", "depth")
+        except UnreadableFileError as exc:
+            self._skip(pair.name, exc.path, exc.reason)
+            return None
         return Frame(index=pair.index, timestamp=pair.stamp, rgb=rgb, depth=depth, intrinsics=self._intrinsics,
                      T_world_cam=pair.T_world_cam, name=pair.name)
 
     def _skip(self, name: str, path: str, reason: str) -> None:
-        LOG.warning("skipping frame %s: %s: %s", name, path, reason)
-        self._skipped.append(SkippedFrame(name, path, reason))
+        skip_frame(name, path, reason, self._skipped, strict=self._strict)
 
     # ------------------------------------------------------------------ first pass
     def _index(self, reader, info_topic: str | None, pose_topic: str | None):

@@ -17,6 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from semmap.datasets.base import (
+    LOG,
     SequenceReader,
     UnreadableFileError,
     check_image_size,
@@ -28,11 +29,14 @@ from semmap.datasets.base import (
 from semmap.datasets.label_folder import LabelFolder, as_label_folder, choose_label_set
 from semmap.errors import ConfigError, DatasetError
 from semmap.geometry import register_color
+from semmap.io.safe_files import read_text_limited
 from semmap.types import CameraIntrinsics, ColorCamera, Frame, RawColor, check_pose
 
 #: Colour file names; png is preferred when a frame has both.
 COLOR_PATTERN = re.compile(r"^(frame-(\d+))\.color\.(png|jpg)$")
 INTRINSICS_FILE = "camera-intrinsics.txt"
+#: Largest pose or camera-matrix file read (16 numbers; anything far larger is not one).
+POSE_FILE_BYTES = 64 * 1024
 #: 7-Scenes' documented calibration (fx, fy, cx, cy) when the folder has no camera-intrinsics.txt.
 DEFAULT_INTRINSICS = (585.0, 585.0, 320.0, 240.0)
 DEPTH_SCALE = 1000.0  # millimetres
@@ -72,6 +76,7 @@ class SevenScenesDataset(SequenceReader[_SevenScenesRef]):
         max_frames: int | None = None,
         labels_dir: str | Path | LabelFolder | None = None,
         register_color: bool = True,
+        strict: bool = False,
     ) -> None:
         root = ensure_folder(root)
         refs = find_frames(root)
@@ -79,7 +84,7 @@ class SevenScenesDataset(SequenceReader[_SevenScenesRef]):
             intrinsics = _find_intrinsics(root, [r.color for r in refs])
         self._labels = as_label_folder(labels_dir)
         super().__init__(root, refs, stride=stride, max_frames=max_frames, intrinsics=intrinsics,
-                         label_set=choose_label_set(self._labels, root))
+                         label_set=choose_label_set(self._labels, root), strict=strict)
         #: whether colour is registered onto depth (asked for, and the camera is the 7-Scenes Kinect)
         self.registers_color = bool(register_color) and intrinsics == SEVEN_SCENES_DEPTH_CAMERA
 
@@ -123,29 +128,33 @@ def find_frames(root: Path) -> list[_SevenScenesRef]:
 
 
 def read_pose(path: Path) -> np.ndarray:
-    """4x4 ``T_world_cam`` from a 7-Scenes pose file; a missing file is :class:`UnreadableFileError`."""
-    try:
-        text = path.read_text()
-    except FileNotFoundError:
-        raise UnreadableFileError(path, "pose file is missing") from None
-    except (OSError, UnicodeDecodeError) as exc:
-        raise UnreadableFileError(path, f"cannot read pose file: {exc}") from None
+    """4x4 ``T_world_cam`` from a 7-Scenes pose file; a missing, malformed or non-finite pose is
+    :class:`UnreadableFileError` (the frame is skipped)."""
+    if not path.exists():
+        raise UnreadableFileError(path, "pose file is missing")
+    text = read_text_limited(path, POSE_FILE_BYTES, what="pose file",
+                             error=lambda reason: UnreadableFileError(path, reason))
     try:
         values = np.array([float(v) for v in text.split()], dtype=np.float64)
     except ValueError:
-        raise DatasetError(f"{path}: pose file must hold 16 numbers (a 4x4 matrix)") from None
+        raise UnreadableFileError(path, "pose file must hold 16 numbers (a 4x4 matrix)") from None
     if values.size != 16:
-        raise DatasetError(f"{path}: pose file must hold 16 numbers (a 4x4 matrix), got {values.size}")
-    return check_pose(values.reshape(4, 4), str(path))
+        raise UnreadableFileError(path, f"pose file must hold 16 numbers (a 4x4 matrix), got {values.size}")
+    try:
+        return check_pose(values.reshape(4, 4), str(path))
+    except DatasetError as exc:
+        raise UnreadableFileError(path, str(exc).removeprefix(f"{path}: ")) from None
 
 
 def _find_intrinsics(root: Path, color_paths: list[Path]) -> CameraIntrinsics:
     """K from ``camera-intrinsics.txt`` (3x3) or 7-Scenes' default; the size from the first colour image."""
     path = root / INTRINSICS_FILE
-    if path.is_file():
+    if path.exists():
+        text = read_text_limited(path, POSE_FILE_BYTES, what="camera matrix",
+                                 error=lambda reason: DatasetError(f"{path}: {reason}"))
         try:
-            K = np.array([float(v) for v in path.read_text().split()], dtype=np.float64)
-        except (OSError, ValueError) as exc:
+            K = np.array([float(v) for v in text.split()], dtype=np.float64)
+        except ValueError as exc:
             raise DatasetError(f"{path}: cannot read camera matrix: {exc}") from None
         if K.size != 9 or not np.isfinite(K).all():
             raise DatasetError(f"{path}: expected a finite 3x3 camera matrix, got {K.size} values")
@@ -153,6 +162,9 @@ def _find_intrinsics(root: Path, color_paths: list[Path]) -> CameraIntrinsics:
     else:
         fx, fy, cx, cy = DEFAULT_INTRINSICS
     width, height = image_size(color_paths, root)
+    if not path.exists():
+        LOG.warning("%s: no %s; assuming the 7-Scenes Kinect's depth camera: fx = %g, fy = %g, cx = %g, cy = %g "
+                    "px for %dx%d images", root, INTRINSICS_FILE, fx, fy, cx, cy, width, height)
     try:
         return CameraIntrinsics(width, height, float(fx), float(fy), float(cx), float(cy))
     except ConfigError as exc:

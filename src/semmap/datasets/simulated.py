@@ -71,11 +71,14 @@ def scene_of_folder(root) -> Scene | None:
     if not path.is_file():
         return None
     log = logging.getLogger("semmap")
+    from semmap.errors import SemmapError
+    from semmap.io.safe_files import read_text_limited
+
     try:
-        info = json.loads(path.read_text())
+        info = json.loads(read_text_limited(path, what="scene description"))
         scene = generate_scene(int(info["seed"]), str(info["kind"]), str(info["size"]),
                                symmetric=bool(info.get("symmetric", False)))
-    except (OSError, ValueError, KeyError, TypeError) as exc:
+    except (SemmapError, ValueError, KeyError, TypeError, AttributeError) as exc:
         log.warning("%s: cannot regenerate the simulated scene (%s); no 3D ground truth", path, exc)
         return None
     same = all(scene.params.get(k) == info.get(k) for k in ("generator_version", "second_room", "rooms"))

@@ -24,6 +24,7 @@ from semmap.datasets.base import (
 )
 from semmap.datasets.label_folder import LabelFolder, as_label_folder, choose_label_set
 from semmap.errors import ConfigError, DatasetError
+from semmap.io.safe_files import read_text_limited
 from semmap.types import CameraIntrinsics, Frame, check_pose, interpolate_pose, pose_from_tum
 
 #: Factory calibrations of the three Kinects (fx, fy, cx, cy), picked by the sequence folder name.
@@ -66,6 +67,7 @@ class TumDataset(SequenceReader[_TumRef]):
         stride: int = 1,
         max_frames: int | None = None,
         labels_dir: str | Path | LabelFolder | None = None,
+        strict: bool = False,
     ) -> None:
         root = ensure_folder(root)
         if not max_time_diff >= 0:
@@ -76,12 +78,14 @@ class TumDataset(SequenceReader[_TumRef]):
 
         rgb = read_file_list(root / "rgb.txt")
         depth = read_file_list(root / "depth.txt")
+        for name, rows in (("rgb.txt", rgb), ("depth.txt", depth)):
+            _warn_duplicate_stamps(root / name, [t for t, _ in rows])
         pairs = associate([t for t, _ in rgb], [t for t, _ in depth], max_time_diff)
         if len(pairs) < len(rgb):
             LOG.info("%s: %d of %d colour frames have no depth frame within %.3f s",
                      root, len(rgb) - len(pairs), len(rgb), max_time_diff)
         gt_path = root / "groundtruth.txt"
-        gt_stamps, gt_rows = (read_groundtruth(gt_path) if gt_path.is_file()
+        gt_stamps, gt_rows = (read_groundtruth(gt_path, strict=strict) if gt_path.is_file()
                               else (np.empty(0), np.empty((0, 7))))
 
         refs = []
@@ -101,7 +105,7 @@ class TumDataset(SequenceReader[_TumRef]):
         self._instances = (LabelFolder(root / "instances", kind="instance")
                            if (root / "instances").is_dir() else None)
         super().__init__(root, refs, stride=stride, max_frames=max_frames, intrinsics=intrinsics,
-                         label_set=choose_label_set(self._labels, root))
+                         label_set=choose_label_set(self._labels, root), strict=strict)
 
     def _load(self, ref: _TumRef) -> Frame:
         cam = self._intrinsics
@@ -129,12 +133,9 @@ class TumDataset(SequenceReader[_TumRef]):
 # --------------------------------------------------------------------------------------------------
 def _data_lines(path: Path) -> list[tuple[int, list[str]]]:
     """(line number, fields) of the non-comment, non-blank lines of a TUM text file."""
-    try:
-        text = path.read_text()
-    except FileNotFoundError:
-        raise DatasetError(f"{path}: file is missing (a TUM sequence needs rgb.txt and depth.txt)") from None
-    except (OSError, UnicodeDecodeError) as exc:
-        raise DatasetError(f"{path}: cannot read: {exc}") from None
+    if not path.exists():
+        raise DatasetError(f"{path}: file is missing (a TUM sequence needs rgb.txt and depth.txt)")
+    text = read_text_limited(path, what="file list", error=lambda reason: DatasetError(f"{path}: {reason}"))
     out = []
     for number, line in enumerate(text.splitlines(), start=1):
         line = line.strip()
@@ -163,9 +164,13 @@ def read_file_list(path: Path) -> list[tuple[float, str]]:
     return rows
 
 
-def read_groundtruth(path: Path) -> tuple[np.ndarray, np.ndarray]:
-    """Timestamps (N,) and rows ``tx ty tz qx qy qz qw`` (N, 7) of a TUM trajectory, sorted by time."""
+def read_groundtruth(path: Path, *, strict: bool = False) -> tuple[np.ndarray, np.ndarray]:
+    """Timestamps (N,) and rows ``tx ty tz qx qy qz qw`` (N, 7) of a TUM trajectory, sorted by time.
+
+    A row with non-finite values is kept as NaN (frames near it get no pose and are skipped, with a warning here);
+    ``strict`` makes it an error."""
     stamps, rows = [], []
+    bad: list[int] = []
     for number, fields in _data_lines(path):
         if len(fields) != 8:
             raise DatasetError(f"{path}:{number}: TUM trajectory rows need 8 values "
@@ -175,12 +180,19 @@ def read_groundtruth(path: Path) -> tuple[np.ndarray, np.ndarray]:
         except ValueError:
             raise DatasetError(f"{path}:{number}: pose values must be numbers") from None
         if not np.isfinite(values).all():
-            raise DatasetError(f"{path}:{number}: pose has non-finite entries")
-        if np.linalg.norm(values[3:]) < 1e-9:
+            if strict:
+                raise DatasetError(f"{path}:{number}: pose has non-finite entries")
+            bad.append(number)
+            values = [np.nan] * 7
+        elif np.linalg.norm(values[3:]) < 1e-9:
             raise DatasetError(f"{path}:{number}: quaternion is zero")
         stamps.append(_stamp(path, number, fields[0]))
         rows.append(values)
+    if bad:
+        LOG.warning("%s: %d poses have non-finite entries (lines %s); frames at their times are skipped", path,
+                    len(bad), ", ".join(map(str, bad[:5])) + (" ..." if len(bad) > 5 else ""))
     times = np.asarray(stamps, dtype=np.float64)
+    _warn_duplicate_stamps(path, times)
     order = np.argsort(times, kind="stable")
     return times[order], np.asarray(rows, dtype=np.float64).reshape(-1, 7)[order]
 
@@ -223,15 +235,29 @@ def pose_at(stamps: np.ndarray, rows: np.ndarray, t: float, max_time_diff: float
     if len(stamps) == 0 or t < stamps[0] - max_time_diff or t > stamps[-1] + max_time_diff:
         return None
     if t <= stamps[0]:
-        return pose_from_tum(rows[0])
+        return _finite_pose(rows[0])
     if t >= stamps[-1]:
-        return pose_from_tum(rows[-1])
+        return _finite_pose(rows[-1])
     j = int(np.searchsorted(stamps, t, side="right"))  # stamps[j - 1] <= t < stamps[j]
     i = j - 1
     if stamps[i] == t:
-        return pose_from_tum(rows[i])
+        return _finite_pose(rows[i])
+    if not (np.isfinite(rows[i]).all() and np.isfinite(rows[j]).all()):
+        return None
     alpha = (t - stamps[i]) / (stamps[j] - stamps[i])
     return interpolate_pose(pose_from_tum(rows[i]), pose_from_tum(rows[j]), alpha)
+
+
+def _finite_pose(row: np.ndarray) -> np.ndarray | None:
+    return pose_from_tum(row) if np.isfinite(row).all() else None
+
+
+def _warn_duplicate_stamps(path: Path, stamps) -> None:
+    """Warn when rows of a TUM file share a timestamp (only one of them can be paired or looked up)."""
+    times = np.asarray(stamps, dtype=np.float64)
+    repeated = len(times) - len(np.unique(times))
+    if repeated:
+        LOG.warning("%s: %d rows repeat an earlier timestamp; at most one row per timestamp is used", path, repeated)
 
 
 # --------------------------------------------------------------------------------------------------
@@ -240,10 +266,11 @@ def pose_at(stamps: np.ndarray, rows: np.ndarray, t: float, max_time_diff: float
 def _find_intrinsics(root: Path, rgb_paths: list[Path]) -> CameraIntrinsics:
     """``camera.json`` in the root, else the Freiburg calibration named by the folder, else TUM's default."""
     camera = root / CAMERA_FILE
-    if camera.is_file():
+    if camera.exists():
+        text = read_text_limited(camera, what="camera file", error=lambda reason: DatasetError(f"{camera}: {reason}"))
         try:
-            return CameraIntrinsics.from_dict(json.loads(camera.read_text()))
-        except (OSError, json.JSONDecodeError) as exc:
+            return CameraIntrinsics.from_dict(json.loads(text))
+        except (json.JSONDecodeError, TypeError, AttributeError, KeyError, ValueError) as exc:
             raise DatasetError(f"{camera}: cannot read camera intrinsics: {exc}") from None
         except ConfigError as exc:
             raise DatasetError(f"{camera}: {exc}") from None

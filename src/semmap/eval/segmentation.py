@@ -13,6 +13,7 @@ the ground truth (a class that is neither present nor predicted has IoU 0/0); ``
 
 from __future__ import annotations
 
+import logging
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
@@ -25,29 +26,55 @@ from semmap.errors import ConfigError, DatasetError
 from semmap.eval.semantic import SegmentationScores, confusion, scores
 from semmap.types import LabelSet
 
+LOG = logging.getLogger("semmap")
+
 #: Label image suffixes looked for in prediction and ground-truth folders.
 LABEL_SUFFIXES = (".png",)
 
 
+#: Largest class count of label images (16-bit ids).
+MAX_CLASSES = 65535
+#: Up to this many classes the confusion matrix is kept (and written) dense; above it only its non-zero cells.
+DENSE_CONFUSION_LIMIT = 1024
+
+
 @dataclass(frozen=True)
 class SegmentationEvaluation:
-    """Scores of a set of predicted label images against ground truth, with the confusion matrix."""
+    """Scores of a set of predicted label images against ground truth, with the confusion counts."""
 
     scores: SegmentationScores
-    confusion: np.ndarray  # (K, K) rows = ground truth, columns = prediction
+    pairs: np.ndarray  # (P, 3) int64 rows (true class, predicted class, pixels): the non-zero confusion cells
+    num_classes: int
     images: int
     missing: tuple[str, ...]  # ground-truth images without a prediction (counted as not evaluated)
 
+    @property
+    def confusion(self) -> np.ndarray:
+        """(K, K) counts, rows = ground truth, columns = prediction (only for K up to the dense limit)."""
+        if self.num_classes > DENSE_CONFUSION_LIMIT:
+            raise ConfigError(f"a dense confusion matrix of {self.num_classes} classes is not built; use .pairs")
+        conf = np.zeros((self.num_classes, self.num_classes), np.int64)
+        conf[self.pairs[:, 0], self.pairs[:, 1]] = self.pairs[:, 2]
+        return conf
+
     def to_dict(self, label_set: LabelSet | None = None) -> dict:
-        """JSON-ready summary: MIoU, MPA, pixel accuracy, per-class IoU and accuracy, confusion matrix."""
+        """JSON-ready summary: MIoU, MPA, pixel accuracy (null where nothing was scored), per-class IoU and
+        accuracy, and the confusion matrix (dense up to the limit, else its non-zero cells)."""
         s = self.scores
         names = label_set.names if label_set is not None else tuple(str(i) for i in range(len(s.iou)))
-        per_class = {names[i]: {"iou": round(float(s.iou[i]), 4), "accuracy": round(float(s.class_accuracy[i]), 4),
+        per_class = {names[i]: {"iou": _finite(s.iou[i]), "accuracy": _finite(s.class_accuracy[i]),
                                 "pixels": int(s.support[i])}
-                     for i in range(len(s.iou)) if not np.isnan(s.iou[i])}
-        return {"miou": round(s.miou, 4), "mpa": round(s.mpa, 4), "pixel_accuracy": round(s.accuracy, 4),
+                     for i in np.flatnonzero(~np.isnan(s.iou))}
+        confusion = (self.confusion.tolist() if self.num_classes <= DENSE_CONFUSION_LIMIT
+                     else {"nonzero": self.pairs.tolist()})
+        return {"miou": _finite(s.miou), "mpa": _finite(s.mpa), "pixel_accuracy": _finite(s.accuracy),
                 "images": self.images, "missing_predictions": list(self.missing), "per_class": per_class,
-                "confusion": self.confusion.tolist()}
+                "confusion": confusion}
+
+
+def _finite(value: float) -> float | None:
+    """Rounded for JSON, or None (null) where the score is undefined (e.g. every pixel ignored)."""
+    return round(float(value), 4) if np.isfinite(value) else None
 
 
 def segmentation_scores(pred: np.ndarray, gt: np.ndarray, num_classes: int, *,
@@ -72,15 +99,19 @@ def label_pairs(pred_dir: Path, gt_dir: Path) -> Iterator[tuple[str, Path | None
 
 
 def evaluate_label_folders(pred_dir: str | Path, gt_dir: str | Path, num_classes: int, *,
-                           ignore: int | None = 255) -> SegmentationEvaluation:
+                           ignore: int | None = 255, resize: bool = False) -> SegmentationEvaluation:
     """Accumulate the confusion of every predicted label PNG against the ground-truth PNG of the same name.
 
-    Predictions of another size than their ground truth are resized (nearest neighbour); ground-truth images
-    without a prediction are listed in ``missing`` and left out.
+    A prediction of another size than its ground truth is refused, or resized (nearest neighbour, with a warning)
+    when ``resize``; a predicted id, or a ground-truth id other than ``ignore``, of ``num_classes`` or more is
+    refused, naming the file. Ground-truth images without a prediction are listed in ``missing``. Counts are
+    kept sparse, so memory does not grow with the square of ``num_classes``.
     """
-    if num_classes < 2:
-        raise ConfigError(f"num_classes must be at least 2, got {num_classes}")
-    conf = np.zeros((num_classes, num_classes), np.int64)
+    if not 2 <= num_classes <= MAX_CLASSES:
+        raise ConfigError(f"--num-classes must be in 2..{MAX_CLASSES} (label images hold 16-bit ids), "
+                          f"got {num_classes}")
+    codes = np.zeros(0, np.int64)
+    counts = np.zeros(0, np.int64)
     missing: list[str] = []
     images = 0
     for name, pred_path, gt_path in label_pairs(Path(pred_dir), Path(gt_dir)):
@@ -90,9 +121,48 @@ def evaluate_label_folders(pred_dir: str | Path, gt_dir: str | Path, num_classes
         gt = read_label_image(gt_path)
         pred = read_label_image(pred_path)
         if pred.shape != gt.shape:
+            if not resize:
+                raise DatasetError(f"{pred_path}: prediction is {pred.shape[1]}x{pred.shape[0]}, its ground truth "
+                                   f"{gt_path.name} {gt.shape[1]}x{gt.shape[0]} (pass --resize to resize "
+                                   f"predictions by nearest neighbour)")
+            LOG.warning("%s: prediction is %dx%d, ground truth %dx%d; resized (nearest neighbour)", pred_path,
+                        pred.shape[1], pred.shape[0], gt.shape[1], gt.shape[0])
             pred = cv2.resize(pred, (gt.shape[1], gt.shape[0]), interpolation=cv2.INTER_NEAREST)
-        conf += confusion(pred, gt, num_classes, ignore=ignore)
+        _check_ids(pred_path, pred, num_classes, "predicted")
+        keep = np.ones(gt.shape, bool) if ignore is None else gt != ignore
+        _check_ids(gt_path, gt[keep], num_classes, "ground-truth", hint=ignore is None)
+        new, n = np.unique(gt[keep].astype(np.int64) * num_classes + pred[keep], return_counts=True)
+        codes, inverse = np.unique(np.concatenate([codes, new]), return_inverse=True)
+        counts = np.bincount(inverse, weights=np.concatenate([counts, n]), minlength=len(codes)).astype(np.int64)
         images += 1
     if images == 0:
         raise DatasetError(f"{pred_dir}: no prediction matches a ground-truth image in {gt_dir} by name")
-    return SegmentationEvaluation(scores(conf, ignore=ignore), conf, images, tuple(missing))
+    pairs = np.stack([codes // num_classes, codes % num_classes, counts], axis=1).astype(np.int64)
+    return SegmentationEvaluation(_scores_of_pairs(pairs, num_classes, ignore), pairs, num_classes, images,
+                                  tuple(missing))
+
+
+def _check_ids(path: Path, ids: np.ndarray, num_classes: int, what: str, *, hint: bool = False) -> None:
+    top = int(ids.max(initial=0))
+    if top >= num_classes:
+        extra = " (255 marks VOC boundaries: pass --ignore 255)" if hint and top == 255 else ""
+        raise DatasetError(f"{path}: {what} class id {top} is not below --num-classes {num_classes}{extra}")
+
+
+def _scores_of_pairs(pairs: np.ndarray, num_classes: int, ignore: int | None) -> SegmentationScores:
+    """Eq. 11-12 scores from non-zero confusion cells (the same numbers as ``scores`` of the dense matrix)."""
+    gt, pred, n = pairs[:, 0], pairs[:, 1], pairs[:, 2].astype(np.float64)
+    tp = np.bincount(gt[gt == pred], weights=n[gt == pred], minlength=num_classes)
+    gt_count = np.bincount(gt, weights=n, minlength=num_classes)
+    pred_count = np.bincount(pred, weights=n, minlength=num_classes)
+    present = gt_count > 0
+    if ignore is not None and ignore < num_classes:
+        present[ignore] = False
+    with np.errstate(divide="ignore", invalid="ignore"):
+        iou = np.where(present, tp / (gt_count + pred_count - tp), np.nan)
+        per_class_acc = np.where(present, tp / gt_count, np.nan)
+    total = n.sum()
+    return SegmentationScores(iou, float(np.nanmean(iou)) if present.any() else float("nan"),
+                              float(tp.sum() / total) if total else float("nan"),
+                              float(np.nanmean(per_class_acc)) if present.any() else float("nan"),
+                              gt_count.astype(np.int64), per_class_acc)

@@ -8,12 +8,11 @@ bit-identical.  Zip CRCs catch corruption; anything missing or malformed raises 
 from __future__ import annotations
 
 import json
-import zipfile
 from pathlib import Path
 
 import numpy as np
 
-from semmap.errors import FormatError
+from semmap.errors import FormatError, SemmapError
 from semmap.io.atomic import write_atomic
 from semmap.maps.semantic_octomap import CellArrays, OccupancyParams, SemanticOctoMap, SemanticParams
 from semmap.types import LabelSet
@@ -49,39 +48,78 @@ def save_map(path: str | Path, m: SemanticOctoMap) -> int:
     return Path(path).stat().st_size
 
 
+#: A ``.semmap``'s arrays may expand to at most this many times the file's size (numpy's deflate of map arrays
+#: reaches 3-10x; a zip bomb thousands) ...
+MAX_EXPANSION = 100
+#: ... or to this many bytes, whichever is larger (small files of very regular arrays).
+MIN_EXPANSION_BUDGET = 64 * 2**20
+#: Largest JSON header accepted.
+MAX_HEADER_BYTES = 16 * 2**20
+
+
 def load_map(path: str | Path) -> SemanticOctoMap:
-    """Read a map written by :func:`save_map`."""
+    """Read a map written by :func:`save_map`.
+
+    Hostile files are refused before anything large is allocated: the zip's members must be the expected arrays,
+    their declared sizes must fit a budget tied to the file's size (no zip bombs), and each array's own header
+    (dtype, shape) must match the bytes its member holds and what the map needs."""
+    from semmap.io.safe_files import read_npz_members
+
     path = Path(path)
-    try:
-        with np.load(path, allow_pickle=False) as z:
-            names = set(z.files)
-            missing = ({"header"} | set(_ARRAYS)) - names
-            if missing:
-                raise FormatError(f"{path}: not a semmap map (missing {sorted(missing)})")
-            header = json.loads(bytes(z["header"]).decode("utf-8"))
-            arrays = {name: z[name] for name in _ARRAYS}
-    except FormatError:
-        raise
-    except FileNotFoundError:
-        raise FormatError(f"{path}: no such file") from None
-    except (zipfile.BadZipFile, EOFError, ValueError, OSError, KeyError, UnicodeDecodeError) as exc:
-        raise FormatError(f"{path}: corrupt or truncated semmap file ({exc})") from None
-    if header.get("format") != FORMAT:
-        raise FormatError(f"{path}: not a semmap map (format {header.get('format')!r})")
-    if header.get("version") != VERSION:
-        raise FormatError(f"{path}: unsupported semmap map version {header.get('version')!r} (this is {VERSION})")
-    try:
-        semantics = SemanticParams(**header["semantics"])
-        occupancy = OccupancyParams(**header["occupancy"])
-        label_set = None if header["label_set"] is None else LabelSet.from_dict(header["label_set"])
-        resolution = float(header["resolution"])
-        max_range = float(header["max_range"])
-    except (KeyError, TypeError, ValueError) as exc:
-        raise FormatError(f"{path}: malformed header ({exc})") from None
+    arrays = read_npz_members(path, ["header", *_ARRAYS], what="semmap map", max_expansion=MAX_EXPANSION,
+                              min_budget=MIN_EXPANSION_BUDGET)
+    raw = arrays.pop("header")
+    if raw.dtype != np.uint8 or raw.ndim != 1 or raw.size > MAX_HEADER_BYTES:
+        raise FormatError(f"{path}: header must be a 1-D uint8 array of JSON of at most {MAX_HEADER_BYTES:,} bytes")
+    resolution, max_range, occupancy, semantics, label_set = _parse_header(path, raw.tobytes())
     _check_arrays(path, arrays, semantics.k)
     cells = CellArrays(**arrays)
     return SemanticOctoMap.from_cells(resolution, cells, occupancy=occupancy, semantics=semantics,
                                       label_set=label_set, max_range=max_range)
+
+
+def _number(header: dict, key: str, path: Path) -> float:
+    value = header.get(key)
+    if isinstance(value, bool) or not isinstance(value, int | float) or not np.isfinite(value):
+        raise FormatError(f"{path}: header field {key!r} must be a finite number, got {value!r}")
+    return float(value)
+
+
+def _parse_header(path: Path, raw: bytes):
+    """(resolution, max_range, occupancy, semantics, label set) from the JSON header, every field type-checked."""
+    try:
+        header = json.loads(raw.decode("utf-8"))
+    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise FormatError(f"{path}: header is not JSON ({exc})") from None
+    if not isinstance(header, dict):
+        raise FormatError(f"{path}: header must be a JSON object, got {type(header).__name__}")
+    if header.get("format") != FORMAT:
+        raise FormatError(f"{path}: not a semmap map (format {header.get('format')!r})")
+    if header.get("version") != VERSION:
+        raise FormatError(f"{path}: unsupported semmap map version {header.get('version')!r} (this is {VERSION})")
+    resolution = _number(header, "resolution", path)
+    if resolution <= 0:
+        raise FormatError(f"{path}: resolution must be positive, got {resolution}")
+    max_range = _number(header, "max_range", path)
+    parts = {}
+    for key in ("occupancy", "semantics"):
+        section = header.get(key)
+        if not isinstance(section, dict) or not all(isinstance(k, str) for k in section):
+            raise FormatError(f"{path}: header field {key!r} must be a JSON object, got {section!r:.60}")
+        parts[key] = {k: _number(section, k, path) for k in section}
+    semantics = dict(parts["semantics"])
+    if "k" in semantics:
+        if semantics["k"] != int(semantics["k"]):
+            raise FormatError(f"{path}: semantic set size k must be a whole number, got {semantics['k']}")
+        semantics["k"] = int(semantics["k"])
+    label_set = header.get("label_set")
+    if label_set is not None and not isinstance(label_set, dict):
+        raise FormatError(f"{path}: header field 'label_set' must be a JSON object or null")
+    try:
+        return (resolution, max_range, OccupancyParams(**parts["occupancy"]), SemanticParams(**semantics),
+                None if label_set is None else LabelSet.from_dict(label_set))
+    except (TypeError, SemmapError) as exc:
+        raise FormatError(f"{path}: malformed header ({exc})") from None
 
 
 def _check_arrays(path: Path, arrays: dict[str, np.ndarray], k: int) -> None:
@@ -93,6 +131,11 @@ def _check_arrays(path: Path, arrays: dict[str, np.ndarray], k: int) -> None:
         shape = (rows, *(k if t == "k" else t for t in tail))
         if a.dtype != dtype or a.shape != shape:
             raise FormatError(f"{path}: array {name!r} is {a.dtype}{a.shape}, expected {np.dtype(dtype)}{shape}")
+    if not np.isfinite(arrays["logodds"]).all():
+        raise FormatError(f"{path}: cells with non-finite (NaN or infinite) log-odds")
+    probs = arrays["sem_probs"]
+    if probs.size and not (np.isfinite(probs).all() and probs.min() >= 0 and probs.max() <= 1):
+        raise FormatError(f"{path}: class probabilities outside [0, 1]")
     attr = arrays["attr"]
     if attr.size and (attr.min() < -1 or attr.max() >= n_rows):
         raise FormatError(f"{path}: cell attribute rows out of range")

@@ -13,6 +13,7 @@ Layouts, as the OctoMap library reads and writes them:
 
 from __future__ import annotations
 
+import contextlib
 import re
 from dataclasses import dataclass
 from pathlib import Path
@@ -31,6 +32,10 @@ SUPPORTED_OT_TYPES = ("OcTree", "ColorOcTree")
 _NODE_COLOR = np.dtype([("v", "<f4"), ("r", "u1"), ("g", "u1"), ("b", "u1"), ("m", "u1")])
 _NODE_PLAIN = np.dtype([("v", "<f4"), ("m", "u1")])
 _MAX_HEADER_LINES = 64
+#: Longest header line read (OctoMap's are under 40 bytes): a file without line breaks is not scanned to its end.
+_MAX_HEADER_LINE = 1024
+#: Bytes of one node record in ``.ot`` data: float32 log-odds (+ RGB for ColorOcTree) + child mask.
+_OT_RECORD = {"OcTree": 5, "ColorOcTree": 8}
 
 
 def _header(magic: str, tree_type: str, size: int, resolution: float) -> bytes:
@@ -152,8 +157,10 @@ def _parse_header(data: bytes, path: str) -> tuple[str, str, int, float, int]:
     pos = 0
     lines: list[str] = []
     while len(lines) < _MAX_HEADER_LINES:
-        end = data.find(b"\n", pos)
+        end = data.find(b"\n", pos, pos + _MAX_HEADER_LINE)
         if end < 0:
+            if not lines and not bytes(data[:len(OT_MAGIC)]).startswith(b"# Octomap"):
+                raise FormatError(f"{path}: not an OctoMap file (first bytes {bytes(data[:16])!r})")
             raise FormatError(f"{path}: header ends before the 'data' line (file truncated?)")
         try:
             line = data[pos:end].decode("ascii").strip()
@@ -302,8 +309,9 @@ def decode_octomap(data: bytes, path: str = "<bytes>", *, clamp_min_log: float =
                    clamp_max_log: float = 3.5110307) -> OctreeLeaves:
     """Parse ``.ot`` or ``.bt`` bytes into leaves; :class:`FormatError` on anything malformed."""
     magic, tree_type, size, res, pos = _parse_header(data, path)
-    buf = np.frombuffer(data, np.uint8)
     binary = magic.startswith(BT_MAGIC)
+    _check_size_against_length(path, size, len(data) - pos, binary, tree_type)
+    buf = np.frombuffer(data, np.uint8)
     if size == 0:
         empty = np.zeros(0, np.int64)
         return OctreeLeaves(tree_type, res, 0, empty, empty.astype(np.uint8), empty.astype(np.float32), None)
@@ -328,15 +336,50 @@ def decode_octomap(data: bytes, path: str = "<bytes>", *, clamp_min_log: float =
         raise FormatError(f"{path}: header says {size} nodes but the data holds {nodes}")
     if end != len(data):
         raise FormatError(f"{path}: {len(data) - end} unexpected bytes after the tree data")
+    if not np.isfinite(values).all():
+        bad = int((~np.isfinite(values)).sum())
+        raise FormatError(f"{path}: {bad} leaves have non-finite (NaN or infinite) log-odds")
     return OctreeLeaves(tree_type, res, nodes, codes.copy(), depths.copy(), values.copy(),
                         None if colors is None else colors.copy())
 
 
+def _check_size_against_length(path: str, size: int, data_bytes: int, binary: bool, tree_type: str) -> None:
+    """The node count the header claims must fit in the bytes the file has, before anything is allocated for it:
+    an ``.ot`` stores one fixed-size record per node, a ``.bt`` two bytes per inner node and at most 8 leaves each."""
+    if binary:
+        most = 9 * (data_bytes // 2) + 1
+        need = "2 bytes per inner node"
+    else:
+        record = _OT_RECORD.get(tree_type)
+        if record is None:
+            return  # an unsupported type is refused by the caller, with its name
+        most = data_bytes // record
+        need = f"{record} bytes per node"
+    if size > most:
+        raise FormatError(f"{path}: header says {size:,} nodes, but the {data_bytes:,} bytes of tree data hold at "
+                          f"most {most:,} ({need})")
+
+
 def read_octomap(path: str | Path) -> OctreeLeaves:
-    """Read an ``.ot`` or ``.bt`` file (by content, not by extension)."""
+    """Read an ``.ot`` or ``.bt`` file (by content, not by extension).
+
+    The file is memory-mapped: only the pages the parser reaches are read, so a huge or sparse file that is not a
+    valid tree costs its header, not its length; devices and FIFOs are refused without being opened."""
+    import mmap
+
+    from semmap.io.safe_files import regular_file_size
+
+    size = regular_file_size(path, what="OctoMap file")
+    if size == 0:
+        raise FormatError(f"{path}: file is empty")
     try:
-        data = Path(path).read_bytes()
-    except OSError as exc:
-        raise FormatError(f"{path}: cannot read: {exc.strerror or exc}") from exc
-    return decode_octomap(data, str(path))
+        with open(path, "rb") as f:
+            data = mmap.mmap(f.fileno(), 0, access=mmap.ACCESS_READ)
+    except (OSError, ValueError) as exc:
+        raise FormatError(f"{path}: cannot read: {getattr(exc, 'strerror', None) or exc}") from None
+    try:
+        return decode_octomap(data, str(path))
+    finally:
+        with contextlib.suppress(BufferError):  # an error's traceback may still hold a view; GC closes it then
+            data.close()
 

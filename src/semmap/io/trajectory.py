@@ -25,13 +25,10 @@ HEADER = "# timestamp tx ty tz qx qy qz qw"
 
 def read_trajectory(path: str | Path) -> Trajectory:
     """Poses of a TUM trajectory file, validated: :class:`FormatError` names the file and line of a bad row."""
+    from semmap.io.safe_files import read_text_limited
+
     path = Path(path)
-    try:
-        text = path.read_text()
-    except FileNotFoundError:
-        raise FormatError(f"{path}: trajectory file does not exist") from None
-    except (OSError, UnicodeDecodeError) as exc:
-        raise FormatError(f"{path}: cannot read trajectory file: {exc}") from None
+    text = read_text_limited(path, what="trajectory file")
     stamps: list[float] = []
     poses: list[np.ndarray] = []
     for number, line in enumerate(text.splitlines(), start=1):

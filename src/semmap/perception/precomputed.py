@@ -8,7 +8,6 @@ file gets no semantics (a warning; its geometry and colour are still mapped).
 from __future__ import annotations
 
 import logging
-import zipfile
 from pathlib import Path
 
 import cv2
@@ -119,22 +118,23 @@ def _is_number(text: str) -> bool:
 
 def _load_probabilities(path: Path) -> np.ndarray:
     """A probability array from .npy, or from .npz (key ``probs`` or its only array); FormatError otherwise."""
-    try:
-        if path.suffix.lower() == ".npz":
-            with np.load(path) as data:
-                keys = list(data.keys())
-                if "probs" in keys:
-                    arr = data["probs"]
-                elif len(keys) == 1:
-                    arr = data[keys[0]]
-                else:
-                    raise FormatError(f"{path}: .npz holds {keys}; name the probabilities 'probs'")
+    from semmap.io.safe_files import read_npy, read_npz_members, regular_file_size
+
+    if path.suffix.lower() == ".npz":
+        arrays = read_npz_members(path, what="probabilities file")
+        if "probs" in arrays:
+            arr = arrays["probs"]
+        elif len(arrays) == 1:
+            arr = next(iter(arrays.values()))
         else:
-            arr = np.load(path, allow_pickle=False)
-    except FormatError:
-        raise
-    except (OSError, ValueError, EOFError, zipfile.BadZipFile) as exc:
-        raise FormatError(f"{path}: cannot read probabilities ({exc})") from None
+            raise FormatError(f"{path}: .npz holds {sorted(arrays)}; name the probabilities 'probs'")
+    else:
+        size = regular_file_size(path, what="probabilities file")
+        try:
+            with open(path, "rb") as f:
+                arr = read_npy(f, size, what="probabilities", error=lambda reason: FormatError(f"{path}: {reason}"))
+        except OSError as exc:
+            raise FormatError(f"{path}: cannot read probabilities ({exc})") from None
     if arr.ndim != 3 or not np.issubdtype(arr.dtype, np.floating):
         raise FormatError(f"{path}: probabilities must be a 3-D float array (H, W, K), got {arr.shape} {arr.dtype}")
     return arr
