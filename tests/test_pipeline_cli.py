@@ -100,7 +100,10 @@ def test_bad_inputs_give_one_clear_line_and_exit_code_1(room_sequence, tmp_path)
     parts[1] = "nan"
     gt[i] = " ".join(parts)
     (seq / "groundtruth.txt").write_text("\n".join(gt) + "\n")
-    r = run_cli("run", str(seq), "--out", str(tmp_path / "o2"))
+    r = run_cli("run", str(seq), "--out", str(tmp_path / "o2"))  # one skip policy: that frame is left out
+    assert r.returncode == 0 and "groundtruth.txt" in r.stderr and "Traceback" not in r.stderr
+    assert json.loads((tmp_path / "o2" / "report.json").read_text())["frames_skipped"] == 1
+    r = run_cli("run", str(seq), "--out", str(tmp_path / "o3"), "--strict")
     assert r.returncode == 1 and "groundtruth.txt" in r.stderr and "Traceback" not in r.stderr
 
 

@@ -682,7 +682,7 @@ def info(path: Annotated[Path, typer.Argument(help="a map file: .ot, .bt, .semma
 
 @app.command()
 def view(
-    path: Annotated[Path, typer.Argument(help="a .semmap, .ot or .bt map file")],
+    path: Annotated[Path, typer.Argument(help="a map file: .semmap (any map), .ply, .ot or .bt")],
     save: Annotated[Path | None, typer.Option(help="write a rerun recording (.rrd) instead of opening a viewer")
                     ] = None,
 ) -> None:

@@ -188,6 +188,7 @@ class Pipeline:
 
     def run(self) -> RunResult:
         self._conf2d = None
+        check_out_dir(self.config.output.out)
         self._viewer = get_visualizer(self.config.output, name=self.title)
         dataset = self._open()
         label_set = self._label_set(dataset)
@@ -516,6 +517,16 @@ def render_preview(cloud: MapCloud, label_set: LabelSet | None, poses: list[np.n
                                  width=views[0].shape[1], height=views[0].shape[0]))
         titles.append("colour (perspective)")
     return side_by_side(views, titles)
+
+
+def check_out_dir(out: Path) -> None:
+    """``--out`` must be a folder or not exist yet (nor lie below a file): checked before any frame is mapped."""
+    for where in (out, *out.parents):
+        if where.exists():
+            if not where.is_dir():
+                what = "is a file" if where == out else f"lies below {where}, which is a file"
+                raise ConfigError(f"--out {out}: {what}; give a folder (nothing was mapped)")
+            return
 
 
 def color_mode(value: str) -> ColorMode:

@@ -70,7 +70,7 @@ class CameraIntrinsics:
         try:
             return cls(int(d["width"]), int(d["height"]), float(d["fx"]), float(d["fy"]),
                        float(d["cx"]), float(d["cy"]))
-        except (KeyError, TypeError, ValueError) as exc:
+        except (KeyError, TypeError, ValueError, OverflowError) as exc:
             raise ConfigError(f"camera intrinsics need width, height, fx, fy, cx, cy: {exc}") from exc
 
 
@@ -151,7 +151,7 @@ class LabelSet:
                 raise ValueError("class ids must be 0..K-1 without gaps")
             return cls(tuple(str(e["name"]) for e in entries),
                        np.array([e["color"] for e in entries], dtype=np.uint8))
-        except (KeyError, TypeError, ValueError) as exc:
+        except (KeyError, TypeError, ValueError, OverflowError, AttributeError) as exc:
             raise ConfigError(f"malformed label set: {exc}") from exc
 
     def save(self, path: str | Path) -> None:

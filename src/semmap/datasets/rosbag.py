@@ -38,6 +38,10 @@ POSE_TYPES = ("geometry_msgs/msg/PoseStamped", "nav_msgs/msg/Odometry", "geometr
 TF_TOPICS = ("/tf", "/tf_static")
 #: Suffixes that file or folder names of bags carry.
 BAG_SUFFIXES = (".bag", ".mcap", ".db3")
+#: The first bytes of a ROS 1 bag (format 2.0, the only one rosbags reads).
+ROS1_MAGIC = b"#ROSBAG V2.0\n"
+#: Largest ``metadata.yaml`` of a ROS 2 bag read.
+MAX_METADATA_BYTES = 16 * 2**20
 #: Intrinsics assumed when a bag has no CameraInfo (TUM's recommended default, scaled to the image size).
 DEFAULT_FOCAL_AT_640 = 525.0
 
@@ -57,9 +61,16 @@ def bag_paths(path: Path) -> list[Path]:
     if path.is_dir():
         for entry in path.iterdir():  # rosbags opens every storage file: none may be a FIFO or a device
             if not entry.is_dir():
-                regular_file_size(entry, what="ROS bag file", error=lambda r, e=entry: DatasetError(f"{e}: {r}"))
+                size = regular_file_size(entry, what="ROS bag file", error=lambda r, e=entry: DatasetError(f"{e}: {r}"))
+                if entry.name == "metadata.yaml" and size > MAX_METADATA_BYTES:
+                    raise DatasetError(f"{entry}: {size:,} bytes is too large for a bag's metadata")
     else:
         regular_file_size(path, what="ROS bag", error=error)
+        if path.suffix == ".bag":
+            with open(path, "rb") as f:  # rosbags reads the first *line*: a file without line breaks is read whole
+                magic = f.read(len(ROS1_MAGIC))
+            if magic != ROS1_MAGIC:
+                raise DatasetError(f"{path}: not a ROS 1 bag (starts with {magic!r}, expected {ROS1_MAGIC!r})")
     if path.is_file() and path.suffix in (".mcap", ".db3"):
         if not (path.parent / "metadata.yaml").is_file():
             raise DatasetError(f"{path}: a ROS 2 storage file needs the bag folder's metadata.yaml beside it")

@@ -8,13 +8,12 @@ OctoMap's cells).  ``save_grid -> load_grid`` gives back a map whose arrays are 
 from __future__ import annotations
 
 import json
-import zipfile
 from dataclasses import fields
 from pathlib import Path
 
 import numpy as np
 
-from semmap.errors import FormatError
+from semmap.errors import FormatError, SemmapError
 from semmap.fusion.rules import FusionParams
 from semmap.io.atomic import write_atomic
 from semmap.maps.semantic_grid import GridArrays
@@ -54,18 +53,16 @@ def save_grid(path: str | Path, m) -> int:
 
 def read_header(path: str | Path) -> dict:
     """The JSON header of a grid file (what ``semmap info`` shows without loading every array)."""
+    from semmap.io.safe_files import read_npz_members
+
     path = Path(path)
+    raw = read_npz_members(path, ["header"], what="semmap map")["header"]
     try:
-        with np.load(path, allow_pickle=False) as z:
-            if "header" not in z.files:
-                raise FormatError(f"{path}: not a semmap grid map (no header)")
-            header = json.loads(bytes(z["header"]).decode("utf-8"))
-    except FormatError:
-        raise
-    except FileNotFoundError:
-        raise FormatError(f"{path}: no such file") from None
-    except (zipfile.BadZipFile, EOFError, ValueError, OSError, KeyError, UnicodeDecodeError) as exc:
-        raise FormatError(f"{path}: corrupt or truncated semmap file ({exc})") from None
+        header = json.loads(raw.tobytes().decode("utf-8"))
+    except (UnicodeDecodeError, ValueError) as exc:
+        raise FormatError(f"{path}: header is not JSON ({exc})") from None
+    if not isinstance(header, dict):
+        raise FormatError(f"{path}: header must be a JSON object, got {type(header).__name__}")
     if header.get("format") != FORMAT:
         raise FormatError(f"{path}: not a semmap grid map (format {header.get('format')!r})")
     if header.get("version") != VERSION:
@@ -79,17 +76,14 @@ def load_grid(path: str | Path):
     from semmap.maps.voxel_grid import SemanticVoxelGrid
 
     path = Path(path)
+    from semmap.io.safe_files import read_npz_members
+
     header = read_header(path)
-    try:
-        with np.load(path, allow_pickle=False) as z:
-            missing = set(_GRID_FIELDS) - set(z.files)
-            if missing:
-                raise FormatError(f"{path}: not a semmap grid map (missing {sorted(missing)})")
-            arrays = {name: z[name] for name in z.files if name != "header"}
-    except FormatError:
-        raise
-    except (zipfile.BadZipFile, EOFError, ValueError, OSError, KeyError) as exc:
-        raise FormatError(f"{path}: corrupt or truncated semmap file ({exc})") from None
+    arrays = read_npz_members(path, what="semmap map")
+    arrays.pop("header", None)
+    missing = set(_GRID_FIELDS) - set(arrays)
+    if missing:
+        raise FormatError(f"{path}: not a semmap grid map (missing {sorted(missing)})")
     try:
         fz = dict(header["fusion"])
         prior = fz.pop("prior")
@@ -106,7 +100,7 @@ def load_grid(path: str | Path):
             m = SemanticPointMap(resolution, label_set=label_set, fusion=fusion, dtype=dtype,
                                  keyframes_only=bool(header["keyframes_only"]))
             m.frames_integrated = int(header["frames_integrated"])
-    except (KeyError, TypeError, ValueError) as exc:
+    except (KeyError, TypeError, ValueError, AttributeError, SemmapError) as exc:
         raise FormatError(f"{path}: malformed header ({exc})") from None
     grid = GridArrays(**{name: arrays[name] for name in _GRID_FIELDS})
     _check(path, grid, m)

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import json
-import zipfile
 from pathlib import Path
 
 import numpy as np
@@ -36,15 +35,14 @@ def describe_map_file(path: str | Path) -> dict:
 
 
 def _format_of(path: Path) -> str | None:
+    from semmap.io.safe_files import read_npz_members
+
+    raw = read_npz_members(path, ["header"], what="semmap map")["header"]
     try:
-        with np.load(path, allow_pickle=False) as z:
-            if "header" not in z.files:
-                return None
-            return json.loads(bytes(z["header"]).decode("utf-8")).get("format")
-    except FileNotFoundError:
-        raise FormatError(f"{path}: no such file") from None
-    except (zipfile.BadZipFile, EOFError, ValueError, OSError, KeyError, UnicodeDecodeError) as exc:
-        raise FormatError(f"{path}: corrupt or truncated semmap file ({exc})") from None
+        header = json.loads(raw.tobytes().decode("utf-8"))
+    except (UnicodeDecodeError, ValueError) as exc:
+        raise FormatError(f"{path}: header is not JSON ({exc})") from None
+    return header.get("format") if isinstance(header, dict) else None
 
 
 def _describe_semmap(path: Path) -> dict:

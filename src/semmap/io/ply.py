@@ -37,15 +37,26 @@ def write_ply(path: str | Path, cloud: MapCloud) -> int:
     return Path(path).stat().st_size
 
 
+#: The header must end within this many bytes (semmap writes a few hundred).
+MAX_PLY_HEADER = 64 * 1024
+
+
 def read_ply(path: str | Path) -> MapCloud:
     """Read a PLY written by :func:`write_ply` back into a :class:`MapCloud`."""
+    import mmap
+
+    from semmap.io.safe_files import regular_file_size
+
     path = Path(path)
-    try:
-        raw = path.read_bytes()
-    except OSError as exc:
-        raise FormatError(f"{path}: cannot read ({exc.strerror or exc})") from None
-    end = raw.find(b"end_header\n")
-    if not raw.startswith(b"ply\n") or end < 0:
+    if regular_file_size(path, what="PLY file") == 0:
+        raise FormatError(f"{path}: file is empty")
+    try:  # memory-mapped: a huge file is checked against its header before its vertices are touched
+        with open(path, "rb") as f:
+            raw = mmap.mmap(f.fileno(), 0, access=mmap.ACCESS_READ)
+    except (OSError, ValueError) as exc:
+        raise FormatError(f"{path}: cannot read ({getattr(exc, 'strerror', None) or exc})") from None
+    end = raw.find(b"end_header\n", 0, MAX_PLY_HEADER)
+    if raw[:4] != b"ply\n" or end < 0:
         raise FormatError(f"{path}: not a PLY file (no 'ply' / 'end_header')")
     lines = raw[:end].decode("ascii", "replace").splitlines()
     if "format binary_little_endian 1.0" not in lines:
@@ -55,15 +66,19 @@ def read_ply(path: str | Path) -> MapCloud:
         resolution = next((float(line.split()[2]) for line in lines if line.startswith("comment resolution")), 0.0)
     except (StopIteration, IndexError, ValueError):
         raise FormatError(f"{path}: malformed PLY header") from None
-    names = [line.split()[2] for line in lines if line.startswith("property")]
+    try:
+        names = [line.split()[2] for line in lines if line.startswith("property")]
+    except IndexError:
+        raise FormatError(f"{path}: malformed PLY property line") from None
     fields = _BASE + (_NORMALS if "nx" in names else [])
     if names != [name for name, _ in fields]:
         raise FormatError(f"{path}: unexpected vertex properties {names}")
-    body = raw[end + len(b"end_header\n"):]
+    start = end + len(b"end_header\n")
+    body = len(raw) - start
     dtype = np.dtype(fields)
-    if len(body) != n * dtype.itemsize:
-        raise FormatError(f"{path}: truncated PLY ({len(body)} bytes of vertex data, expected {n * dtype.itemsize})")
-    rows = np.frombuffer(body, dtype)
+    if n < 0 or body != n * dtype.itemsize:
+        raise FormatError(f"{path}: truncated PLY ({body} bytes of vertex data, expected {n * dtype.itemsize})")
+    rows = np.frombuffer(raw, dtype, count=n, offset=start).copy()
     normals = np.stack([rows["nx"], rows["ny"], rows["nz"]], 1).astype(np.float32) if "nx" in names else None
     return MapCloud(np.stack([rows["x"], rows["y"], rows["z"]], 1).astype(np.float64),
                     np.stack([rows["red"], rows["green"], rows["blue"]], 1).astype(np.uint8),

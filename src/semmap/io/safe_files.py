@@ -40,12 +40,14 @@ def regular_file_size(path: str | Path, *, what: str = "file", error: ErrorFacto
         raise error("file is missing" if what in ("file", "image file") else f"{what} does not exist") from None
     except OSError as exc:
         raise error(f"cannot read {what}: {exc.strerror or exc}") from None
+    except ValueError as exc:  # a name with a NUL byte, e.g. from a damaged file list
+        raise error(f"invalid {what} name ({exc})") from None
     if stat.S_ISDIR(st.st_mode):
         raise error(f"is a folder, expected a {what}")
     if not stat.S_ISREG(st.st_mode):
         kind = "FIFO" if stat.S_ISFIFO(st.st_mode) else "device" if stat.S_ISCHR(st.st_mode) or \
             stat.S_ISBLK(st.st_mode) else "socket" if stat.S_ISSOCK(st.st_mode) else "special file"
-        raise error(f"is a {kind}, not a regular file; refusing to read it as a {what}")
+        raise error(f"is a {kind}, not a regular file ({what} expected); refusing to read it")
     return int(st.st_size)
 
 
@@ -117,6 +119,7 @@ def read_npz_members(path: str | Path, names: list[str] | None = None, *, what: 
     """Arrays of a ``.npz`` (all, or ``names``), refusing zip bombs: the members' declared sizes must fit
     ``max(min_budget, max_expansion x file size)`` before anything is decompressed."""
     import zipfile
+    import zlib
 
     error = error or _format_error(path)
     file_size = regular_file_size(path, what=what, error=error)
@@ -140,5 +143,5 @@ def read_npz_members(path: str | Path, names: list[str] | None = None, *, what: 
                         raise error(f"array {n!r} has bytes after its data")
             return out
     except (zipfile.BadZipFile, zipfile.LargeZipFile, EOFError, OSError, NotImplementedError, RuntimeError,
-            ValueError) as exc:
+            ValueError, zlib.error) as exc:
         raise error(f"corrupt or truncated {what} ({type(exc).__name__}: {exc})") from None

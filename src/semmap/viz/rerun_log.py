@@ -193,15 +193,23 @@ def get_visualizer(output, *, name: str = "semmap run") -> Visualizer:
 # A finished map
 # --------------------------------------------------------------------------------------------------
 def map_file_cloud(path: str | Path) -> tuple[MapCloud, LabelSet | None]:
-    """Occupied voxels of a ``.semmap``, ``.ot`` or ``.bt`` file (a ``.bt`` has no colour: grey by height)."""
+    """Occupied voxels of a ``.semmap`` (any map), ``.ply``, ``.ot`` or ``.bt`` file (a ``.bt`` has no colour:
+    grey by height)."""
     path = Path(path)
     if path.suffix == ".semmap":
+        from semmap.io.grid_files import FORMAT as GRID_FORMAT
+        from semmap.io.grid_files import load_grid
+        from semmap.io.map_info import _format_of
         from semmap.io.native import load_map
 
-        m = load_map(path)
+        m = load_grid(path) if _format_of(path) == GRID_FORMAT else load_map(path)
         return m.cloud(), m.label_set
+    if path.suffix == ".ply":
+        from semmap.io.ply import read_ply
+
+        return read_ply(path), None
     if path.suffix not in (".ot", ".bt"):
-        raise FormatError(f"{path}: semmap view opens .semmap, .ot and .bt files")
+        raise FormatError(f"{path}: semmap view opens .semmap, .ply, .ot and .bt files")
     from semmap.io.octomap_files import read_octomap
     from semmap.keys import keys_to_coords
 
