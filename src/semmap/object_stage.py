@@ -39,11 +39,13 @@ class ObjectStage:
         self.truth = ObjectTruth()
         self._gt_classes: dict[int, int] = {}
         self._scored = False
+        self._keyframe_due = False
 
     def step(self, frame: Frame, T_world_cam: np.ndarray, semantics: TopKProbs | None, keyframe: bool) -> None:
         """Detect and track ``frame``'s instances; on keyframes add them to the object map. Sources built on a
-        segmentation skip frames that were not segmented."""
-        if semantics is None and getattr(self.source, "needs_semantics", False):
+        segmentation skip frames that were not segmented (a keyframe among them moves to the next segmented one)."""
+        self._keyframe_due |= keyframe  # a keyframe the source could not see is taken at its next frame
+        if semantics is None and self.source.needs_semantics:
             return
         t0 = time.perf_counter()
         found = self.source.detect(frame, semantics)
@@ -53,12 +55,15 @@ class ObjectStage:
         self.ms["instances"] += (t1 - t0) * 1e3
         self.ms["tracking"] += (t2 - t1) * 1e3
         self.frames += 1
+        self.map.count_track_frames(tracked.track_ids)
         truth = cover = None
         if frame.instances is not None and frame.instances.shape == tracked.ids.shape:
             truth, cover = detection_truth(tracked.ids, frame.instances, len(tracked))
             self.switches.add(tracked.track_ids, truth, cover)
+            self.truth.add_frame(frame.instances)
             self._scored = True
-        if keyframe:
+        if self._keyframe_due:
+            self._keyframe_due = False
             t3 = time.perf_counter()
             ids = self.map.integrate(tracked, frame.depth, frame.rgb, frame.intrinsics, T_world_cam, frame.index)
             self.ms["objects"] += (time.perf_counter() - t3) * 1e3
@@ -105,9 +110,10 @@ class ObjectStage:
                "ms_per_keyframe": round(self.ms["objects"] / max(keyframes, 1), 2), "keyframes": m.keyframes,
                "table": [{"id": o.id, "class": names[o.class_id], "confidence": round(o.confidence, 3),
                           "centroid": [round(float(c), 3) for c in o.centroid], "points": len(o),
-                          "sightings": o.sightings} for o in real[:REPORT_ROWS]]}
+                          "sightings": o.sightings, "frames_seen": m.frames_seen(o)} for o in real[:REPORT_ROWS]]}
         if self._scored:
-            visible = [g for g in self.truth.visible(m.params.min_sightings) if g in self._gt_classes]
+            visible = [g for g in self.truth.visible(m.params.min_sightings, m.params.min_keyframes)
+                       if g in self._gt_classes]
             counts = count_errors([o.class_id for o in real], [self._gt_classes[g] for g in visible], m.label_set)
             out["id_switches"] = self.switches.switches
             out.update({k: counts[k] for k in ("count_error", "count_error_eq24", "objects_ground_truth")})

@@ -2,9 +2,10 @@
 
 - Object count error per class and over all classes (eq. 24 without the x100): ``|D - GT| / GT``, with D the
   map's real objects of a class and GT the ground-truth objects of that class the camera saw well enough to map
-  (at least ``min_pixels`` pixels in at least ``min_sightings`` keyframes: an object the camera never showed
-  cannot be counted). Over all classes the error is ``sum |D_c - GT_c| / sum GT_c``, so a missing chair and an
-  extra cup do not cancel; ``count_error_eq24`` is the paper's ``|D - GT| / GT`` of the totals.
+  (at least ``min_pixels`` pixels in at least ``min_sightings`` frames and ``min_keyframes`` keyframes, the map's
+  own rule: an object the camera never showed cannot be counted). Over all classes the error is
+  ``sum |D_c - GT_c| / sum GT_c``, so a missing chair and an extra cup do not cancel; ``count_error_eq24`` is
+  the paper's ``|D - GT| / GT`` of the totals.
 - Centroid error: each map object is paired with the ground-truth instance most of its detections' pixels
   belonged to (one map object per instance, the one with most pixels); distance of the centroids, against the
   object's surface centroid in ``objects.json`` and against the centroid of its observed surface (the ground-truth
@@ -89,7 +90,8 @@ class ObjectTruth:
 
     min_pixels: int = 150
     votes: dict[int, dict[int, int]] = field(default_factory=lambda: defaultdict(lambda: defaultdict(int)))
-    seen: dict[int, int] = field(default_factory=lambda: defaultdict(int))
+    seen: dict[int, int] = field(default_factory=lambda: defaultdict(int))  # frames with min_pixels
+    in_keyframes: dict[int, int] = field(default_factory=lambda: defaultdict(int))  # keyframes with min_pixels
     observed: dict[int, tuple[np.ndarray, np.ndarray]] = field(default_factory=dict)  # cell keys, points
 
     def add_detections(self, object_ids: np.ndarray, truth: np.ndarray, cover: np.ndarray) -> None:
@@ -97,13 +99,21 @@ class ObjectTruth:
             if oid > 0 and g > 0:
                 self.votes[oid][g] += c
 
-    def add_keyframe(self, gt_instances: np.ndarray, world_points: np.ndarray, point_instances: np.ndarray,
-                     voxel: float) -> None:
-        """A keyframe's ground-truth instance image and its instance pixels back-projected with the true pose."""
+    def add_frame(self, gt_instances: np.ndarray) -> None:
+        """Any tracked frame's ground-truth instance image (which instances it shows well enough)."""
         counts = np.bincount(gt_instances.ravel().astype(np.int64))
         for g in np.flatnonzero(counts >= self.min_pixels):
             if g > 0:
                 self.seen[int(g)] += 1
+
+    def add_keyframe(self, gt_instances: np.ndarray, world_points: np.ndarray, point_instances: np.ndarray,
+                     voxel: float) -> None:
+        """A keyframe's ground-truth instance image and its instance pixels back-projected with the true pose
+        (call :meth:`add_frame` for it too)."""
+        counts = np.bincount(gt_instances.ravel().astype(np.int64))
+        for g in np.flatnonzero(counts >= self.min_pixels):
+            if g > 0:
+                self.in_keyframes[int(g)] += 1
         if len(world_points) == 0:
             return
         keys = pack_cells(np.floor(world_points / voxel).astype(np.int64))
@@ -120,8 +130,9 @@ class ObjectTruth:
             new = ~np.isin(keys[a:b], old_keys, assume_unique=True)
             self.observed[g] = (np.concatenate([old_keys, keys[a:b][new]]), np.concatenate([old_pts, pts[a:b][new]]))
 
-    def visible(self, min_sightings: int) -> list[int]:
-        return [g for g, n in self.seen.items() if n >= min_sightings]
+    def visible(self, min_sightings: int, min_keyframes: int = 1) -> list[int]:
+        """Instances shown with ``min_pixels`` in ``min_sightings`` frames, ``min_keyframes`` of them keyframes."""
+        return [g for g, n in self.seen.items() if n >= min_sightings and self.in_keyframes[g] >= min_keyframes]
 
     def pairs(self, object_ids: list[int]) -> dict[int, int]:
         """Map object id -> ground-truth instance: each object's majority instance, one object per instance."""

@@ -20,7 +20,9 @@ keyframe and tracked detection (:class:`~semmap.types.Instances` with track ids)
    keyframe are assigned one-to-one (``linear_sum_assignment`` on the scores), since two masks of one image are
    two objects; a sighting that holds most of two or more objects of its class (a mask that merged neighbours)
    is left out;
-5. objects become real after ``min_sightings`` keyframes (the paper's three sightings against false detections);
+5. objects become real once their id appeared ``min_sightings`` times (the paper's three sightings against false
+   detections): in the tracked frames (:meth:`ObjectMap.count_track_frames`), or in keyframes, and they were
+   seen in ``min_keyframes`` keyframes;
 6. objects that turn out to be one are merged: after each keyframe, the objects it touched are scored against
    their neighbours of the same class with the same ``P``, where for two accumulated clouds, which may each
    hold another side of the object, ``M`` is the share of the smaller cloud's cells the larger one has, at the
@@ -73,13 +75,15 @@ class ObjectMapParams:
     overlap_threshold: float = 0.8  #: eq. 21's threshold
     weights: tuple[float, float, float] = (0.35, 0.25, 0.4)  #: w of eq. 22 for (P_ID, D, M)
     score_threshold: float = 0.33  #: K of eq. 22
-    min_sightings: int = 3  #: keyframes before an object is real
-    search_radius: float = 1.0  #: objects whose centroid is farther (m) are not compared (but by track id)
+    min_sightings: int = 3  #: frames an object's id must appear in before it is real (the paper's rule)
+    #: ... and keyframes it must have been mapped from: a piece of a large object seen in one keyframe only
+    #: (a table's corner at the image border, tracked for a few frames) is not another table
+    min_keyframes: int = 2
 
     def __post_init__(self) -> None:
         if min(self.voxel, self.overlap_voxel, self.centroid_distance, self.overlap_threshold) <= 0:
             raise ConfigError("object map: voxel, overlap_voxel, centroid_distance and overlap_threshold must be > 0")
-        if self.pixel_stride < 1 or self.min_sightings < 1 or self.min_points < 1:
+        if self.pixel_stride < 1 or self.min_sightings < 1 or self.min_points < 1 or self.min_keyframes < 1:
             raise ConfigError("object map: pixel_stride, min_points and min_sightings must be >= 1")
         if not 0 <= self.min_depth < self.max_depth:
             raise ConfigError(f"object map: depth range [{self.min_depth}, {self.max_depth}] is empty")
@@ -106,10 +110,9 @@ class MapObject:
     last_frame: int = 0
     _last_keyframe: int = -1
     _point_sum: np.ndarray = field(default_factory=lambda: np.zeros(3))
-
-    @property
-    def class_id(self) -> int:
-        return int(np.argmax(self.votes))
+    lo: np.ndarray = field(default_factory=lambda: np.full(3, np.inf))  # axis-aligned bounds of the points
+    hi: np.ndarray = field(default_factory=lambda: np.full(3, -np.inf))
+    class_id: int = 0  # most voted class (kept with the votes)
 
     @property
     def confidence(self) -> float:
@@ -140,6 +143,9 @@ class Sighting:
     cells: np.ndarray
     centroid: np.ndarray
     points_cam: np.ndarray  # the same points in the camera frame (for pose constraints)
+    lo: np.ndarray  # (3,) axis-aligned bounds of the points
+    hi: np.ndarray
+    coarse: np.ndarray  # sorted merge-cell keys
 
 
 @dataclass(frozen=True)
@@ -171,11 +177,27 @@ class ObjectMap:
         self.points_in = 0  # points back-projected from masks (before any filter)
         self.points_after_sor = 0
         self.merged_masks = 0  # sightings left out because they covered several objects
+        self.track_frames: dict[int, int] = {}  # track id -> tracked frames it appeared in
 
     # ------------------------------------------------------------------ queries
+    def count_track_frames(self, track_ids: np.ndarray) -> None:
+        """Note the track ids of one tracked frame (every frame, keyframe or not): the paper's rule counts how often
+        an object's id appears, and the tracker sees it in many more frames than become keyframes."""
+        for t in np.asarray(track_ids).tolist():
+            if t > 0:
+                self.track_frames[t] = self.track_frames.get(t, 0) + 1
+
+    def frames_seen(self, obj: MapObject) -> int:
+        """Tracked frames in which one of the object's track ids appeared (at least its keyframe sightings)."""
+        return max(sum(self.track_frames.get(t, 0) for t in obj.track_ids), obj.sightings)
+
     def real_objects(self) -> list[MapObject]:
-        """Objects seen in at least ``min_sightings`` keyframes, by id."""
-        return [o for _, o in sorted(self.objects.items()) if o.sightings >= self.params.min_sightings]
+        """Objects whose id appeared at least ``min_sightings`` times (the paper's rule against false detections:
+        in tracked frames, or in keyframes when tracks are not counted) and that were mapped from at least
+        ``min_keyframes`` keyframes, by id."""
+        p = self.params
+        return [o for _, o in sorted(self.objects.items())
+                if self.frames_seen(o) >= p.min_sightings and o.sightings >= p.min_keyframes]
 
     def objects_of_class(self, name: str) -> list[MapObject]:
         """Real objects whose class is ``name``."""
@@ -256,23 +278,40 @@ class ObjectMap:
         pts = clouds.points.astype(np.float64)
         det = clouds.detection
         world = pts @ T_world_cam[:3, :3].T + T_world_cam[:3, 3]
-        cell = np.floor(world / p.voxel)
-        keys = pack_cells(cell.astype(np.int64))
-        off = ((world / p.voxel - cell - 0.5) ** 2).sum(axis=1)
-        order = np.lexsort((off, keys, det))
-        first = np.ones(len(order), bool)
-        first[1:] = (det[order][1:] != det[order][:-1]) | (keys[order][1:] != keys[order][:-1])
+        scaled = world / p.voxel
+        cell = np.floor(scaled).astype(np.int64)
+        # one int64 sort key: detection (7 bits), cell relative to the keyframe's corner (16 bits per axis) and the
+        # point's squared distance from the cell centre (8 bits), so per (detection, cell) the nearest comes first
+        rel = cell - cell.min(axis=0) if len(cell) else cell
+        if len(cell) and (rel.max() >= 1 << 16 or clouds.n >= 1 << 7):
+            order = np.lexsort((((scaled - cell - 0.5) ** 2).sum(axis=1), pack_cells(cell), det))
+            group = np.stack([det, pack_cells(cell)], 1)[order]
+            first = np.ones(len(order), bool)
+            first[1:] = np.any(group[1:] != group[:-1], axis=1)
+        else:
+            off = np.minimum(((scaled - cell - 0.5) ** 2).sum(axis=1) * (255 / 0.75), 255).astype(np.int64)
+            key = (det << 56) | (rel[:, 0] << 40) | (rel[:, 1] << 24) | (rel[:, 2] << 8) | off
+            order = np.argsort(key)
+            group = key[order] >> 8
+            first = np.ones(len(order), bool)
+            first[1:] = group[1:] != group[:-1]
         rep = order[first]
-        bounds = np.searchsorted(det[rep], np.arange(clouds.n + 1))
+        keys = np.zeros(len(world), np.int64)
+        keys[rep] = pack_cells(cell[rep])
+        rep_det = det[rep]
+        bounds = np.searchsorted(rep_det, np.arange(clouds.n + 1))
+        cells, cell_bounds = _cells_per_detection(world[rep], rep_det, clouds.n, p.overlap_voxel)
+        coarse, coarse_bounds = _cells_per_detection(world[rep], rep_det, clouds.n, p.merge_voxel)
         out: list[Sighting] = []
         for k in range(clouds.n):
             r = rep[bounds[k]:bounds[k + 1]]
             if len(r) < p.min_points:
                 continue
             w = world[r]
-            cells = np.unique(pack_cells(np.floor(w / p.overlap_voxel).astype(np.int64)))
             out.append(Sighting(k, int(clouds.class_ids[k]), float(clouds.scores[k]), int(clouds.track_ids[k]),
-                                keys[r], w.astype(np.float32), clouds.colors[r], cells, w.mean(axis=0), pts[r]))
+                                keys[r], w.astype(np.float32), clouds.colors[r],
+                                cells[cell_bounds[k]:cell_bounds[k + 1]], w.mean(axis=0), pts[r], w.min(axis=0),
+                                w.max(axis=0), coarse[coarse_bounds[k]:coarse_bounds[k + 1]]))
         return out
 
     # ------------------------------------------------------------------ association
@@ -290,7 +329,7 @@ class ObjectMap:
         pairs: dict[tuple[int, int], float] = {}
         self._index()
         for i, s in enumerate(sightings):
-            candidates = self._candidates(s.centroid, s.class_id, s.track_id)
+            candidates = self._candidates(s.lo, s.hi, s.class_id, s.track_id)
             if self._spans_several(s, candidates):
                 self.merged_masks += 1
                 continue
@@ -322,20 +361,24 @@ class ObjectMap:
         return covered >= 2
 
     def _index(self) -> None:
-        """Snapshot of every object's id, class and centroid (arrays) and which objects each track id saw."""
+        """Snapshot of every object's id, class and bounds (arrays) and which objects each track id saw."""
         objs = list(self.objects.values())
         self._ix_ids = np.array([o.id for o in objs], np.int64)
         self._ix_cls = np.array([o.class_id for o in objs], np.int64)
-        self._ix_cen = np.array([o.centroid for o in objs]).reshape(-1, 3)
+        self._ix_lo = np.array([o.lo for o in objs]).reshape(-1, 3)
+        self._ix_hi = np.array([o.hi for o in objs]).reshape(-1, 3)
         self._ix_track: dict[int, list[int]] = {}
         for o in objs:
             for t in o.track_ids:
                 self._ix_track.setdefault(t, []).append(o.id)
 
-    def _candidates(self, centroid: np.ndarray, class_id: int, track_id: int) -> list[MapObject]:
-        """Objects of ``class_id`` within ``search_radius`` of ``centroid``, and those seen under ``track_id``."""
-        near = (self._ix_cls == class_id) & (((self._ix_cen - centroid) ** 2).sum(axis=1)
-                                              <= self.params.search_radius**2)
+    def _candidates(self, lo: np.ndarray, hi: np.ndarray, class_id: int, track_id: int) -> list[MapObject]:
+        """Objects of ``class_id`` whose bounds meet the box ``lo``-``hi`` (within an overlap cell), and those seen
+        under ``track_id``. Without the track id a pair needs overlapping cells to pass eq. 22 (the distance term
+        alone stays below ``K``), so objects apart are never compared."""
+        m = self.params.overlap_voxel
+        meets = np.all(self._ix_lo <= hi + m, axis=1) & np.all(self._ix_hi >= lo - m, axis=1)
+        near = (self._ix_cls == class_id) & meets
         ids = set(self._ix_ids[near].tolist())
         if track_id > 0:
             ids.update(self._ix_track.get(track_id, ()))
@@ -352,6 +395,8 @@ class ObjectMap:
 
     def _add(self, obj: MapObject, s: Sighting, frame_index: int) -> None:
         obj.votes[min(s.class_id, len(obj.votes) - 1)] += s.score
+        obj.class_id = int(np.argmax(obj.votes))
+        obj.lo, obj.hi = np.minimum(obj.lo, s.lo), np.maximum(obj.hi, s.hi)
         if s.track_id > 0:
             obj.track_ids.add(s.track_id)
         obj.keyframes.add(self.keyframes)
@@ -362,15 +407,16 @@ class ObjectMap:
             obj.last_cells = np.union1d(obj.last_cells, s.cells)
         obj._last_keyframe = self.keyframes
         obj.last_frame = frame_index
-        new = ~np.isin(s.keys, obj.keys, assume_unique=True)  # cells the object already has keep their point
-        keys = np.concatenate([obj.keys, s.keys[new]])
-        order = np.argsort(keys, kind="stable")
-        obj.keys = keys[order]
-        obj.points = np.concatenate([obj.points, s.points[new]])[order]
+        # cells the object already has keep their point; both key lists are sorted, so the new ones are inserted
+        pos = np.searchsorted(obj.keys, s.keys)
+        new = (pos >= len(obj.keys)) | (obj.keys[np.minimum(pos, max(len(obj.keys) - 1, 0))] != s.keys) \
+            if len(obj.keys) else np.ones(len(s.keys), bool)
+        obj.keys = np.insert(obj.keys, pos[new], s.keys[new])
+        obj.points = np.insert(obj.points, pos[new], s.points[new], axis=0)
+        obj.colors = np.insert(obj.colors, pos[new], s.colors[new], axis=0)
         obj._point_sum = obj._point_sum + s.points[new].sum(axis=0, dtype=np.float64)
-        obj.colors = np.concatenate([obj.colors, s.colors[new]])[order]
         obj.cells = np.union1d(obj.cells, s.cells)
-        obj.coarse = np.union1d(obj.coarse, pack_cells(np.floor(s.points / self.params.merge_voxel).astype(np.int64)))
+        obj.coarse = np.union1d(obj.coarse, s.coarse)
 
     # ------------------------------------------------------------------ merging
     def _merge_around(self, obj_id: int) -> None:
@@ -379,7 +425,7 @@ class ObjectMap:
         obj = self.objects.get(obj_id)
         if obj is None:
             return
-        for other in self._candidates(obj.centroid, obj.class_id, -1):
+        for other in self._candidates(obj.lo, obj.hi, obj.class_id, -1):
             if other.id == obj.id or other.class_id != obj.class_id or other.id not in self.objects:
                 continue
             if len(obj.keyframes & other.keyframes) >= MIN_SEEN_APART:
@@ -396,6 +442,8 @@ class ObjectMap:
 
     def _absorb(self, keep: MapObject, gone: MapObject) -> None:
         keep.votes += gone.votes
+        keep.class_id = int(np.argmax(keep.votes))
+        keep.lo, keep.hi = np.minimum(keep.lo, gone.lo), np.maximum(keep.hi, gone.hi)
         keep.track_ids |= gone.track_ids
         keep.keyframes |= gone.keyframes
         keep.sightings = keep.sightings + gone.sightings
@@ -444,6 +492,22 @@ def overlap_iou(a: np.ndarray, b: np.ndarray) -> float:
         return 0.0
     ab = len(np.intersect1d(a, b, assume_unique=True))
     return ab / (len(a) + len(b) - ab)
+
+
+def _cells_per_detection(points: np.ndarray, det: np.ndarray, n: int, cell: float) -> tuple[np.ndarray, np.ndarray]:
+    """Sorted unique cell keys (size ``cell``) of each detection's points, concatenated by detection (ascending
+    ``det``), and where each detection's run starts: one sort for all detections."""
+    c = np.floor(points / cell).astype(np.int64)
+    if len(c) == 0:
+        return np.zeros(0, np.int64), np.zeros(n + 1, np.int64)
+    rel = c - c.min(axis=0)
+    if rel.max() >= 1 << 16 or n >= 1 << 7:  # far from the keyframe's corner: the slower, general way
+        both = np.unique(np.stack([det, pack_cells(c)], 1), axis=0)
+        return both[:, 1], np.searchsorted(both[:, 0], np.arange(n + 1))
+    key = np.unique((det.astype(np.int64) << 48) | (rel[:, 0] << 32) | (rel[:, 1] << 16) | rel[:, 2])
+    mask = (1 << 16) - 1
+    cells = np.column_stack([(key >> 32) & mask, (key >> 16) & mask, key & mask]) + c.min(axis=0)
+    return pack_cells(cells), np.searchsorted(key >> 48, np.arange(n + 1))
 
 
 def overlap_share(a: np.ndarray, b: np.ndarray) -> float:

@@ -53,6 +53,9 @@ class DeepSortParams:
     n_init: int = 3  #: consecutive hits that confirm a track
     budget: int = 30  #: appearance features kept per track (the newest)
     min_score: float = 0.3  #: detections below this score are not tracked
+    #: report each tracked detection with its track's class (score-weighted votes of every frame it was seen in):
+    #: "the target tracking algorithm can reduce wrong results through data associations" (the paper, Sec. 4.2)
+    vote_classes: bool = True
 
     def __post_init__(self) -> None:
         if not (0 < self.max_cosine_distance <= 2 and 0 < self.max_iou_distance <= 1):
@@ -88,7 +91,8 @@ class DeepSort:
     # ------------------------------------------------------------------ public
     def update(self, instances: Instances, frame: Frame | None = None,
                T_world_cam: np.ndarray | None = None) -> Instances:
-        """Track one frame's detections; returns them with ``track_ids`` (0 for detections below ``min_score``).
+        """Track one frame's detections; returns them with ``track_ids`` (0 for detections below ``min_score``) and,
+        with ``vote_classes``, each tracked detection's class replaced by its track's.
 
         Features are ``instances.features`` when present, else colour histograms of the masks in ``frame.rgb``.
         With the camera pose of this frame (and the frame's depth), each track's predicted box is first moved by
@@ -124,8 +128,14 @@ class DeepSort:
         for d in new:
             track_ids[d] = self._start(z[d], feats[d], int(instances.class_ids[d]), float(instances.scores[d]))
             self.tracks[-1].depth = float(depth[d])
+        classes = instances.class_ids
+        if self.params.vote_classes:  # each detection takes its track's class by the votes of all its frames
+            alive = {t.track_id: t for t in self.tracks}
+            classes = np.array([int(np.argmax(alive[t].votes)) if t in alive else c
+                                for t, c in zip(track_ids.tolist(), instances.class_ids.tolist(), strict=True)],
+                               np.int32)
         self._drop_deleted()
-        return instances.with_(track_ids=track_ids, features=instances.features)
+        return instances.with_(track_ids=track_ids, class_ids=classes)
 
     def class_of(self, track_id: int) -> int | None:
         """Most voted class of a live track (None when it is gone)."""

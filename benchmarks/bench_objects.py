@@ -1,0 +1,224 @@
+"""The object map against simulator truth, as the object-oriented SLAM paper's Tables 3-7, and its cost.
+
+Per simulated scene and oracle instance error level (``maskrcnn-like``, ``noisy``; see
+``semmap.perception.instances.oracle``), with ground-truth poses: instances every frame, DeepSORT every frame,
+the object map on keyframes (10 cm / 10 degrees, as ``semmap run``). Measured (``semmap.eval.objects``):
+
+- object count error over all object classes (eq. 24 without the x100, |D_c - GT_c| summed over classes, against
+  the objects seen with at least 150 pixels in at least 3 frames, one a keyframe) and per class;
+- mean centroid error against each object's observed surface (the true masks back-projected with the true poses)
+  and against ``objects.json``'s whole-surface centroid (which includes faces the camera never sees);
+- tracker identity switches; point reduction (Table 6: the keyframes' dense points against the objects' points);
+- ms per frame of tracking, ms per keyframe of the object map, and the object stage per keyframe in all; the peer is
+  Open3D's statistical outlier removal and voxel filter (the paper's PCL filters) on the same detection clouds.
+
+Then the camera poses (Table 7): ATE of a tracker and of the same tracker with object-constrained keyframe poses
+(``--poses X-objects``) on simulated sequences where the tracker drifts. One JSON line per scene, level and pose
+run, a table, and the summary JSON last:
+``{"bench": "objects", "results": [{"scene", "instances", "count_error", "centroid_error_m", "id_switches",
+"ms_per_frame", "ate_without_m", "ate_with_m"}, ...]}``.
+
+    python benchmarks/bench_objects.py [--quick] [--levels maskrcnn-like,noisy] [--no-poses]
+
+Timings are wall-clock on whatever else the machine runs; compare the ratios.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+
+import numpy as np
+import open3d as o3d
+
+from semmap.datasets.simulated import SimulatedDataset
+from semmap.eval.objects import IdentitySwitches, ObjectTruth, count_errors, detection_truth
+from semmap.eval.trajectory import evaluate_trajectory
+from semmap.maps.objects import ObjectMap
+from semmap.object_slam import make_pose_tracker
+from semmap.perception.instances.oracle import OracleInstances
+from semmap.perception.schedule import Scheduler, SegmentationSchedule
+from semmap.perception.tracking import DeepSort
+from semmap.sim.labels import INDOOR_LABELS
+from semmap.types import Trajectory
+
+#: name -> (scene seed, kind, trajectory, frames)
+SCENES = {"office-loop": (0, "office", "loop", 300), "kitchen-loop": (1, "kitchen", "loop", 300),
+          "living-walk": (2, "living_room", "walk", 300), "bedroom-walk": (3, "bedroom", "walk", 300)}
+QUICK_SCENES = {"office-loop": (0, "office", "loop", 150), "kitchen-loop": (1, "kitchen", "loop", 150)}
+#: pose runs: name -> (scene seed, kind, trajectory, frames, tracker)
+POSE_RUNS = {"sim-loop-features": (1, "office", "loop", 450, "slam-features"),
+             "sim-walk-features": (3, "office", "walk", 600, "slam-features"),
+             "sim-loop-noloop": (1, "office", "loop", 450, "slam-noloop")}
+QUICK_POSE_RUNS = {"sim-loop-features": (1, "office", "loop", 300, "slam-features")}
+LEVELS = ("maskrcnn-like", "noisy")
+#: visibility rule of the ground truth: pixels in a keyframe, keyframes
+MIN_PIXELS, MIN_SIGHTINGS = 150, 3
+
+
+def map_scene(name: str, seed: int, kind: str, trajectory: str, frames: int, level: str) -> dict:
+    """One object-map run with ground-truth poses; its metrics and timings."""
+    ds = SimulatedDataset.default(scene_seed=seed, kind=kind, trajectory=trajectory, frames=frames)
+    source = OracleInstances(ds.label_set, preset=level, seed=seed)
+    tracker = DeepSort(num_classes=len(ds.label_set))
+    omap = ObjectMap(ds.label_set)
+    keyframe = Scheduler(SegmentationSchedule(keyframes=True))
+    switches, truth = IdentitySwitches(), ObjectTruth(min_pixels=MIN_PIXELS)
+    gt_class: dict[int, int] = {}
+    t_track = t_map = t_peer = 0.0
+    keyframes = dense_points = 0
+    for f in ds:
+        found = source.detect(f)
+        t0 = time.perf_counter()
+        tracked = tracker.update(found, f, f.T_world_cam)
+        t_track += time.perf_counter() - t0
+        omap.count_track_frames(tracked.track_ids)
+        g, cover = detection_truth(tracked.ids, f.instances, len(tracked))
+        switches.add(tracked.track_ids, g, cover)
+        truth.add_frame(f.instances)
+        if not keyframe.due(f.T_world_cam):
+            continue
+        keyframes += 1
+        dense_points += int(((f.depth > omap.params.min_depth) & (f.depth <= omap.params.max_depth)).sum())
+        t0 = time.perf_counter()
+        ids = omap.integrate(tracked, f.depth, f.rgb, f.intrinsics, f.T_world_cam, f.index)
+        t_map += time.perf_counter() - t0
+        t_peer += _peer_filters(tracked, f, omap)
+        truth.add_detections(ids, g, cover)
+        pts, inst = _true_surface(f, omap.params.pixel_stride, omap.params.min_depth, omap.params.max_depth)
+        truth.add_keyframe(f.instances, pts, inst, omap.params.voxel)
+        for gid in np.unique(inst):
+            gt_class.setdefault(int(gid), int(np.bincount(f.labels[f.instances == gid]).argmax()))
+    real = omap.real_objects()
+    visible = [gid for gid in truth.visible(MIN_SIGHTINGS, omap.params.min_keyframes) if gid in gt_class]
+    counts = count_errors([o.class_id for o in real], [gt_class[gid] for gid in visible], ds.label_set)
+    scene_objects = {o.instance_id: o for o in ds.scene.objects}
+    by_id = {o.id: o for o in real}
+    pairs = truth.pairs(list(by_id))
+    observed = [np.linalg.norm(by_id[o].centroid - truth.observed_centroid(gid)) for o, gid in pairs.items()
+                if truth.observed_centroid(gid) is not None]
+    whole = [np.linalg.norm(by_id[o].centroid - scene_objects[gid].centroid) for o, gid in pairs.items()
+             if gid in scene_objects]
+    object_points = sum(len(o) for o in real)
+    ms_stage = 1e3 * (t_track + t_map) / max(keyframes, 1)
+    return {"scene": name, "instances": level, "frames": frames, "keyframes": keyframes,
+            "count_error": counts["count_error"], "count_error_eq24": counts["count_error_eq24"],
+            "objects": counts["objects_detected"], "objects_ground_truth": counts["objects_ground_truth"],
+            "centroid_error_m": round(float(np.mean(observed)), 4) if observed else None,
+            "centroid_median_m": round(float(np.median(observed)), 4) if observed else None,
+            "centroid_error_whole_m": round(float(np.mean(whole)), 4) if whole else None,
+            "id_switches": switches.switches, "detections_matched": switches.matched,
+            "points_dense": dense_points, "points_objects": object_points,
+            "point_reduction": round(1 - object_points / max(dense_points, 1), 4),
+            "ms_per_frame": round(1e3 * (t_track + t_map) / frames, 2),
+            "tracking_ms_per_frame": round(1e3 * t_track / frames, 2),
+            "map_ms_per_keyframe": round(1e3 * t_map / max(keyframes, 1), 2),
+            "stage_ms_per_keyframe": round(ms_stage, 2),
+            "peer_filters_ms_per_keyframe": round(1e3 * t_peer / max(keyframes, 1), 2),
+            "per_class": {c: v for c, v in counts["per_class"].items() if v["detected"] != v["ground_truth"]},
+            "ate_without_m": None, "ate_with_m": None}
+
+
+def _peer_filters(tracked, frame, omap: ObjectMap) -> float:
+    """Seconds Open3D's statistical outlier removal (8 neighbours, k = 1) and 1 cm voxel filter take on the same
+    back-projected detection clouds (the paper's PCL filters)."""
+    s = omap.params.pixel_stride
+    ids = tracked.ids[::s, ::s]
+    d = frame.depth[::s, ::s]
+    K = frame.intrinsics
+    v, u = np.nonzero((ids > 0) & (d >= omap.params.min_depth) & (d <= omap.params.max_depth))
+    z = d[v, u].astype(np.float64)
+    pts = np.column_stack([(u * s - K.cx) / K.fx * z, (v * s - K.cy) / K.fy * z, z])
+    det = ids[v, u]
+    clouds = [o3d.geometry.PointCloud(o3d.utility.Vector3dVector(pts[det == k])) for k in np.unique(det)]
+    t0 = time.perf_counter()
+    for c in clouds:
+        if len(c.points) > 9:
+            kept, _ = c.remove_statistical_outlier(nb_neighbors=8, std_ratio=1.0)
+            kept.voxel_down_sample(omap.params.voxel)
+    return time.perf_counter() - t0
+
+
+def _true_surface(frame, stride: int, min_depth: float, max_depth: float) -> tuple[np.ndarray, np.ndarray]:
+    """World points and instance ids of the true instance masks (every ``stride``-th pixel), true pose."""
+    inst = frame.instances[::stride, ::stride]
+    d = frame.depth[::stride, ::stride]
+    v, u = np.nonzero((inst > 0) & (d >= min_depth) & (d <= max_depth))
+    z = d[v, u].astype(np.float64)
+    K = frame.intrinsics
+    pc = np.column_stack([(u * stride - K.cx) / K.fx * z, (v * stride - K.cy) / K.fy * z, z])
+    T = frame.T_world_cam
+    return pc @ T[:3, :3].T + T[:3, 3], inst[v, u].astype(np.int64)
+
+
+def pose_run(name: str, seed: int, kind: str, trajectory: str, frames: int, tracker: str, level: str) -> dict:
+    """ATE of ``tracker`` and of ``tracker-objects`` on one simulated sequence."""
+    seq = list(SimulatedDataset.default(scene_seed=seed, kind=kind, trajectory=trajectory, frames=frames))
+    gt = Trajectory(np.array([f.timestamp for f in seq]), np.array([f.T_world_cam for f in seq]),
+                    tuple(f.name for f in seq))
+    row = {"scene": name, "instances": level, "tracker": tracker}
+    for suffix, key in (("", "without"), ("-objects", "with")):
+        t = make_pose_tracker(tracker + suffix, instances=OracleInstances(INDOOR_LABELS, preset=level, seed=seed))
+        t0 = time.perf_counter()
+        for f in seq:
+            t.track(f)
+        est = t.trajectory()
+        row[f"ate_{key}_m"] = round(evaluate_trajectory(gt, est)["ate_rmse_m"], 5)
+        row[f"ms_per_frame_{key}"] = round(1e3 * (time.perf_counter() - t0) / frames, 1)
+        if suffix:
+            row["object_edges"] = vars(t.stats)
+    row["ate_ratio"] = round(row["ate_with_m"] / max(row["ate_without_m"], 1e-12), 3)
+    return row
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--quick", action="store_true", help="two scenes of 150 frames, one pose run of 300 frames")
+    ap.add_argument("--levels", default=",".join(LEVELS), help="oracle instance error presets")
+    ap.add_argument("--no-poses", action="store_true", help="skip the object-constrained pose runs")
+    args = ap.parse_args()
+    levels = [s for s in args.levels.split(",") if s]
+    rows = []
+    for name, spec in (QUICK_SCENES if args.quick else SCENES).items():
+        for level in levels:
+            row = map_scene(name, *spec, level)
+            print(json.dumps(row), flush=True)
+            rows.append(row)
+    pose_rows = []
+    if not args.no_poses:
+        for name, spec in (QUICK_POSE_RUNS if args.quick else POSE_RUNS).items():
+            row = pose_run(name, *spec, levels[0])
+            print(json.dumps(row), flush=True)
+            pose_rows.append(row)
+    _table(rows, pose_rows)
+    keys = ("scene", "instances", "count_error", "centroid_error_m", "id_switches", "ms_per_frame", "ate_without_m",
+            "ate_with_m")
+    results = [{k: r.get(k) for k in keys} for r in rows]
+    results += [{**{k: r.get(k) for k in keys}, "count_error": None, "centroid_error_m": None, "id_switches": None,
+                 "ms_per_frame": r["ms_per_frame_with"], "tracker": r["tracker"]} for r in pose_rows]
+    print(json.dumps({"bench": "objects", "results": results}))
+
+
+def _table(rows: list[dict], pose_rows: list[dict]) -> None:
+    print("\n| scene | instances | objects / truth | count error | centroid error cm (whole object) | id switches |"
+          " point reduction | tracking ms/frame | map ms/keyframe | Open3D filters ms/keyframe |")
+    print("|---|---|---|---|---|---|---|---|---|---|")
+    for r in rows:
+        print(f"| {r['scene']} | {r['instances']} | {r['objects']} / {r['objects_ground_truth']} | "
+              f"{100 * r['count_error']:.1f} % | {100 * (r['centroid_error_m'] or 0):.2f} "
+              f"({100 * (r['centroid_error_whole_m'] or 0):.1f}) | {r['id_switches']} | "
+              f"{100 * r['point_reduction']:.1f} % | {r['tracking_ms_per_frame']:.1f} | "
+              f"{r['map_ms_per_keyframe']:.1f} | {r['peer_filters_ms_per_keyframe']:.1f} |")
+    if pose_rows:
+        print("\n| sequence | tracker | ATE cm | with objects ATE cm | ratio | object edges (agreeing) |")
+        print("|---|---|---|---|---|---|")
+        for r in pose_rows:
+            e = r["object_edges"]
+            print(f"| {r['scene']} | {r['tracker']} | {100 * r['ate_without_m']:.2f} | {100 * r['ate_with_m']:.2f} | "
+                  f"{r['ate_ratio']:.3f} | {e['edges']} ({e['agreeing_edges']}) |")
+    print()
+
+
+if __name__ == "__main__":
+    main()
