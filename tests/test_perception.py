@@ -293,3 +293,24 @@ def test_eval_seg_command(tmp_path):
     assert json.loads(r.stdout)["miou"] == 1.0 and json.loads((tmp_path / "s.json").read_text())["mpa"] == 1.0
     r = run_cli("eval-seg", str(tmp_path / "nope"), str(tmp_path / "gt"))
     assert r.returncode == 1 and "nope" in r.stderr and "Traceback" not in r.stderr
+
+
+def test_a_short_last_onnx_batch_runs_padded_on_the_same_graph(rgb, tmp_path):
+    # a run's last batch may hold fewer frames: it must not export and open a second graph mid-run
+    seg = NetworkSegmenter(TinyNet(), LABELS, name="tiny", net_input=NetworkInput(size=(48, 32)), k=3,
+                           batch_size=3, backend="onnx", cache_dir=tmp_path, cache_key="tiny")
+    full = seg.predict_batch([rgb, rgb[::-1].copy(), rgb])
+    short = seg.predict_batch([rgb[::-1].copy()])
+    assert len(short) == 1 and len(list(tmp_path.glob("*.onnx"))) == 1
+    np.testing.assert_allclose(short[0].probs, full[1].probs, atol=1e-6)
+
+
+def test_prepare_pays_the_onnx_export_before_the_first_frame(tmp_path):
+    from semmap.perception.base import Preparable
+
+    frame = make_room_frames(1)[0]
+    seg = NetworkSegmenter(TinyNet(), LABELS, name="tiny", net_input=NetworkInput(size=(48, 32)), k=3,
+                           backend="onnx", cache_dir=tmp_path, cache_key="tiny")
+    assert isinstance(seg, Preparable)
+    assert seg.prepare(frame) > 0 and len(list(tmp_path.glob("*.onnx"))) == 1
+    assert seg.segment(frame).labels.shape[:2] == frame.depth.shape

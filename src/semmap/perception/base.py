@@ -20,3 +20,13 @@ class Segmenter(Protocol):
     def segment(self, frame: Frame) -> TopKProbs:
         """(H, W, k) top-k class distribution for ``frame`` (k = 3 unless configured otherwise)."""
         ...
+
+
+@runtime_checkable
+class Preparable(Protocol):
+    """A segmenter with a one-off start-up cost (an ONNX export, a runtime session, kernel selection) that a run
+    pays before its frame loop, so per-frame timings and latencies show what every frame costs."""
+
+    def prepare(self, frame: Frame) -> float:
+        """Get ready for frames like ``frame``; returns the seconds it took."""
+        ...

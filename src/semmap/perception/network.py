@@ -10,6 +10,8 @@ from __future__ import annotations
 
 import hashlib
 import logging
+import os
+import time
 import warnings
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -145,10 +147,15 @@ class NetworkSegmenter:
                 raise ConfigError(f"{self.name}: this network needs depth images")
             inputs["depth"] = self.net_input.depth_batch(depths, rgbs[0].shape[:2])
         if self.backend == "onnx":
-            if x.shape not in self._sessions:
-                self._sessions[x.shape] = _onnx_session(self._model, x.shape, self._cache_dir, self._cache_key,
-                                                        self._threads, with_depth=self.uses_depth)
-            return self._sessions[x.shape].run(None, inputs)[0]
+            n = x.shape[0]
+            if n < self.batch_size:  # a short last batch runs padded: one graph per run, not one more export
+                inputs = {name: np.concatenate([v, np.repeat(v[:1], self.batch_size - n, axis=0)])
+                          for name, v in inputs.items()}
+            shape = inputs["image"].shape
+            if shape not in self._sessions:
+                self._sessions[shape] = _onnx_session(self._model, shape, self._cache_dir, self._cache_key,
+                                                      self._threads, with_depth=self.uses_depth)
+            return self._sessions[shape].run(None, inputs)[0][:n]
         with self._torch.inference_mode():
             return self._model(*(self._torch.from_numpy(v) for v in inputs.values())).numpy()
 
@@ -203,6 +210,13 @@ class NetworkSegmenter:
                        self._top_classes(rgbs[start:stop], self.k, None if depths is None else depths[start:stop]))
         return out
 
+    def prepare(self, frame: Frame) -> float:
+        """Export or open the ONNX graph (or let PyTorch pick its kernels) by segmenting ``frame`` once, so that the
+        first frame of a run costs what the others do; returns the seconds it took."""
+        t = time.perf_counter()
+        self.segment(frame)
+        return time.perf_counter() - t
+
     def segment(self, frame: Frame) -> TopKProbs:
         """Class distribution on the frame's depth grid; a frame that keeps its colour camera's own image
         (``raw_color``) is segmented on that whole view and the result carried onto the depth grid (RGB-D
@@ -236,6 +250,19 @@ def export_onnx(model, path: Path, shape: tuple[int, ...], *, with_depth: bool =
     return path
 
 
+def onnx_cache_dir() -> Path:
+    """Where exported ONNX graphs are kept: ``$SEMMAP_CACHE_DIR/onnx`` (default ``~/.cache/semmap/onnx``)."""
+    return Path(os.environ.get("SEMMAP_CACHE_DIR", Path.home() / ".cache" / "semmap")) / "onnx"
+
+
+def _source_digest(cls: type) -> str:
+    """Hash of the source file that defines ``cls`` (empty when it has none)."""
+    import sys
+
+    path = getattr(sys.modules.get(cls.__module__), "__file__", None)
+    return hashlib.sha1(Path(path).read_bytes()).hexdigest()[:12] if path else ""
+
+
 def _onnx_session(model, shape: tuple[int, ...], cache_dir: Path | None, cache_key: str, threads: int | None,
                   with_depth: bool = False):
     """An ONNX Runtime session for ``model`` at input ``shape`` (N, 3, H, W), exported once to ``cache_dir``
@@ -244,8 +271,9 @@ def _onnx_session(model, shape: tuple[int, ...], cache_dir: Path | None, cache_k
     import torch
 
     n, _, h, w = shape
-    root = cache_dir or Path.home() / ".cache" / "semmap" / "onnx"
-    key = hashlib.sha1(f"{cache_key}|{n}x{w}x{h}|{torch.__version__}".encode()).hexdigest()[:16]
+    root = cache_dir or onnx_cache_dir()
+    code = _source_digest(type(model))  # an edited model is exported again, not served from an old graph
+    key = hashlib.sha1(f"{cache_key}|{n}x{w}x{h}|{torch.__version__}|{code}".encode()).hexdigest()[:16]
     path = root / f"{type(model).__name__.lower()}-{key}.onnx"
     if not path.is_file():
         log.info("exporting %s to ONNX (%s), once", type(model).__name__, path)
