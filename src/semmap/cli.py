@@ -177,8 +177,8 @@ def run(
         SemanticsConfig,
     )
     from semmap.maps.registry import map_kind
-    from semmap.pipeline import Pipeline
     from semmap.pipeline import color_mode as parse_color_mode
+    from semmap.runner import run_config
 
     kinds = tuple(map_kind(name.strip()) for name in maps.split(",") if name.strip())
 
@@ -201,67 +201,8 @@ def run(
         output=OutputConfig(out=out, color_mode=parse_color_mode(color_mode), rerun=rerun, rerun_spawn=rerun_spawn,
                             rerun_map_every=rerun_map_every),
     ))
-    run_segmenter = _segmenter(config)
-    result = Pipeline(config, segmenter=run_segmenter, progress=progress_bar("mapping"),
-                      track_progress=progress_bar(f"tracking ({poses})"),
-                      ground_truth=_simulated_ground_truth(dataset),
-                      instances=_instance_source(config, run_segmenter)).run()
+    result = run_config(config, progress=progress_bar("mapping"), track_progress=progress_bar(f"tracking ({poses})"))
     _print_summary(result.report, result.out_dir)
-
-
-def _simulated_ground_truth(dataset: Path):
-    """3D ground truth for a folder written by ``semmap simulate`` (None for other datasets)."""
-    if not (dataset / "scene.json").is_file():
-        return None
-    from semmap.datasets.simulated import scene_of_folder
-    from semmap.sim.ground_truth import gt_voxels
-
-    scene = scene_of_folder(dataset)
-    if scene is None:
-        return None
-
-    def ground_truth(res: float):
-        gt = gt_voxels(scene, res)
-        return gt.keys, gt.class_ids
-
-    return ground_truth
-
-
-def _segmenter(config):
-    """The segmenter the configuration names (``--segmenter``, or ``--semantics oracle``), or None."""
-    from semmap.config import SemanticSource
-    from semmap.perception.registry import make_segmenter
-
-    s = config.semantics
-    name = s.segmenter or ("oracle" if s.source == SemanticSource.ORACLE else None)
-    if name is None:
-        return None
-    label_set = None
-    if name == "oracle":
-        from semmap.datasets import open_dataset
-
-        label_set = open_dataset(config.input.dataset, config.input.format, max_frames=1,
-                                 ros=config.input.ros.options()).label_set
-    return make_segmenter(name, weights=s.weights, label_set=label_set, k=s.k, label_confidence=s.label_confidence,
-                          oracle_preset=s.oracle_preset, seed=s.seed, backend=s.backend, batch_size=s.batch_size,
-                          input_size=s.input_size)
-
-
-def _instance_source(config, segmenter):
-    """The instance source ``--instances`` names (None without it)."""
-    o = config.objects
-    if o.instances is None:
-        return None
-    from semmap.perception.instances import make_instance_source
-
-    label_set = None
-    if segmenter is None:
-        from semmap.datasets import open_dataset
-
-        c = config.input
-        label_set = open_dataset(c.dataset, c.format, labels=c.labels, max_frames=1, ros=c.ros.options()).label_set
-    return make_instance_source(o.instances, label_set=label_set, segmenter=segmenter, weights=o.weights,
-                                preset=o.errors, seed=o.seed)
 
 
 def _size(text: str | None) -> tuple[int, int] | int | None:
@@ -678,6 +619,66 @@ def info(path: Annotated[Path, typer.Argument(help="a map file: .ot, .bt, .semma
     from semmap.io.map_info import describe_map_file
 
     typer.echo(json.dumps(describe_map_file(path), indent=2))
+
+
+@app.command()
+def batch(
+    datasets: Annotated[list[Path], typer.Argument(help="sequences: folders, ROS 1 .bag files or ROS 2 bag folders")],
+    out: Annotated[Path, typer.Option("--out", "-o", help="output folder: one sub-folder per sequence, batch.json "
+                                      "and batch.md")],
+    address: Annotated[str | None, typer.Option(help="an existing Ray cluster (ray://HEAD:10001, HEAD:6379 or auto); "
+                                                "default: start a local one")] = None,
+    workers: Annotated[int | None, typer.Option(help="CPUs of the local cluster (default: all)")] = None,
+    cpus_per_run: Annotated[float, typer.Option(help="CPUs one sequence asks of a Ray node")] = 2,
+    resume: Annotated[bool, typer.Option("--resume/--no-resume", help="skip sequences whose outputs of the same "
+                                         "configuration are complete")] = True,
+    config: Annotated[Path | None, typer.Option(help="a run's config.json to use for every sequence (its dataset "
+                                                "and output folder are replaced); the options below are then "
+                                                "ignored")] = None,
+    format: Annotated[str, typer.Option(help="auto | tum | 7scenes | rosbag")] = "auto",
+    max_frames: Annotated[int | None, typer.Option(help="use at most N frames")] = None,
+    stride: Annotated[int, typer.Option(help="use every k-th frame")] = 1,
+    resolution: Annotated[float, typer.Option(help="finest voxel size (m)")] = 0.05,
+    semantics: Annotated[str, typer.Option(help="auto | labels | oracle | none")] = "auto",
+    segmenter: Annotated[str | None, typer.Option(help="segmenter name (see semmap run)")] = None,
+    weights: Annotated[Path | None, typer.Option(help="segmenter weights")] = None,
+    poses: Annotated[str, typer.Option(help="gt | a tracker (see semmap run)")] = "gt",
+    strict: Annotated[bool, typer.Option("--strict", help="stop a sequence at its first unusable frame")] = False,
+) -> None:
+    """Map many sequences as Ray tasks (one `semmap run` each), locally or on a cluster; resumes a half-finished
+    batch and writes a summary table."""
+    _setup_logging(False)
+    from semmap.batch import plan, run_batch, write_summary
+    from semmap.config import InputConfig, MappingConfig, OutputConfig, PosesConfig, RunConfig, SemanticsConfig
+
+    if config is not None:
+        from semmap.io.safe_files import read_text_limited
+
+        text = read_text_limited(config, what="run configuration")
+        template = _validated(lambda: RunConfig.model_validate_json(text))
+    else:
+        template = _validated(lambda: RunConfig(
+            input=InputConfig(dataset=datasets[0], format=format, stride=stride, max_frames=max_frames,
+                              strict=strict),
+            mapping=MappingConfig(resolution=resolution),
+            semantics=SemanticsConfig(source=semantics, segmenter=segmenter, weights=weights),
+            poses=PosesConfig(source=poses), output=OutputConfig(out=out)))
+    items = plan(datasets, out)
+    console = _console()
+
+    def show(row) -> None:
+        detail = f"{row.seconds:.1f} s on {row.node}" if row.seconds is not None else ""
+        console.print(f"{row.sequence}: {row.status}" + (f" ({detail})" if detail else "")
+                      + (f": {row.error}" if row.error else ""))
+
+    result = run_batch(template, items, address=address, workers=workers, cpus_per_run=cpus_per_run, resume=resume,
+                       on_row=show)
+    _, md_path = write_summary(out, result)
+    summary = result.to_dict()
+    console.print(f"{summary['sequences']} sequences: {summary['done']} mapped, {summary['already_done']} already "
+                  f"done, {summary['failed']} failed in {summary['seconds']:.1f} s; {md_path}")
+    if summary["failed"]:
+        raise typer.Exit(1)
 
 
 @app.command()
