@@ -91,12 +91,12 @@ def test_topk_with_k_equal_to_K_is_bayes(case):
     st.floats(0.01, 1.0), min_size=K, max_size=K))))
 def test_bayes_prior_divides_every_measurement_by_the_class_prior(case):
     K, (labels, probs), freq = case
-    params = FusionParams(FusionRule.BAYES_PRIOR, prior=np.array(freq))
+    params = FusionParams(FusionRule.BAYES_PRIOR, prior=np.array(freq), prior_smoothing=0.0)
     h = run_bayes(labels, probs, K, prior_log=params.prior_logodds(K))
     prior = np.maximum(np.array(freq) / sum(freq), MIN_PROB)
     expected = np.prod(expand_topk(labels, probs, K) / prior, axis=0)
     np.testing.assert_allclose(logodds_to_probs(h), expected / expected.sum(), rtol=3e-3, atol=1e-6)
-    uniform = FusionParams(FusionRule.BAYES_PRIOR, prior=np.ones(K)).prior_logodds(K)
+    uniform = FusionParams(FusionRule.BAYES_PRIOR, prior=np.array(freq), prior_smoothing=1.0).prior_logodds(K)
     np.testing.assert_allclose(logodds_to_probs(run_bayes(labels, probs, K, prior_log=uniform)),
                                logodds_to_probs(run_bayes(labels, probs, K)), rtol=1e-4, atol=1e-7)
 
@@ -168,5 +168,8 @@ def test_rule_names_and_settings_are_validated():
         FusionParams(FusionRule.TOPK, k=9)
     with pytest.raises(ConfigError, match="prior"):
         FusionParams(FusionRule.BAYES_PRIOR, prior=np.array([-1.0, 2.0]))
+    mixed = FusionParams(FusionRule.BAYES_PRIOR, prior=np.array([0.0, 3.0]), prior_smoothing=0.5).prior_logodds(2)
+    np.testing.assert_allclose(np.exp(mixed), [0.25, 0.75], rtol=1e-6)  # half uniform: an unseen class keeps 1/2K
+    assert not FusionParams(FusionRule.BAYES, prior=np.array([1.0, 3.0])).prior_logodds(2).any()
     with pytest.raises(ConfigError, match="3 entries"):
         FusionParams(FusionRule.BAYES_PRIOR, prior=np.ones(3)).prior_logodds(5)

@@ -1,0 +1,253 @@
+"""Label fusion and maps on simulated scenes with exact ground truth: every rule x map x segmenter preset, +- CRF.
+
+For each scene (different kinds and seeds) the frames are rendered once; each oracle preset (``cnn-like``,
+``voxel-grid-paper``, ``independent``, and ``perfect`` = the ground-truth labels, the upper bound) segments them
+once; then one pass over the frames feeds the same observations (the path ``semmap run`` takes: back-projection,
+then ``map.integrate``) to every map: the semantic OctoMap (topk), and the voxel grid and the point map with each
+fusion rule.  Every map is scored against the scene's ground-truth voxels (``eval.semantic``), then refined by the
+3D dense CRF and scored again.  Label set: the simulator's 30 classes padded to 40 (the issue's 40-class setting).
+
+A timing section integrates 640x480 frames into the OctoMap and into the voxel grid with K = 40 (bayes) in the
+same loop, frame by frame (contention hits both alike), and reports the memory per voxel with 40 and 150 classes.
+
+    python benchmarks/bench_fusion.py [--quick]
+
+Prints a table and, last, one JSON line:
+{"bench": "fusion", "results": [{"scene", "preset", "map", "fusion", "crf", "miou", "accuracy", "bytes_per_voxel",
+"ms_per_frame"}...], "upper_bound": {"<scene>": miou}, "timing": {...}}
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from semmap.datasets.simulated import SimulatedDataset
+from semmap.eval.semantic import evaluate_cloud_3d
+from semmap.fusion.crf import CrfParams, refine_map
+from semmap.fusion.rules import FusionParams, FusionRule
+from semmap.geometry import DEFAULT_MAX_DEPTH, DEFAULT_MIN_DEPTH, backproject_world, pixel_normals
+from semmap.maps.point_map import SemanticPointMap
+from semmap.maps.registry import compile_kernels
+from semmap.maps.semantic_octomap import SemanticOctoMap
+from semmap.maps.voxel_grid import SemanticVoxelGrid
+from semmap.perception.oracle import OracleSegmenter
+from semmap.perception.schedule import Scheduler, SegmentationSchedule
+from semmap.sim.ground_truth import gt_voxels
+from semmap.sim.labels import INDOOR_LABELS
+from semmap.sim.scene import generate_scene
+from semmap.sim.trajectory import make_trajectory
+from semmap.types import CameraIntrinsics, LabelSet, MapKind, Observation, TopKProbs, distinct_colors
+
+RESOLUTION = 0.05
+SMALL = CameraIntrinsics(320, 240, 262.5, 262.5, 159.5, 119.5)
+PRESETS = ("cnn-like", "voxel-grid-paper", "independent")
+#: Rules the perfect labels are fused with (every rule agrees on perfect labels up to geometry).
+PERFECT_RULES = (FusionRule.TOPK, FusionRule.BAYES, FusionRule.VOTE)
+#: (kind, seed, size) of the scenes.
+SCENES = (("office", 0, "medium"), ("kitchen", 1, "medium"), ("bedroom", 2, "medium"))
+QUICK_SCENES = (("office", 0, "small"), ("kitchen", 1, "small"), ("bedroom", 2, "small"))
+
+
+def padded_labels(n: int) -> LabelSet:
+    """The simulator's classes followed by unused ``spare_i`` classes up to ``n``."""
+    extra = n - len(INDOOR_LABELS)
+    colors = np.vstack([INDOOR_LABELS.colors, distinct_colors(n)[len(INDOOR_LABELS):]])
+    return LabelSet(INDOOR_LABELS.names + tuple(f"spare_{i}" for i in range(extra)), colors)
+
+
+@dataclass
+class Frames:
+    """One scene's rendered frames, back-projected once."""
+
+    name: str
+    scene: object
+    frames: list
+    obs: list  # Observation without semantics, per frame
+    pixels: list  # flat pixel index of each point, per frame
+
+
+def render(kind: str, seed: int, size: str, n: int, stride: int, intrinsics: CameraIntrinsics) -> Frames:
+    scene = generate_scene(seed, kind, size)
+    poses = make_trajectory(scene, "loop", n * stride, seed=seed)[::stride]
+    ds = SimulatedDataset(scene, poses, seed=seed, intrinsics=intrinsics, name=f"{kind}-{size}-{seed}")
+    keyframe = Scheduler(SegmentationSchedule(keyframes=True))
+    frames, obs, pixels = [], [], []
+    for f in ds:
+        pts, pix = backproject_world(f.depth, f.intrinsics, f.T_world_cam, min_depth=DEFAULT_MIN_DEPTH,
+                                     max_depth=DEFAULT_MAX_DEPTH)
+        key = keyframe.due(f.T_world_cam)
+        normals = pixel_normals(f.depth, f.intrinsics, f.T_world_cam, pix) if key else None
+        obs.append(Observation(pts, f.T_world_cam[:3, 3].copy(), np.take(f.rgb.reshape(-1, 3), pix, axis=0),
+                               normals=normals, frame_index=f.index, keyframe=key))
+        frames.append(f)
+        pixels.append(pix)
+    return Frames(ds.name, scene, frames, obs, pixels)
+
+
+def semantics(frames: Frames, preset: str, label_set: LabelSet, seed: int) -> list[TopKProbs]:
+    """Per-point class sets of every frame from the preset (``perfect``: the true labels, confidence 0.9)."""
+    out = []
+    oracle = None if preset == "perfect" else OracleSegmenter(label_set, preset=preset, seed=seed)
+    for f, pix in zip(frames.frames, frames.pixels, strict=True):
+        sem = (TopKProbs.from_hard_labels(f.labels, 0.9, len(label_set)) if oracle is None
+               else oracle.segment(f)).reshape_flat()
+        out.append(TopKProbs(np.take(sem.labels, pix, axis=0), np.take(sem.probs, pix, axis=0)))
+    return out
+
+
+def class_prior(others: list[Frames], num_classes: int) -> np.ndarray:
+    """Pixel frequencies of the true classes in the other scenes' frames (a training-set prior for bayes-prior)."""
+    counts = np.zeros(num_classes)
+    for fr in others:
+        for f in fr.frames:
+            counts += np.bincount(f.labels.ravel(), minlength=num_classes)[:num_classes]
+    return counts
+
+
+def build_maps(label_set: LabelSet, prior: np.ndarray, point_resolution: float, rules) -> list:
+    maps = [SemanticOctoMap(RESOLUTION, label_set=label_set)]
+    for rule in rules:
+        fusion = FusionParams(rule, prior=prior if rule == FusionRule.BAYES_PRIOR else None)
+        maps.append(SemanticVoxelGrid(RESOLUTION, label_set=label_set, fusion=fusion))
+        maps.append(SemanticPointMap(point_resolution, label_set=label_set, fusion=fusion))
+    return maps
+
+
+def fusion_of(m) -> str:
+    return "topk" if m.kind == MapKind.OCTOMAP else m.fusion.rule.value
+
+
+def bytes_per_voxel(m) -> float:
+    n = m.num_leaves if m.kind == MapKind.OCTOMAP else m.grid.num_voxels
+    return round(m.memory_bytes / max(n, 1), 1)
+
+
+def run_preset(frames: Frames, sems: list[TopKProbs], maps: list, gt, label_set: LabelSet, crf: bool,
+               viewpoint: np.ndarray) -> list[dict]:
+    """Integrate every frame into every map (timed per map), score, CRF, score again."""
+    ms = np.zeros(len(maps))
+    for obs, sem in zip(frames.obs, sems, strict=True):
+        o = Observation(obs.points_world, obs.origin, obs.colors, sem, normals=obs.normals,
+                        frame_index=obs.frame_index, keyframe=obs.keyframe)
+        for i, m in enumerate(maps):
+            t = time.perf_counter()
+            m.integrate(o)
+            ms[i] += (time.perf_counter() - t) * 1e3
+    rows = []
+    for i, m in enumerate(maps):
+        base = {"map": m.kind.value, "fusion": fusion_of(m), "bytes_per_voxel": bytes_per_voxel(m),
+                "ms_per_frame": round(ms[i] / len(frames.obs), 2)}
+        c = m.cloud()
+        s = evaluate_cloud_3d(c.centers, c.labels, *gt, label_set, RESOLUTION)
+        rows.append({**base, "crf": False, "miou": s["miou_3d"], "accuracy": s["voxel_accuracy_3d"]})
+        if crf:
+            r = refine_map(m, CrfParams(), viewpoint=viewpoint)
+            c = m.cloud()
+            s = evaluate_cloud_3d(c.centers, c.labels, *gt, label_set, RESOLUTION)
+            rows.append({**base, "crf": True, "miou": s["miou_3d"], "accuracy": s["voxel_accuracy_3d"],
+                         "crf_ms": round(r.ms, 1)})
+    return rows
+
+
+def timing(n: int, seed: int = 0) -> dict:
+    """ms per 640x480 frame: OctoMap (topk) against the voxel grid with K = 40 bayes, interleaved per frame;
+    memory per voxel of the grid with 40 and 150 classes in float32 and float16."""
+    scene = generate_scene(seed, "office", "medium")
+    poses = make_trajectory(scene, "loop", n * 6, seed=seed)[::6]
+    ds = SimulatedDataset(scene, poses, seed=seed)
+    labels40 = padded_labels(40)
+    oracle = OracleSegmenter(labels40, preset="cnn-like", seed=seed)
+    octo = SemanticOctoMap(RESOLUTION, label_set=labels40)
+    grids = {(k, dt): SemanticVoxelGrid(RESOLUTION, label_set=padded_labels(k), fusion=FusionParams(FusionRule.BAYES),
+                                        dtype=dt) for k in (40, 150) for dt in ("float32", "float16")}
+    t_octo = t_grid = 0.0
+    points = 0
+    for f in ds:
+        pts, pix = backproject_world(f.depth, f.intrinsics, f.T_world_cam)
+        sem = oracle.segment(f).reshape_flat()
+        obs = Observation(pts, f.T_world_cam[:3, 3].copy(), np.take(f.rgb.reshape(-1, 3), pix, axis=0),
+                          TopKProbs(np.take(sem.labels, pix, axis=0), np.take(sem.probs, pix, axis=0)))
+        points += len(pts)
+        t = time.perf_counter()
+        octo.integrate(obs)
+        t_octo += time.perf_counter() - t
+        t = time.perf_counter()
+        grids[40, "float32"].integrate(obs)
+        t_grid += time.perf_counter() - t
+        for key, g in grids.items():
+            if key != (40, "float32"):
+                g.integrate(obs)
+    return {"frames": n, "width": 640, "height": 480, "points_per_frame": round(points / n),
+            "octomap_ms": round(1e3 * t_octo / n, 2), "voxelgrid_bayes_k40_ms": round(1e3 * t_grid / n, 2),
+            "ratio": round(t_grid / t_octo, 3), "octomap_bytes_per_voxel": bytes_per_voxel(octo),
+            "bytes_per_voxel": {f"k{k}_{dt}": bytes_per_voxel(g) for (k, dt), g in grids.items()},
+            "state_bytes_per_voxel": {f"k{k}_{dt}": k * (2 if dt == "float16" else 4) for (k, dt) in grids}}
+
+
+def table(results: list[dict], upper: dict[str, float]) -> str:
+    lines = [f"{'scene':28s} {'preset':17s} {'map':9s} {'fusion':11s} {'mIoU':>6s} {'+CRF':>6s} {'acc':>6s} "
+             f"{'B/vox':>7s} {'ms/fr':>7s}"]
+    by = {(r["scene"], r["preset"], r["map"], r["fusion"], r["crf"]): r for r in results}
+    for (scene, preset, kind, fusion, crf), r in by.items():
+        if crf:
+            continue
+        after = by.get((scene, preset, kind, fusion, True))
+        lines.append(f"{scene:28s} {preset:17s} {kind:9s} {fusion:11s} {r['miou']:6.3f} "
+                     f"{after['miou'] if after else float('nan'):6.3f} {r['accuracy']:6.3f} "
+                     f"{r['bytes_per_voxel']:7.1f} {r['ms_per_frame']:7.2f}")
+    lines += [f"upper bound (perfect labels) {s}: {v:.3f}" for s, v in upper.items()]
+    return "\n".join(lines)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--quick", action="store_true", help="small scenes, fewer frames, 3 cm points (< 10 min)")
+    args = parser.parse_args()
+    n, stride = (24, 12) if args.quick else (100, 3)
+    scenes = QUICK_SCENES if args.quick else SCENES
+    point_resolution = 0.03 if args.quick else 0.01
+    t_start = time.perf_counter()
+    compile_kernels(list(MapKind))
+    label_set = padded_labels(40)
+    rendered = [render(kind, seed, size, n, stride, SMALL) for kind, seed, size in scenes]
+    print(f"rendered {len(scenes)} scenes x {n} frames ({SMALL.width}x{SMALL.height}) in "
+          f"{time.perf_counter() - t_start:.0f} s", flush=True)
+    results: list[dict] = []
+    upper: dict[str, float] = {}
+    for i, fr in enumerate(rendered):
+        gt = gt_voxels(fr.scene, RESOLUTION)
+        gt = (gt.keys, gt.class_ids)
+        prior = class_prior(rendered[:i] + rendered[i + 1:], len(label_set))
+        viewpoint = np.mean([o.origin for o in fr.obs], axis=0)
+        for preset in ("perfect", *PRESETS):
+            sems = semantics(fr, preset, label_set, seed=i)
+            perfect = preset == "perfect"
+            rules = PERFECT_RULES if perfect else tuple(FusionRule)
+            maps = build_maps(label_set, prior, point_resolution, rules)
+            rows = run_preset(fr, sems, maps, gt, label_set, crf=not perfect, viewpoint=viewpoint)
+            for r in rows:
+                r.update(scene=fr.name, preset=preset)
+            if perfect:
+                upper[fr.name] = max(r["miou"] for r in rows)
+            results += rows
+            print(f"{fr.name} {preset}: done ({time.perf_counter() - t_start:.0f} s)", flush=True)
+    timed = timing(6 if args.quick else 30)
+    print(table(results, upper))
+    print(f"timing at 640x480: OctoMap {timed['octomap_ms']} ms/frame, voxel grid K=40 bayes "
+          f"{timed['voxelgrid_bayes_k40_ms']} ms/frame (ratio {timed['ratio']}); bytes per voxel "
+          f"{timed['bytes_per_voxel']} (machine shared: ratios, not absolute times)")
+    print(f"total {time.perf_counter() - t_start:.0f} s")
+    order = ("scene", "preset", "map", "fusion", "crf", "miou", "accuracy", "bytes_per_voxel", "ms_per_frame")
+    print(json.dumps({"bench": "fusion", "quick": args.quick, "frames": n, "resolution": RESOLUTION,
+                      "point_resolution": point_resolution, "classes": len(label_set),
+                      "results": [{k: r[k] for k in order} for r in results], "upper_bound": upper,
+                      "timing": timed}))
+
+
+if __name__ == "__main__":
+    main()
