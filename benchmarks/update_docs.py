@@ -1,6 +1,9 @@
 """Run every benchmark and the demo, then write docs/BENCHMARKS.md and the numbers section of README.md.
 
-    python benchmarks/update_docs.py [--quick]
+    python benchmarks/update_docs.py [--quick] [--only fusion,demo,...]
+
+``--only`` re-runs the named parts (octree, sim, tracking, segmenters, fusion, demo) and takes the others' last
+results from the JSON block at the end of docs/BENCHMARKS.md.
 
 Each benchmark runs as its own process and its last stdout line (one JSON object) is parsed, so the numbers in
 the docs are exactly what the scripts printed on this machine.
@@ -86,6 +89,65 @@ def segmenter_table(bench: dict) -> list[str]:
     return out
 
 
+def _mean(values) -> float:
+    values = list(values)
+    return sum(values) / len(values) if values else float("nan")
+
+
+def fusion_table(bench: dict) -> list[str]:
+    """Mean 3D mIoU over the scenes per preset, map and fusion rule, without and with the CRF, with bytes per
+    voxel and integration time."""
+    rows = bench["results"]
+    keys = list(dict.fromkeys((r["preset"], r["map"], r["fusion"]) for r in rows if r["preset"] != "perfect"))
+    out = ["| preset | map | fusion | mIoU | + CRF | accuracy | B/voxel | ms/frame |",
+           "|---|---|---|---|---|---|---|---|"]
+    for preset, kind, fusion in keys:
+        sel = [r for r in rows if (r["preset"], r["map"], r["fusion"]) == (preset, kind, fusion)]
+        plain, crf = [r for r in sel if not r["crf"]], [r for r in sel if r["crf"]]
+        out.append(f"| {preset} | {kind} | {fusion} | {_mean(r['miou'] for r in plain):.3f} | "
+                   f"{_mean(r['miou'] for r in crf):.3f} | {_mean(r['accuracy'] for r in plain):.3f} | "
+                   f"{_mean(r['bytes_per_voxel'] for r in plain):.0f} | "
+                   f"{_mean(r['ms_per_frame'] for r in plain):.1f} |")
+    return out
+
+
+def fusion_targets(bench: dict) -> list[str]:
+    """The issue's targets as measured: each a line with the numbers it rests on (means over the scenes)."""
+    rows = bench["results"]
+
+    def miou(preset: str, kind: str, fusion: str, crf: bool = False) -> float:
+        return _mean(r["miou"] for r in rows if (r["preset"], r["map"], r["fusion"], r["crf"]) ==
+                     (preset, kind, fusion, crf))
+
+    def bpv(kind: str, fusion: str) -> float:
+        return _mean(r["bytes_per_voxel"] for r in rows if (r["map"], r["fusion"]) == (kind, fusion)
+                     and r["preset"] == "cnn-like" and not r["crf"])
+
+    upper = _mean(bench["upper_bound"].values())
+    t = bench["timing"]
+    crf_gain = [miou("cnn-like", k, f, True) - miou("cnn-like", k, f)
+                for k, f in dict.fromkeys((r["map"], r["fusion"]) for r in rows if r["preset"] == "cnn-like")]
+    return [
+        f"- `independent` preset, fused mIoU / perfect-label upper bound ({upper:.3f}): bayes voxel grid "
+        f"{miou('independent', 'voxelgrid', 'bayes') / upper:.1%}, bayes point map "
+        f"{miou('independent', 'points', 'bayes') / upper:.1%}, topk OctoMap "
+        f"{miou('independent', 'octomap', 'topk') / upper:.1%}, topk voxel grid "
+        f"{miou('independent', 'voxelgrid', 'topk') / upper:.1%}.",
+        f"- `cnn-like`, {bench['classes']} classes: topk (k = 3) OctoMap {miou('cnn-like', 'octomap', 'topk'):.3f} "
+        f"and voxel grid {miou('cnn-like', 'voxelgrid', 'topk'):.3f} against bayes "
+        f"{miou('cnn-like', 'voxelgrid', 'bayes'):.3f}; bytes per voxel: topk voxel grid "
+        f"{bpv('voxelgrid', 'topk'):.0f} = {bpv('voxelgrid', 'topk') / bpv('voxelgrid', 'bayes'):.0%} of bayes "
+        f"({bpv('voxelgrid', 'bayes'):.0f}), OctoMap {bpv('octomap', 'topk'):.0f} = "
+        f"{bpv('octomap', 'topk') / bpv('voxelgrid', 'bayes'):.0%}; bayes - max "
+        f"{100 * (miou('cnn-like', 'voxelgrid', 'bayes') - miou('cnn-like', 'voxelgrid', 'max')):+.1f} points; "
+        f"CRF gain per map and rule {100 * min(crf_gain):+.1f} to {100 * max(crf_gain):+.1f} points.",
+        f"- Speed at {t['width']}x{t['height']} ({t['points_per_frame']:,} points per frame, 5 cm, same loop): "
+        f"voxel grid K = 40 bayes {t['voxelgrid_bayes_k40_ms']} ms per frame, OctoMap {t['octomap_ms']} ms "
+        f"(ratio {t['ratio']}). Memory per voxel: OctoMap {t['octomap_bytes_per_voxel']} B; voxel grid "
+        + ", ".join(f"{k.replace('_', ' ')} {v} B" for k, v in t["bytes_per_voxel"].items()) + ".",
+    ]
+
+
 def demo_lines(report: dict) -> list[str]:
     sizes = report["bytes_on_disk"]
     ms = report["ms_per_frame"]
@@ -102,16 +164,55 @@ def demo_lines(report: dict) -> list[str]:
     ]
 
 
+#: part -> (key in the JSON block, script); the demo is run through the CLI.
+PARTS = {"octree": ("octree_vs_octomap", "benchmarks/bench_octree_vs_octomap.py"),
+         "sim": ("sim", "benchmarks/bench_sim.py"), "tracking": ("tracking", "benchmarks/bench_tracking.py"),
+         "segmenters": ("segmenters", "benchmarks/bench_segmenters.py"),
+         "fusion": ("fusion", "benchmarks/bench_fusion.py"), "demo": ("demo", None)}
+#: What the docs use of the demo's report (kept in the JSON block so ``--only`` can reuse it).
+DEMO_KEYS = ("miou_3d", "oracle_miou_2d", "geometric_precision_3d", "frames_used", "ms_per_frame", "bytes_on_disk",
+             "dense_point_cloud_bytes")
+
+
+def previous_results() -> dict:
+    """The JSON block of the current docs/BENCHMARKS.md (empty if there is none)."""
+    try:
+        text = (ROOT / "docs" / "BENCHMARKS.md").read_text()
+        return json.loads(text.rsplit("```json", 1)[1].split("```", 1)[0])
+    except (OSError, IndexError, ValueError):
+        return {}
+
+
+def collect(only: set[str], quick: bool) -> dict:
+    """Every part's result: run if named in ``only`` (all when empty), else from the last docs."""
+    extra = ["--quick"] if quick else []
+    old = previous_results()
+    out = {}
+    for part, (key, script) in PARTS.items():
+        if only and part not in only:
+            if key not in old:
+                raise SystemExit(f"update_docs: no earlier {part} results in docs/BENCHMARKS.md; run it too")
+            out[key] = old[key]
+        elif script is None:
+            report = run_demo(ROOT / "outputs" / "demo")
+            out[key] = {k: report[k] for k in DEMO_KEYS}
+        else:
+            out[key] = run_json([script, *extra])
+    return out
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--quick", action="store_true", help="quick variants of the benchmarks")
+    ap.add_argument("--only", default="", help=f"comma-separated parts to re-run: {', '.join(PARTS)}")
     args = ap.parse_args()
-    extra = ["--quick"] if args.quick else []
-    octree = run_json(["benchmarks/bench_octree_vs_octomap.py", *extra])
-    sim = run_json(["benchmarks/bench_sim.py", *extra])
-    tracking = run_json(["benchmarks/bench_tracking.py", *extra])
-    segmenters = run_json(["benchmarks/bench_segmenters.py", *extra])
-    demo = run_demo(ROOT / "outputs" / "demo")
+    only = {p.strip() for p in args.only.split(",") if p.strip()}
+    unknown = only - set(PARTS)
+    if unknown:
+        raise SystemExit(f"update_docs: unknown part(s) {', '.join(sorted(unknown))}; choose from {', '.join(PARTS)}")
+    results = collect(only, args.quick)
+    octree, sim, tracking = results["octree_vs_octomap"], results["sim"], results["tracking"]
+    segmenters, fusion, demo = results["segmenters"], results["fusion"], results["demo"]
     stamp = time.strftime("%Y-%m-%d")
     lines = [
         "# Benchmarks", "",
@@ -141,9 +242,16 @@ def main() -> None:
         "`benchmarks/bench_segmenters.py`: ESPNetv2 on 640×480 7-Scenes frames, 2 CPU threads; a frame's time "
         "covers resizing, the network, softmax, sampling at every pixel and top-3.", "",
         *segmenter_table(segmenters), "",
+        "## Label fusion and maps", "",
+        f"`benchmarks/bench_fusion.py{' --quick' if fusion.get('quick') else ''}`: {len(fusion['upper_bound'])} "
+        f"simulated scenes ({', '.join(fusion['upper_bound'])}), {fusion['frames']} frames each at 320×240, "
+        f"{fusion['classes']} classes; every map fed the same frames in one pass, scored against the scenes' "
+        f"ground-truth voxels at {fusion['resolution']} m (the point map, {fusion['point_resolution']} m, votes "
+        "per voxel), then refined by the 3D CRF and scored again. Means over the scenes; B/voxel is memory per "
+        "stored voxel or point; ms/frame is integration only, on a machine shared with other jobs.", "",
+        *fusion_table(fusion), "", *fusion_targets(fusion), "",
         "## Demo (`semmap demo`)", "", *demo_lines(demo), "",
-        "```json", json.dumps({"octree_vs_octomap": octree, "sim": sim, "tracking": tracking,
-                               "segmenters": segmenters}, indent=1), "```", "",
+        "```json", json.dumps(results, indent=1), "```", "",
     ]
     (ROOT / "docs" / "BENCHMARKS.md").write_text("\n".join(lines))
     readme = (ROOT / "README.md").read_text()
@@ -153,7 +261,9 @@ def main() -> None:
                  *demo_lines(demo), "", "Camera tracking (`benchmarks/bench_tracking.py`; all trackers in "
                  "[docs/BENCHMARKS.md](docs/BENCHMARKS.md)):", "", *tracking_table(tracking, README_TRACKERS), "",
                  "ESPNetv2 segmentation on the CPU (`benchmarks/bench_segmenters.py`):", "",
-                 *segmenter_table(segmenters), "", END]
+                 *segmenter_table(segmenters), "",
+                 "Label fusion and maps (`benchmarks/bench_fusion.py`; the full table in "
+                 "[docs/BENCHMARKS.md](docs/BENCHMARKS.md)):", "", *fusion_targets(fusion), "", END]
         head, rest = readme.split(START, 1)
         readme = head + "\n".join(block) + rest.split(END, 1)[1]
         (ROOT / "README.md").write_text(readme)

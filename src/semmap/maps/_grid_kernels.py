@@ -1,12 +1,14 @@
 """Per-frame kernels of the hashed semantic grids (voxel grid, point map): numba over flat arrays.
 
-A frame is fused in four passes, every point counting (not only the first of each voxel):
+A frame is fused in five passes, every point counting (not only the first of each voxel):
 
 1. ``point_keys``: OctoMap keys of the points, packed (-1 for points outside the key range) (parallel);
 2. ``bucket_by_shard``: points grouped by the hash shard of their voxel (stable counting sort);
-3. ``find_slots``: each point's slot in the sharded table (the octree's ``_hashtable``), inserting new voxels;
-   per shard in parallel and resumable when a shard must grow, like the octree's ``update_hits``;
-4. ``fuse_points``: per shard in parallel, the shard's points sorted by voxel; each voxel takes its points'
+3. ``group_shards``: within each shard, points grouped by key with a local hash table, so a voxel's points are
+   one run (parallel, O(n));
+4. ``find_voxels``: one table lookup per voxel of the frame (not per point) in the sharded table (the octree's
+   ``_hashtable``), inserting new voxels and counting them per shard (parallel over shards);
+5. ``fuse_points``: per shard in parallel, new voxels get their attribute rows and each voxel takes its points'
    colours (running mean), one hit, and their class evidence through the configured fusion rule (``fusion/``),
    and, for the point map, their mean position and normal.
 """
@@ -30,98 +32,127 @@ from semmap.fusion.half import float_to_half, half_to_float
 from semmap.fusion.max_rule import max_update
 from semmap.fusion.rules import BAYES_CODE, BAYES_PRIOR_CODE, MAX_CODE, TOPK_CODE, VOTE_CODE
 from semmap.fusion.topk_bayes import fuse_sets
-from semmap.maps._hashtable import N_SHARDS, find_or_insert, find_slot, shard_of
+from semmap.maps._hashtable import N_SHARDS, find_or_insert, key_hash, shard_of
 from semmap.maps._keys import KEY_LIMIT, coord_to_key, pack_key
 
 _COUNT_MAX = 65535
 
 
 @nb.njit(cache=True, parallel=True)
-def point_keys(points: np.ndarray, res_factor: float, out: np.ndarray) -> None:
-    """Packed OctoMap keys (N,) of points taken as float32; -1 for non-finite points or keys out of range."""
+def point_keys(points: np.ndarray, res_factor: float, out: np.ndarray, shard: np.ndarray) -> None:
+    """Packed OctoMap keys (N,) of points taken as float32 and their hash shards; key -1 (shard -1) for non-finite
+    points or keys out of range."""
     for i in nb.prange(points.shape[0]):
         x = np.float32(points[i, 0])
         y = np.float32(points[i, 1])
         z = np.float32(points[i, 2])
         if not (math.isfinite(x) and math.isfinite(y) and math.isfinite(z)):
             out[i] = -1
+            shard[i] = -1
             continue
         kx = coord_to_key(x, res_factor)
         ky = coord_to_key(y, res_factor)
         kz = coord_to_key(z, res_factor)
         if 0 <= kx < KEY_LIMIT and 0 <= ky < KEY_LIMIT and 0 <= kz < KEY_LIMIT:
             out[i] = pack_key(kx, ky, kz)
+            shard[i] = shard_of(out[i])
         else:
             out[i] = -1
+            shard[i] = -1
 
 
 @nb.njit(cache=True)
-def bucket_by_shard(packed: np.ndarray):
-    """Indices of the valid points grouped by shard (input order within a shard) and offsets (N_SHARDS + 1,)."""
+def bucket_by_shard(packed: np.ndarray, shard: np.ndarray):
+    """The valid points grouped by shard (input order within a shard): their indices, their keys, and the shard
+    offsets (N_SHARDS + 1,).  Keys are copied beside the indices so later passes read them in order."""
     n = packed.shape[0]
-    shard = np.empty(n, np.int64)
     offsets = np.zeros(N_SHARDS + 1, np.int64)
     for i in range(n):
-        if packed[i] < 0:
-            shard[i] = -1
-            continue
-        s = shard_of(packed[i])
-        shard[i] = s
-        offsets[s + 1] += 1
+        if shard[i] >= 0:
+            offsets[shard[i] + 1] += 1
     for s in range(N_SHARDS):
         offsets[s + 1] += offsets[s]
     pos = offsets[:N_SHARDS].copy()
     order = np.empty(offsets[N_SHARDS], np.int64)
+    keys = np.empty(offsets[N_SHARDS], np.int64)
     for i in range(n):
         s = shard[i]
         if s >= 0:
             order[pos[s]] = i
+            keys[pos[s]] = packed[i]
             pos[s] += 1
-    return order, offsets
+    return order, keys, offsets
 
 
 @nb.njit(cache=True, parallel=True)
-def find_slots(keys: np.ndarray, logodds: np.ndarray, attr: np.ndarray, counts: np.ndarray, shard_cap: int,
-               packed: np.ndarray, order: np.ndarray, progress: np.ndarray, offsets: np.ndarray, fill_limit: int,
-               slots: np.ndarray) -> None:
-    """Slot of every bucketed point's voxel (inserted when new); a shard stops before a new key would take it
-    past ``fill_limit`` or when its lane is full, and resumes at ``progress[s]`` after the table grew."""
+def group_shards(order: np.ndarray, keys: np.ndarray, offsets: np.ndarray, out_pts: np.ndarray,
+                 out_keys: np.ndarray, voxels: np.ndarray) -> None:
+    """Within each shard, its points grouped by key into ``out_pts`` / ``out_keys`` (voxels in order of first
+    appearance, a voxel's points in input order) with a small local hash table: O(n), no sort; ``voxels[s]`` =
+    distinct keys in shard s."""
     for sh in nb.prange(N_SHARDS):
-        j = progress[sh]
-        end = offsets[sh + 1]
-        while j < end:
-            i = order[j]
-            if counts[sh] >= fill_limit and find_slot(keys, shard_cap, packed[i]) < 0:
-                break
-            s = find_or_insert(keys, logodds, attr, counts, sh, shard_cap, packed[i])
+        lo, hi = offsets[sh], offsets[sh + 1]
+        n = hi - lo
+        if n == 0:
+            voxels[sh] = 0
+            continue
+        cap = 16
+        while cap < 2 * n:
+            cap *= 2
+        table_keys = np.full(cap, np.int64(-1))
+        table_ids = np.empty(cap, np.int64)
+        ids = np.empty(n, np.int64)
+        first = np.empty(n, np.int64)  # key of each local voxel id
+        count = np.zeros(n + 1, np.int64)
+        n_ids = 0
+        for j in range(n):
+            k = keys[lo + j]
+            h = np.int64(key_hash(k) & np.uint64(cap - 1))
+            while table_keys[h] != k and table_keys[h] != -1:
+                h = (h + 1) & (cap - 1)
+            if table_keys[h] == -1:
+                table_keys[h] = k
+                table_ids[h] = n_ids
+                first[n_ids] = k
+                n_ids += 1
+            ids[j] = table_ids[h]
+            count[ids[j] + 1] += 1
+        for v in range(n_ids):
+            count[v + 1] += count[v]
+        for j in range(n):
+            dst = lo + count[ids[j]]
+            count[ids[j]] += 1
+            out_pts[dst] = order[lo + j]
+            out_keys[dst] = keys[lo + j]
+        voxels[sh] = n_ids
+
+
+@nb.njit(cache=True, parallel=True)
+def find_voxels(keys: np.ndarray, logodds: np.ndarray, attr: np.ndarray, counts: np.ndarray, shard_cap: int,
+                sorted_keys: np.ndarray, offsets: np.ndarray, run_slot: np.ndarray, new_rows: np.ndarray,
+                failed: np.ndarray) -> None:
+    """Slot of each voxel of the frame (stored at its first point's position in ``run_slot``), inserted when new;
+    new voxels are marked (attribute row -2) and counted per shard.  ``failed[s]``: a lane of shard s was full
+    (grow the table and call again; keys found so far stay)."""
+    for sh in nb.prange(N_SHARDS):
+        failed[sh] = False
+        n_new = 0
+        prev = np.int64(-1)
+        for j in range(offsets[sh], offsets[sh + 1]):
+            k = sorted_keys[j]
+            if k == prev:
+                continue
+            prev = k
+            s = find_or_insert(keys, logodds, attr, counts, sh, shard_cap, k)
             if s < 0:
+                failed[sh] = True
                 break
-            slots[i] = s
-            j += 1
-        progress[sh] = j
-
-
-@nb.njit(cache=True)
-def mark_new(attr: np.ndarray, slots: np.ndarray, order: np.ndarray) -> int:
-    """Mark the voxels without an attribute row (-1 -> -2) and count them."""
-    n = 0
-    for j in range(order.shape[0]):
-        s = slots[order[j]]
-        if attr[s] == -1:
-            attr[s] = -2
-            n += 1
-    return n
-
-
-@nb.njit(cache=True)
-def assign_rows(attr: np.ndarray, slots: np.ndarray, order: np.ndarray, n_rows: int) -> int:
-    """Give every marked new voxel the next row, in bucketed point order; returns the row count."""
-    for j in range(order.shape[0]):
-        s = slots[order[j]]
-        if attr[s] == -2:
-            attr[s] = n_rows
-            n_rows += 1
-    return n_rows
+            run_slot[j] = s
+            if attr[s] == -1:
+                attr[s] = -2
+            if attr[s] == -2:
+                n_new += 1
+        new_rows[sh] = n_new
 
 
 @nb.njit(cache=True, inline="always")
@@ -144,8 +175,15 @@ def _store(state_f32, state_u16, half: bool, a: int, src: np.ndarray) -> None:
             state_f32[a, c] = src[c]
 
 
+@nb.njit(cache=True, inline="always")
+def _blend(rgb: np.ndarray, a: int, ch: int, mean: float, w: float) -> None:
+    old = np.float64(rgb[a, ch])
+    rgb[a, ch] = np.uint8(np.int64(old + (mean - old) * w + 0.5))
+
+
 @nb.njit(cache=True, parallel=True)
-def fuse_points(attr: np.ndarray, logodds: np.ndarray, slots: np.ndarray, order: np.ndarray, offsets: np.ndarray,
+def fuse_points(attr: np.ndarray, logodds: np.ndarray, sorted_pts: np.ndarray, offsets: np.ndarray,
+                run_slot: np.ndarray, sorted_keys: np.ndarray, first_row: np.ndarray,
                 points: np.ndarray, colors: np.ndarray, has_colors: bool,
                 sem_labels: np.ndarray, sem_probs: np.ndarray, has_semantics: bool,
                 normals: np.ndarray, has_normals: bool,
@@ -155,11 +193,12 @@ def fuse_points(attr: np.ndarray, logodds: np.ndarray, slots: np.ndarray, order:
                 positions: np.ndarray, normal_sums: np.ndarray, keep_geometry: bool,
                 rule: int, prior_log: np.ndarray, clamp: float, vote_cap: float, lam: float,
                 max_confidence: float, hit_log: np.float32, clamp_max: np.float32) -> None:
-    """Fuse every bucketed point into its voxel (see the module docstring); each voxel is touched by one thread.
+    """Fuse every point into its voxel (see the module docstring); a shard's voxels are one thread's.
 
-    The per-voxel state is ``dense_*`` (rows, K) for bayes / bayes-prior / vote, or ``set_labels`` +
-    ``set_*`` (rows, S) for topk / max; ``half`` selects the float16-bits arrays over the float32 ones (the other
-    may be empty).  Log-odds and votes are normalised once per voxel per frame, after all its points.
+    New voxels (row -2) get rows ``first_row[s], first_row[s] + 1, ...`` in key order.  The per-voxel state is
+    ``dense_*`` (rows, K) for bayes / bayes-prior / vote, or ``set_labels`` + ``set_*`` (rows, S) for topk / max;
+    ``half`` selects the float16-bits arrays over the float32 ones (the other may be empty).  Log-odds and votes
+    are normalised once per voxel per frame, after all its points.
     """
     K = dense_f32.shape[1] if not half else dense_u16.shape[1]
     S = set_labels.shape[1]
@@ -168,86 +207,94 @@ def fuse_points(attr: np.ndarray, logodds: np.ndarray, slots: np.ndarray, order:
         lo, hi = offsets[sh], offsets[sh + 1]
         if hi <= lo:
             continue
-        pts = order[lo:hi]
-        rows = np.empty(hi - lo, np.int64)
-        for j in range(hi - lo):
-            rows[j] = attr[slots[pts[j]]]
-        by_row = np.argsort(rows, kind="mergesort")  # stable: a voxel's points stay in input order
+        next_row = first_row[sh]
         scratch = np.empty(max(K, 1), np.float32)
         set_l = np.empty(max(S, 1), np.uint16)
         set_p = np.empty(max(S, 1), np.float32)
         si = np.empty((3, 16), np.int64)
         sf = np.empty((3, 16), np.float64)
-        j = 0
-        while j < hi - lo:
-            a = rows[by_row[j]]
-            e = j
-            while e < hi - lo and rows[by_row[e]] == a:
+        j = lo
+        while j < hi:
+            key = sorted_keys[j]
+            e = j + 1
+            while e < hi and sorted_keys[e] == key:
                 e += 1
             m = e - j
-            s0 = slots[pts[by_row[j]]]
+            s0 = run_slot[j]
+            if attr[s0] == -2:
+                attr[s0] = next_row
+                next_row += 1
+            a = attr[s0]
             # occupancy and hits: one hit per voxel per frame (OctoMap's discretised insertion)
             v = logodds[s0] + hit_log
             logodds[s0] = clamp_max if v > clamp_max else v
             if hits[a] < _COUNT_MAX:
                 hits[a] += 1
+            if dense and has_semantics:
+                _load(dense_f32, dense_u16, half, a, scratch)
+            elif has_semantics:
+                for c in range(S):
+                    set_l[c] = set_labels[a, c]
+                    set_p[c] = half_to_float(set_u16[a, c]) if half else set_f32[a, c]
+            cr = cg = cb = 0.0
+            px = py = pz = 0.0
+            nx = ny = nz = 0.0
+            n_sem = 0
+            for t in range(j, e):  # one pass over the voxel's points
+                p = sorted_pts[t]
+                if has_colors:
+                    cr += np.float64(colors[p, 0])
+                    cg += np.float64(colors[p, 1])
+                    cb += np.float64(colors[p, 2])
+                if keep_geometry:
+                    px += np.float64(points[p, 0])
+                    py += np.float64(points[p, 1])
+                    pz += np.float64(points[p, 2])
+                    if has_normals:
+                        nx += np.float64(normals[p, 0])
+                        ny += np.float64(normals[p, 1])
+                        nz += np.float64(normals[p, 2])
+                if has_semantics:
+                    if rule == VOTE_CODE:
+                        if vote_add(scratch, sem_labels[p]):
+                            n_sem += 1
+                    elif dense:
+                        if bayes_add(scratch, sem_labels[p], sem_probs[p]):
+                            n_sem += 1
+                    elif rule == TOPK_CODE:
+                        fuse_sets(set_l, set_p, sem_labels[p], sem_probs[p], lam, max_confidence, set_l, set_p,
+                                  si, sf)
+                    elif rule == MAX_CODE:
+                        lab, conf = max_update(set_l[0], set_p[0], sem_labels[p, 0], sem_probs[p, 0], max_confidence)
+                        set_l[0] = lab
+                        set_p[0] = conf
             if has_colors:  # running mean over every point's colour (a moving average once the count saturates)
                 n_old = np.int64(rgb_count[a])
-                n_new = min(n_old + m, _COUNT_MAX)
-                w_new = np.float64(m) / (n_old + m) if n_old + m <= _COUNT_MAX else np.float64(m) / _COUNT_MAX
-                for ch in range(3):
-                    s = 0.0
-                    for t in range(j, e):
-                        s += np.float64(colors[pts[by_row[t]], ch])
-                    old = np.float64(rgb[a, ch])
-                    rgb[a, ch] = np.uint8(np.int64(old + (s / m - old) * w_new + 0.5))
-                rgb_count[a] = n_new
-            if keep_geometry:  # point map: mean position (exact running mean) and summed normals
-                n_prev = np.float64(hits[a] - 1) if hits[a] < _COUNT_MAX else np.float64(_COUNT_MAX - 1)
-                for ax in range(3):
-                    s = 0.0
-                    for t in range(j, e):
-                        s += np.float64(points[pts[by_row[t]], ax])
-                    positions[a, ax] = np.float32((positions[a, ax] * n_prev + s / m) / (n_prev + 1.0))
-                    if has_normals:
-                        sn = 0.0
-                        for t in range(j, e):
-                            sn += np.float64(normals[pts[by_row[t]], ax])
-                        normal_sums[a, ax] += np.float32(sn)
+                w = np.float64(m) / (n_old + m) if n_old + m <= _COUNT_MAX else np.float64(m) / _COUNT_MAX
+                _blend(rgb, a, 0, cr / m, w)
+                _blend(rgb, a, 1, cg / m, w)
+                _blend(rgb, a, 2, cb / m, w)
+                rgb_count[a] = min(n_old + m, _COUNT_MAX)
+            if keep_geometry:  # point map: running mean of the frames' mean points, summed normals
+                n_prev = np.float64(min(hits[a], _COUNT_MAX - 1) - 1)
+                positions[a, 0] = np.float32((positions[a, 0] * n_prev + px / m) / (n_prev + 1.0))
+                positions[a, 1] = np.float32((positions[a, 1] * n_prev + py / m) / (n_prev + 1.0))
+                positions[a, 2] = np.float32((positions[a, 2] * n_prev + pz / m) / (n_prev + 1.0))
+                if has_normals:
+                    normal_sums[a, 0] += np.float32(nx)
+                    normal_sums[a, 1] += np.float32(ny)
+                    normal_sums[a, 2] += np.float32(nz)
             if has_semantics:
                 if dense:
-                    _load(dense_f32, dense_u16, half, a, scratch)
-                    if rule == VOTE_CODE:
-                        voted = False
-                        for t in range(j, e):
-                            voted |= vote_add(scratch, sem_labels[pts[by_row[t]]])
-                        if voted:
+                    if n_sem > 0:
+                        if rule == VOTE_CODE:
                             normalise_votes(scratch, vote_cap)
-                    else:
-                        n_sem = 0
-                        for t in range(j, e):
-                            p = pts[by_row[t]]
-                            if bayes_add(scratch, sem_labels[p], sem_probs[p]):
-                                n_sem += 1
-                        if n_sem > 0:
+                        else:
                             if rule == BAYES_PRIOR_CODE:
                                 subtract_prior(scratch, prior_log, np.float64(n_sem))
                             normalise_logodds(scratch, clamp)
-                    _store(dense_f32, dense_u16, half, a, scratch)
+                        _store(dense_f32, dense_u16, half, a, scratch)
                 else:
-                    for c in range(S):
-                        set_l[c] = set_labels[a, c]
-                        set_p[c] = half_to_float(set_u16[a, c]) if half else set_f32[a, c]
-                    for t in range(j, e):
-                        p = pts[by_row[t]]
-                        if rule == TOPK_CODE:
-                            fuse_sets(set_l, set_p, sem_labels[p], sem_probs[p], lam, max_confidence,
-                                      set_l, set_p, si, sf)
-                        elif rule == MAX_CODE:
-                            lab, conf = max_update(set_l[0], set_p[0], sem_labels[p, 0], sem_probs[p, 0],
-                                                   max_confidence)
-                            set_l[0] = lab
-                            set_p[0] = conf
                     for c in range(S):
                         set_labels[a, c] = set_l[c]
                         if half:

@@ -21,7 +21,7 @@ from semmap.fusion.half import from_half_bits, to_half_bits
 from semmap.fusion.rules import FusionParams, FusionRule
 from semmap.keys import keys_to_coords, unpack_keys
 from semmap.maps import _grid_kernels as kern
-from semmap.maps._hashtable import GROWTH, ShardedTable, round_capacity
+from semmap.maps._hashtable import GROWTH, MAX_LOAD, N_SHARDS, ShardedTable, round_capacity
 from semmap.types import EMPTY_LABEL, LabelSet, TopKProbs
 
 #: Storage types of the per-class state.
@@ -75,7 +75,7 @@ class SemanticGrid:
         self._table = ShardedTable()
         self._rows = 0
         self._alloc_rows(_INITIAL_ROWS)
-        self._keys_buf = np.zeros(0, np.int64)
+        self._keys_buf = np.zeros((2, 0), np.int64)
 
     # ------------------------------------------------------------------ storage
     @property
@@ -128,18 +128,22 @@ class SemanticGrid:
         t0 = time.perf_counter()
         pts, col, sem_l, sem_p, nrm = self._validated(points, colors, semantics, normals)
         n = pts.shape[0]
-        if self._keys_buf.shape[0] < n:
-            self._keys_buf = np.empty(int(n * 1.25) + 16, np.int64)
-        packed = self._keys_buf[:n]
-        kern.point_keys(pts, 1.0 / self.resolution, packed)
-        order, offsets = kern.bucket_by_shard(packed)
+        if self._keys_buf.shape[1] < n:
+            self._keys_buf = np.empty((2, int(n * 1.25) + 16), np.int64)
+        packed, shard = self._keys_buf[0, :n], self._keys_buf[1, :n]
+        kern.point_keys(pts, 1.0 / self.resolution, packed, shard)
+        order, bucket_keys, offsets = kern.bucket_by_shard(packed, shard)
+        sorted_pts, sorted_keys = np.empty_like(order), np.empty_like(order)
+        voxels = np.zeros(N_SHARDS, np.int64)
+        kern.group_shards(order, bucket_keys, offsets, sorted_pts, sorted_keys, voxels)
         t1 = time.perf_counter()
-        slots = self._find_slots(packed, order, offsets)
-        self._ensure_rows(self._rows + kern.mark_new(self._table.attr, slots, order))
-        self._rows = kern.assign_rows(self._table.attr, slots, order, self._rows)
+        run_slot, new_rows = self._find_voxels(sorted_keys, offsets, voxels)
+        first_row = self._rows + np.concatenate([[0], np.cumsum(new_rows)[:-1]])
+        self._ensure_rows(self._rows + int(new_rows.sum()))
         t2 = time.perf_counter()
         f = self.fusion
-        kern.fuse_points(self._table.attr, self._table.logodds, slots, order, offsets, pts,
+        t = self._table
+        kern.fuse_points(t.attr, t.logodds, sorted_pts, offsets, run_slot, sorted_keys, first_row, pts,
                          col if col is not None else np.zeros((1, 3), np.uint8), col is not None,
                          sem_l, sem_p, sem_l.shape[0] > 0 and self.num_classes > 0,
                          nrm if nrm is not None else np.zeros((1, 3), np.float32), nrm is not None,
@@ -152,28 +156,27 @@ class SemanticGrid:
                          self._half, self._positions, self._normal_sums, self.keep_geometry,
                          f.rule.code, self._prior_log, float(f.logodds_clamp), float(f.vote_cap), float(f.lam),
                          float(f.max_confidence), HIT_LOGODDS, CLAMP_MAX_LOGODDS)
+        self._rows += int(new_rows.sum())
+        t.settle()  # grow after the frame if a shard is past the normal load
         t3 = time.perf_counter()
         return {"keys": (t1 - t0) * 1e3, "hash": (t2 - t1) * 1e3, "fuse": (t3 - t2) * 1e3}
 
-    def _find_slots(self, packed: np.ndarray, order: np.ndarray, offsets: np.ndarray) -> np.ndarray:
-        """Slot of each point's voxel (new voxels inserted; the table grows mid-frame when a shard fills)."""
+    def _find_voxels(self, sorted_keys: np.ndarray, offsets: np.ndarray,
+                     voxels: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Slot of every voxel of the frame (at its first point's position) and new voxels per shard; the table
+        grows first if every voxel could be new, and again if a lane fills up."""
         t = self._table
-        slots = np.full(packed.shape[0], -1, np.int64)
-        progress = offsets[:-1].copy()
-        grown = False
+        if ((t.counts + voxels) > t.fill_limit).any():
+            t.grow(round_capacity(((t.counts + voxels) / MAX_LOAD).max()))
+        run_slot = np.full(sorted_keys.shape[0], -1, np.int64)
+        new_rows = np.zeros(N_SHARDS, np.int64)
+        failed = np.zeros(N_SHARDS, np.bool_)
         while True:
-            kern.find_slots(t.keys, t.logodds, t.attr, t.counts, t.shard_cap, packed, order, progress, offsets,
-                            t.fill_limit, slots)
-            if (progress >= offsets[1:]).all():
-                break
-            t.grow(round_capacity(t.shard_cap * GROWTH))  # pending points repeat voxels: grow by the usual step
-            grown = True
-        grown |= t.settle()
-        if grown:  # slots found before the table moved are stale
-            from semmap.maps._hashtable import lookup_many
-
-            slots[order] = lookup_many(t.keys, t.shard_cap, packed[order])
-        return slots
+            kern.find_voxels(t.keys, t.logodds, t.attr, t.counts, t.shard_cap, sorted_keys, offsets, run_slot,
+                             new_rows, failed)
+            if not failed.any():
+                return run_slot, new_rows
+            t.grow(round_capacity(t.shard_cap * GROWTH))  # a lane overflowed (very uneven keys)
 
     def _validated(self, points, colors, semantics, normals):
         pts = np.asarray(points)
