@@ -127,6 +127,9 @@ def run(
                                             "odometry | X-objects (tracker X with object-constrained keyframes, "
                                             "needs --instances) | PATH of a TUM trajectory",
                                        rich_help_panel=_POSES)] = "gt",
+    online: Annotated[bool, typer.Option("--online", help="map each frame as soon as the tracker has its pose, "
+                                         "segmenting beside tracking (default: track the whole sequence first)",
+                                         rich_help_panel=_POSES)] = False,
     color_mode: Annotated[str, typer.Option(help="class | rgb: voxel colour in map.ot",
                                             rich_help_panel=_OUTPUT)] = "class",
     rerun: Annotated[Path | None, typer.Option(help="log images, poses and the growing map to this rerun "
@@ -168,6 +171,7 @@ def run(
     from semmap.config import (
         CrfConfig,
         InputConfig,
+        LoopMode,
         MappingConfig,
         ObjectsConfig,
         OutputConfig,
@@ -196,6 +200,7 @@ def run(
                                   batch_size=batch_size, backend=backend, input_size=_size(input_size),
                                   fusion=fusion, class_prior=class_prior),
         poses=PosesConfig(source=poses),
+        mode=LoopMode.ONLINE if online else LoopMode.OFFLINE,
         crf=CrfConfig(enabled=crf, every=crf_every),
         objects=ObjectsConfig(instances=instances, weights=instance_weights, errors=instance_errors),
         output=OutputConfig(out=out, color_mode=parse_color_mode(color_mode), rerun=rerun, rerun_spawn=rerun_spawn,
@@ -235,6 +240,10 @@ def _print_summary(report: dict, out_dir: Path) -> None:
     if "trajectory_vs_ground_truth" in report:
         ate = report["trajectory_vs_ground_truth"]["ate_rmse_m"]
         t.add_row("ATE of the poses used", f"{100 * ate:.2f} cm")
+    if "online" in report:
+        o = report["online"]
+        t.add_row("online", f"{o['fps']:.1f} frames/s, latency {o['latency_ms']['median']:.0f} ms (median), "
+                            f"drift left in {o['drift_left_in']['max_mm']:.1f} mm (max)")
     top = list(report.get("voxels_per_class", {}).items())[:8]
     if top:
         t.add_row("voxels per class", ", ".join(f"{name} {n:,}" for name, n in top))

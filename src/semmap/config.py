@@ -31,6 +31,13 @@ class SemanticSource(str, Enum):
     NONE = "none"  # geometry and colour only
 
 
+class LoopMode(str, Enum):
+    """How a run's frame loop gets its poses and semantics."""
+
+    OFFLINE = "offline"  # track the whole sequence first, then map it with the tracker's final trajectory
+    ONLINE = "online"  # map each frame as soon as the tracker has its pose; segment due frames beside tracking
+
+
 class _Section(BaseModel):
     model_config = ConfigDict(extra="forbid", frozen=True)
 
@@ -134,6 +141,15 @@ class PosesConfig(_Section):
     max_time_diff: float = Field(0.02, gt=0.0, description="largest timestamp gap when reading a trajectory file")
 
 
+class OnlineConfig(_Section):
+    """Bounds of an online run's frame loop (``mode = online``)."""
+
+    max_pending: int = Field(8, ge=1, description="frames waiting behind a frame still being segmented before "
+                                                  "tracking waits too")
+    segment_queue: int = Field(2, ge=1, description="frames queued for or in segmentation at once")
+    segment_numba_threads: int = Field(1, ge=1, description="numba threads of the segmentation thread's kernels")
+
+
 class CrfConfig(_Section):
     """3D dense CRF over each map after integration (and every ``every`` keyframes while mapping)."""
 
@@ -166,6 +182,8 @@ class RunConfig(_Section):
     mapping: MappingConfig = MappingConfig()
     semantics: SemanticsConfig = SemanticsConfig()
     poses: PosesConfig = PosesConfig()
+    mode: LoopMode = LoopMode.OFFLINE
+    online: OnlineConfig = OnlineConfig()
     crf: CrfConfig = CrfConfig()
     objects: ObjectsConfig = ObjectsConfig()
     output: OutputConfig

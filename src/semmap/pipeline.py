@@ -11,12 +11,13 @@ import logging
 import time
 from collections import defaultdict
 from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
-from semmap.config import ColorMode, RunConfig, SemanticSource
+from semmap.config import ColorMode, LoopMode, RunConfig, SemanticSource
 from semmap.datasets import Dataset, open_dataset
 from semmap.errors import ConfigError
 from semmap.eval.report_html import write_report_html
@@ -31,8 +32,25 @@ from semmap.maps.registry import compile_kernels, get_map
 from semmap.object_stage import ObjectStage
 from semmap.perception.base import Preparable, Segmenter
 from semmap.perception.instances.base import InstanceSource
-from semmap.perception.schedule import Scheduler, SegmentationSchedule, with_semantics
-from semmap.types import Frame, LabelSet, MapCloud, MapKind, Observation, TopKProbs, Trajectory, muted_grey
+from semmap.perception.schedule import (
+    Scheduler,
+    SegmentationSchedule,
+    SegmentationWorker,
+    with_semantics,
+    with_semantics_beside,
+)
+from semmap.poses.base import LiveTracker, PoseTracker
+from semmap.types import (
+    Frame,
+    LabelSet,
+    MapCloud,
+    MapKind,
+    Observation,
+    TopKProbs,
+    Trajectory,
+    muted_grey,
+    rotation_angle,
+)
 from semmap.viz.preview import CEILING_MARGIN, perspective, side_by_side, top_down, up_vector, write_png
 from semmap.viz.rerun_log import NoVisualizer, Visualizer, get_visualizer
 
@@ -104,20 +122,34 @@ def semantics_for(frame: Frame, source: SemanticSource, *, segmenter: Segmenter 
     return None
 
 
+@dataclass
+class _LoopState:
+    """What the frame loop keeps: the poses frames were mapped with (in order), when each waiting frame was
+    read, each frame's latency from being read to being in the maps, and the loop's wall time."""
+
+    poses: list[np.ndarray] = field(default_factory=list)
+    arrival: dict[int, float] = field(default_factory=dict)
+    latency_ms: list[float] = field(default_factory=list)
+    seconds: float = 0.0
+
+
 class FramePoses:
     """Pose of each frame from one source (ground truth, a trajectory lookup or a tracker's poses by frame
     name); remembers the poses used and the frames' own ground truth, for ``trajectory.txt`` and its score."""
 
     def __init__(self, source: str, *, by_name: dict[str, np.ndarray] | None = None, lookup=None,
-                 tracking_s: float | None = None, tracked: int = 0):
+                 tracking_s: float | None = None, tracked: int = 0, tracker: PoseTracker | None = None):
         self.source, self.by_name, self.lookup = source, by_name, lookup
         self.tracking_s, self.tracked = tracking_s, tracked
+        self.tracker = tracker  # online: tracked frame by frame, as the frames arrive
         self._used: list[tuple[float, str, np.ndarray]] = []
         self._gt: list[tuple[float, str, np.ndarray]] = []
 
     def __call__(self, frame: Frame) -> tuple[np.ndarray | None, str]:
         """(pose or None, why not)."""
-        if self.by_name is not None:
+        if self.tracker is not None:
+            T, reason = self._track(frame), f"{self.source} tracking lost"
+        elif self.by_name is not None:
             T = self.by_name.get(frame.name)
             reason = "" if T is not None else f"{self.source} tracking lost"
         elif self.lookup is not None:
@@ -130,6 +162,16 @@ class FramePoses:
         if T is not None:
             self._used.append((frame.timestamp, frame.name, T))
         return T, reason
+
+    def _track(self, frame: Frame) -> np.ndarray | None:
+        """The tracker's pose of a new frame, through its latest global optimisation where it has one."""
+        t0 = time.perf_counter()
+        T = self.tracker.track(frame)
+        if T is not None and isinstance(self.tracker, LiveTracker):
+            T = self.tracker.live_pose()
+        self.tracking_s = (self.tracking_s or 0.0) + time.perf_counter() - t0
+        self.tracked += T is not None
+        return None if T is None else np.array(T, np.float64)
 
     @staticmethod
     def _trajectory(rows: list[tuple[float, str, np.ndarray]]) -> Trajectory:
@@ -194,11 +236,13 @@ class Pipeline:
         label_set = self._label_set(dataset)
         kinds = self._map_kinds()
         startup_s = compile_kernels(kinds)  # keeps numba's first-use compilation out of the per-frame timings
-        segmenter_s = self._prepare_segmenter(dataset)  # and an ONNX export / session out of the first frame's
+        first = next(iter(dataset), None)  # what a segmenter and an online tracker get ready on
+        segmenter_s = self._prepare_segmenter(first)  # and an ONNX export / session out of the first frame's
         maps = [get_map(kind, self.config, label_set) for kind in kinds]
         mapper = Mapper(maps, min_depth=self.config.mapping.min_depth, max_depth=self.config.mapping.max_depth,
                         pixel_stride=self.config.mapping.pixel_stride)
         pose_of = self._pose_source(dataset)
+        startup_s += self._prepare_tracker(first)
         self._objects = ObjectStage(self.instances) if self.instances is not None else None
         timings, poses, no_pose = self._integrate_all(dataset, mapper, label_set, pose_of)
         self._viewer.finish(maps[0])
@@ -210,6 +254,9 @@ class Pipeline:
         if self.segmenter is not None:
             report["segmenter_startup_s"] = round(segmenter_s, 3)
         report.update(self._trajectory_outputs(pose_of, files))
+        report["peak_rss_mb"] = round(peak_rss_mb(), 1)
+        if self.config.mode == LoopMode.ONLINE:
+            report["online"] = self._online_report(pose_of, files)
         if self._objects is not None:
             report["objects"] = self._objects.report(mapper.keyframes)
         report.update(self._evaluate(maps[0]))
@@ -236,12 +283,27 @@ class Pipeline:
         return open_dataset(c.dataset, c.format, labels=c.labels, stride=c.stride, max_frames=c.max_frames,
                             raw_color=c.raw_color, ros=c.ros.options(), strict=c.strict)
 
-    def _prepare_segmenter(self, dataset: Dataset) -> float:
+    def _prepare_segmenter(self, first: Frame | None) -> float:
         """Let a segmenter with a start-up cost pay it on the dataset's first frame; returns the seconds."""
-        if not isinstance(self.segmenter, Preparable):
+        if not isinstance(self.segmenter, Preparable) or first is None:
             return 0.0
-        first = next(iter(dataset), None)
-        return 0.0 if first is None else self.segmenter.prepare(first)
+        return self.segmenter.prepare(first)
+
+    def _prepare_tracker(self, first: Frame | None) -> float:
+        """Online, run a throwaway tracker of the same kind on the first frame twice, so that its kernels are
+        compiled (or loaded) before the first frame's latency is counted; returns the seconds."""
+        if self.config.mode != LoopMode.ONLINE or first is None or self.config.poses.source == "gt":
+            return 0.0
+        from semmap.poses.track import METHODS, make_tracker
+
+        source = self.config.poses.source
+        if source not in METHODS:  # (object-constrained trackers share the instance source's state: not warmed)
+            return 0.0
+        t0 = time.perf_counter()
+        warm = make_tracker(source)
+        for _ in range(2):
+            warm.track(first)
+        return time.perf_counter() - t0
 
     def _label_set(self, dataset: Dataset) -> LabelSet | None:
         """The classes of the map: the segmenter's, the dataset's, a generic set when label images come
@@ -316,6 +378,8 @@ class Pipeline:
         if source in METHODS or source in OBJECT_METHODS:
             t0 = time.perf_counter()
             tracker = make_pose_tracker(source, instances=self.instances)
+            if self.config.mode == LoopMode.ONLINE:  # tracked in the frame loop, frame by frame
+                return FramePoses(source, tracker=tracker)
             trajectory = estimate_trajectory(tracker, dataset, total=len(dataset), progress=self.track_progress)
             tracking_s = time.perf_counter() - t0
             if len(trajectory) == 0:
@@ -330,6 +394,38 @@ class Pipeline:
                               f"trajectory file; {path} does not exist")
         return FramePoses(str(path), lookup=TrajectoryPoses.from_file(path,
                                                                       max_time_diff=self.config.poses.max_time_diff))
+
+    def _online_report(self, pose_of: FramePoses, files: dict[str, Path]) -> dict:
+        """Frame rate and latency of the online loop, and the drift its map keeps: how far each frame's final,
+        loop-closed pose lies from the pose it was mapped with (``trajectory_final.txt``; mapping it again,
+        offline, is ``--poses trajectory_final.txt``)."""
+        loop = self._loop
+        lat = np.asarray(loop.latency_ms)
+        out: dict = {"fps": round(len(loop.poses) / max(loop.seconds, 1e-9), 2), "loop_s": round(loop.seconds, 2),
+                     "latency_ms": {"median": round(float(np.median(lat)), 1),
+                                    "p95": round(float(np.percentile(lat, 95)), 1), "max": round(float(lat.max()), 1)}}
+        if pose_of.tracker is None:
+            return {**out, "drift_left_in": drift_left_in(pose_of.used_trajectory(), pose_of.used_trajectory(),
+                                                           self.config.mapping.resolution)}
+        from semmap.io.trajectory import write_trajectory
+
+        final = pose_of.tracker.trajectory()
+        files["trajectory_final"] = write_trajectory(self.config.output.out / "trajectory_final.txt", final)
+        if isinstance(pose_of.tracker, LiveTracker):
+            out["loop_closures"] = pose_of.tracker.loop_closures
+        out["drift_left_in"] = drift_left_in(pose_of.used_trajectory(), final, self.config.mapping.resolution)
+        gt = pose_of.ground_truth()
+        if len(gt) >= 3 and len(final) >= 3:
+            from semmap.eval.trajectory import evaluate_trajectory
+
+            try:
+                scores = evaluate_trajectory(gt, final)
+            except ConfigError as exc:  # a camera that never moved cannot be aligned: no score, not a failed run
+                log.warning("the final trajectory is not scored: %s", exc)
+            else:
+                out["final_trajectory_vs_ground_truth"] = {k: scores[k] for k in ("ate_rmse_m", "rpe_trans_m",
+                                                                                  "matched") if k in scores}
+        return out
 
     def _trajectory_outputs(self, pose_of: FramePoses, files: dict[str, Path]) -> dict:
         """Write the poses used into ``trajectory.txt``; score them against ground truth when there is one."""
@@ -351,42 +447,69 @@ class Pipeline:
         return out
 
     def _integrate_all(self, dataset: Dataset, mapper: Mapper, label_set: LabelSet | None, pose_of: FramePoses):
-        s = self.config.semantics
+        """The frame loop: frames (loaded, posed) -> semantics -> every map, one frame at a time in order.
+
+        Offline, poses are the tracker's final trajectory (tracked in a pass before) and due frames are segmented
+        in batches; online, each frame is tracked as it arrives and due frames are segmented on a thread beside
+        tracking. Either way ``_integrate_frame`` sees the same frames in the same order."""
         timings: dict[str, float] = defaultdict(float)
-        poses: list[np.ndarray] = []
+        loop = _LoopState()
         no_pose: list[str] = []
         self._segmented = 0
-        posed = self._posed_frames(dataset, timings, no_pose, pose_of)
-        if self.segmenter is not None:
-            schedule = SegmentationSchedule(every=s.segment_every, keyframes=s.keyframes)
-            stream = with_semantics(posed, self.segmenter, Scheduler(schedule), batch_size=s.batch_size,
-                                    timings=timings)
-        else:
-            stream = ((f, T, semantics_for(f, s.source, segmenter=None, label_set=label_set,
-                                           label_confidence=s.label_confidence, k=s.k)) for f, T in posed)
-        for frame, T, sem in stream:
-            if self.segmenter is not None and sem is not None:
-                self._segmented += 1
-                if frame.labels is not None:
-                    self._score_segmentation(sem, frame.labels, len(label_set))
-            for name, ms in mapper.integrate(frame, T, sem).items():
-                timings[name] += ms
-            if self._objects is not None:  # instances and tracks every frame, the object map on keyframes
-                t_obj = time.perf_counter()
-                self._objects.step(frame, T, sem, mapper.last_was_keyframe)
-                timings["objects"] += (time.perf_counter() - t_obj) * 1e3
-            every = self.config.crf.every
-            if self.config.crf.enabled and every and mapper.last_was_keyframe and mapper.keyframes % every == 0:
-                t_crf = time.perf_counter()
-                self._refine(mapper.maps, [*poses, T])
-                timings["crf"] += (time.perf_counter() - t_crf) * 1e3
-            poses.append(T)
-            self._viewer.log_frame(frame, T, sem, mapper.maps[0])
-        if not poses:
+        t0 = time.perf_counter()
+        with self._semantic_stream(self._posed_frames(dataset, timings, no_pose, pose_of, loop), label_set,
+                                   timings) as stream:
+            for frame, T, sem in stream:
+                self._integrate_frame(frame, T, sem, mapper, label_set, timings, loop)
+        loop.seconds = time.perf_counter() - t0
+        if not loop.poses:
             hint = " (poses come from the dataset's ground truth, e.g. TUM groundtruth.txt)" if no_pose else ""
             raise ConfigError(f"{self.config.input.dataset}: no frame could be mapped "
                               f"({len(dataset.skipped)} unreadable, {len(no_pose)} without pose){hint}")
-        return timings, poses, no_pose
+        self._loop = loop
+        return timings, loop.poses, no_pose
+
+    @contextmanager
+    def _semantic_stream(self, posed: Iterator[tuple[Frame, np.ndarray]], label_set: LabelSet | None,
+                         timings: dict[str, float]) -> Iterator[Iterator[tuple[Frame, np.ndarray, TopKProbs | None]]]:
+        """``(frame, pose, semantics or None)`` in frame order: from the segmenter (in batches offline, on a
+        thread beside tracking online) or from the frames' own labels."""
+        s = self.config.semantics
+        if self.segmenter is None:
+            yield ((f, T, semantics_for(f, s.source, segmenter=None, label_set=label_set,
+                                        label_confidence=s.label_confidence, k=s.k)) for f, T in posed)
+            return
+        scheduler = Scheduler(SegmentationSchedule(every=s.segment_every, keyframes=s.keyframes))
+        if self.config.mode == LoopMode.OFFLINE:
+            yield with_semantics(posed, self.segmenter, scheduler, batch_size=s.batch_size, timings=timings)
+            return
+        o = self.config.online
+        with SegmentationWorker(self.segmenter, max_queued=o.segment_queue,
+                                numba_threads=o.segment_numba_threads) as worker:
+            yield with_semantics_beside(posed, worker, scheduler, max_pending=o.max_pending, timings=timings)
+
+    def _integrate_frame(self, frame: Frame, T: np.ndarray, sem: TopKProbs | None, mapper: Mapper,
+                         label_set: LabelSet | None, timings: dict[str, float], loop: _LoopState) -> None:
+        """One frame into every map (and the object map, the CRF and the viewer), the moment its pose and
+        semantics are there; its latency since it was read."""
+        if self.segmenter is not None and sem is not None:
+            self._segmented += 1
+            if frame.labels is not None:
+                self._score_segmentation(sem, frame.labels, len(label_set))
+        for name, ms in mapper.integrate(frame, T, sem).items():
+            timings[name] += ms
+        if self._objects is not None:  # instances and tracks every frame, the object map on keyframes
+            t_obj = time.perf_counter()
+            self._objects.step(frame, T, sem, mapper.last_was_keyframe)
+            timings["objects"] += (time.perf_counter() - t_obj) * 1e3
+        every = self.config.crf.every
+        if self.config.crf.enabled and every and mapper.last_was_keyframe and mapper.keyframes % every == 0:
+            t_crf = time.perf_counter()
+            self._refine(mapper.maps, [*loop.poses, T])
+            timings["crf"] += (time.perf_counter() - t_crf) * 1e3
+        loop.poses.append(T)
+        loop.latency_ms.append((time.perf_counter() - loop.arrival.pop(id(frame))) * 1e3)
+        self._viewer.log_frame(frame, T, sem, mapper.maps[0])
 
     def _warn_if_empty(self, primary: SemanticMap, mapper: Mapper, poses: list[np.ndarray]) -> None:
         """A run whose frames added nothing to the map says so, with the likely reason."""
@@ -406,14 +529,20 @@ class Pipeline:
         log.warning("%d frames added nothing to the map: no voxel is occupied (%s)", len(poses),
                     "; ".join(reasons) or "check the poses and depth units")
 
-    def _posed_frames(self, dataset: Dataset, timings: dict[str, float], no_pose: list[str], pose_of: FramePoses):
+    def _posed_frames(self, dataset: Dataset, timings: dict[str, float], no_pose: list[str], pose_of: FramePoses,
+                      loop: _LoopState):
         """``(frame, T_world_cam)`` for every readable frame with a pose, behind the progress bar; frames
-        without a pose are warned about and listed in ``no_pose``."""
+        without a pose are warned about and listed in ``no_pose``.  Online, the tracker runs here."""
         frames = self.progress(iter(dataset), len(dataset))
         t_load = time.perf_counter()
         for frame in frames:
-            timings["load"] += (time.perf_counter() - t_load) * 1e3
+            arrived = time.perf_counter()
+            timings["load"] += (arrived - t_load) * 1e3
             T, reason = pose_of(frame)
+            if pose_of.tracker is not None:
+                timings["track"] += (time.perf_counter() - arrived) * 1e3
+            if T is not None:
+                loop.arrival[id(frame)] = arrived
             if T is None:
                 log.warning("frame %s has no pose (%s); skipped", frame.name, reason)
                 no_pose.append(frame.name)
@@ -465,7 +594,9 @@ class Pipeline:
         n = len(poses)
         primary = mapper.maps[0]
         ms = {k: round(v / n, 3) for k, v in timings.items()}
-        ms["total"] = round(sum(ms.values()), 3)
+        # online, segmentation runs on its own thread: the loop pays only the time it waits for it
+        beside = {"segment"} if self.config.mode == LoopMode.ONLINE else set()
+        ms["total"] = round(sum(v for k, v in ms.items() if k not in beside), 3)
         return {
             "dataset": str(self.config.input.dataset),
             "resolution": primary.resolution,
@@ -502,6 +633,30 @@ def _files_of(m: SemanticMap) -> set[str]:
     """Names of the files ``m.save`` writes (the OctoMap's map.*; other maps <kind>.*), and its preview."""
     stem = "map" if m.kind == MapKind.OCTOMAP else m.kind.value
     return {f"{stem}.ot", f"{stem}.bt", f"{stem}.semmap", f"{stem}.ply", f"preview_{m.kind.value}.png"}
+
+
+def drift_left_in(used: Trajectory, final: Trajectory, resolution: float) -> dict:
+    """How far each frame's final pose lies from the pose it was mapped with (frames matched by name):
+    translation (mm) and rotation (degrees), max and 95th percentile, and frames moved more than half a voxel."""
+    where = {name: i for i, name in enumerate(final.names)}
+    pairs = [(i, where[name]) for i, name in enumerate(used.names) if name in where]
+    if not pairs:
+        return {"frames": 0, "max_mm": 0.0, "p95_mm": 0.0, "max_deg": 0.0, "frames_over_half_voxel": 0}
+    a = used.poses[[i for i, _ in pairs]]
+    b = final.poses[[j for _, j in pairs]]
+    dt = np.linalg.norm(a[:, :3, 3] - b[:, :3, 3], axis=1) * 1e3
+    deg = np.array([np.degrees(rotation_angle(x[:3, :3].T @ y[:3, :3])) for x, y in zip(a, b, strict=True)])
+    return {"frames": len(pairs), "max_mm": round(float(dt.max()), 2), "p95_mm": round(float(np.percentile(dt, 95)), 2),
+            "max_deg": round(float(deg.max()), 3), "frames_over_half_voxel": int((dt > 500 * resolution).sum())}
+
+
+def peak_rss_mb() -> float:
+    """Peak resident memory of this process so far (MiB)."""
+    import resource
+    import sys
+
+    peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+    return peak / 2**20 if sys.platform == "darwin" else peak / 1024
 
 
 def render_preview(cloud: MapCloud, label_set: LabelSet | None, poses: list[np.ndarray]) -> np.ndarray:

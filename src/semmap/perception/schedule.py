@@ -1,14 +1,19 @@
 """Which frames get segmented: every k-th frame, or keyframes (the camera moved enough since the last one).
 
 Segmentation is the most expensive per-frame step; mapping still integrates every frame's geometry and colour,
-but class probabilities reach the map only from the frames segmented.  Segmented frames are batched for the
-network while the frames between them wait, so the map sees frames in their original order.
+but class probabilities reach the map only from the frames segmented.  Offline, segmented frames are batched
+for the network while the frames between them wait (``with_semantics``); online, a ``SegmentationWorker``
+segments due frames on a thread beside tracking (``with_semantics_beside``).  Either way the map sees frames in
+their original order.
 """
 
 from __future__ import annotations
 
+import threading
 import time
+from collections import deque
 from collections.abc import Iterable, Iterator, Sequence
+from concurrent.futures import Future
 from dataclasses import dataclass
 
 import numpy as np
@@ -94,3 +99,103 @@ def with_semantics(posed: Iterable[tuple[Frame, np.ndarray]], segmenter: Segment
             due_count = 0
     if pending:
         yield from flush()
+
+
+class SegmentationWorker:
+    """Segments frames on one background thread while the caller goes on (tracking, mapping).
+
+    At most ``max_queued`` frames are queued or being segmented: ``submit`` blocks beyond that, so a slow network
+    holds the camera loop back instead of buffering frames without bound.  The thread runs numba's kernels (the
+    network's top-k resampling) on ``numba_threads`` threads, leaving the other cores to the caller's.
+    """
+
+    def __init__(self, segmenter: Segmenter, *, max_queued: int = 2, numba_threads: int = 1):
+        if max_queued < 1:
+            raise ConfigError(f"a segmentation queue needs room for at least one frame, got {max_queued}")
+        from concurrent.futures import ThreadPoolExecutor
+
+        self.segmenter = segmenter
+        self._slots = threading.BoundedSemaphore(max_queued)
+        self._pool = ThreadPoolExecutor(1, thread_name_prefix="semmap-segment", initializer=_limit_numba_threads,
+                                        initargs=(numba_threads,))
+
+    def submit(self, frame: Frame) -> Future:
+        """Start segmenting ``frame``; the future gives ``(semantics, milliseconds)``."""
+        self._slots.acquire()
+        try:
+            future = self._pool.submit(self._segment, frame)
+        except BaseException:
+            self._slots.release()
+            raise
+        future.add_done_callback(lambda _: self._slots.release())
+        return future
+
+    def _segment(self, frame: Frame) -> tuple[TopKProbs, float]:
+        t0 = time.perf_counter()
+        sem = self.segmenter.segment(frame)
+        return sem, (time.perf_counter() - t0) * 1e3
+
+    def close(self) -> None:
+        """Stop the thread (frames not started yet are dropped)."""
+        self._pool.shutdown(wait=True, cancel_futures=True)
+
+    def __enter__(self) -> SegmentationWorker:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+
+def _limit_numba_threads(n: int) -> None:
+    import numba
+
+    numba.set_num_threads(max(1, min(int(n), numba.config.NUMBA_NUM_THREADS)))  # per thread in numba
+
+
+def with_semantics_beside(posed: Iterable[tuple[Frame, np.ndarray]], worker: SegmentationWorker,
+                          scheduler: Scheduler, *, max_pending: int = 8, timings: dict[str, float] | None = None
+                          ) -> Iterator[tuple[Frame, np.ndarray, TopKProbs | None]]:
+    """``(frame, pose, semantics or None)`` in input order, each as soon as it can be: frames not due come out
+    at once unless an earlier due frame is still being segmented (order is kept, so the map sees frames as an
+    offline run does); due frames are segmented by ``worker`` beside the caller.  At most ``max_pending`` frames
+    wait here; beyond that the oldest due frame is waited for.  Milliseconds: ``timings["segment"]`` the worker's
+    time, ``timings["segment_wait"]`` the caller's time blocked on it."""
+    if max_pending < 1:
+        raise ConfigError(f"max_pending must be at least 1, got {max_pending}")
+    pending: deque[tuple[Frame, np.ndarray, Future | None]] = deque()
+
+    def ready(block: bool) -> Iterator[tuple[Frame, np.ndarray, TopKProbs | None]]:
+        while pending:
+            frame, T, future = pending[0]
+            if future is not None and not future.done():
+                if not block:
+                    return
+                t0 = time.perf_counter()
+                future.result()
+                _add(timings, "segment_wait", (time.perf_counter() - t0) * 1e3)
+            pending.popleft()
+            sem = frame.semantics
+            if future is not None:
+                sem, ms = future.result()
+                _add(timings, "segment", ms)
+            yield frame, T, sem
+
+    for frame, T in posed:
+        due = frame.semantics is None and scheduler.due(T)
+        pending.append((frame, T, worker.submit(frame) if due else None))
+        yield from ready(block=False)
+        while len(pending) >= max_pending:
+            yield from _first(ready(block=True))
+    yield from ready(block=True)
+
+
+def _first(it: Iterator) -> Iterator:
+    """The first item of ``it`` only (the rest is not computed)."""
+    for item in it:
+        yield item
+        return
+
+
+def _add(timings: dict[str, float] | None, key: str, ms: float) -> None:
+    if timings is not None:
+        timings[key] = timings.get(key, 0.0) + ms

@@ -35,6 +35,21 @@ class PoseTracker(Protocol):
         ...
 
 
+@runtime_checkable
+class LiveTracker(Protocol):
+    """A tracker whose global optimisation (a closed loop, a pose graph) moves poses after ``track`` returned
+    them: ``live_pose`` is the latest frame's pose as the tracker now believes it, what an online run maps with."""
+
+    def live_pose(self) -> np.ndarray | None:
+        """``T_world_cam`` of the frame tracked last, through the current optimised poses."""
+        ...
+
+    @property
+    def loop_closures(self) -> int:
+        """Loops closed so far (each moved poses already handed out)."""
+        ...
+
+
 def estimate_trajectory(tracker: PoseTracker, frames: Iterable[Frame], total: int = 0,
                         progress: Progress | None = None) -> Trajectory:
     """Run ``tracker`` over ``frames`` (with an optional progress wrapper) and return its final trajectory."""

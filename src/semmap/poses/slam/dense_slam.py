@@ -334,6 +334,18 @@ class DenseSlam(DenseOdometry):
         self._unoptimised = False
 
     # ------------------------------------------------------------------ output
+    def live_pose(self) -> np.ndarray | None:
+        """The last frame's pose through its keyframe's pose as optimised so far (what ``trajectory`` will give it
+        before blending towards the next keyframe, which does not exist yet): the online run's estimate."""
+        if not self._poses:
+            return None
+        kf = self.keyframes[self._kf_of_frame[-1]]
+        return kf.T_wc @ se3.inverse(kf.raw) @ np.asarray(self._poses[-1])
+
+    @property
+    def loop_closures(self) -> int:
+        return self.stats.loops
+
     def trajectory(self) -> Trajectory:
         """Every frame's pose: its keyframe's optimised pose times its odometry pose relative to that keyframe.
 
