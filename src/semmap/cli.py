@@ -5,6 +5,7 @@ Known errors (bad input, bad files) print one clear line and exit with code 1; t
 
 from __future__ import annotations
 
+import contextlib
 import json
 import logging
 import sys
@@ -138,6 +139,10 @@ def run(
                                               rich_help_panel=_OUTPUT)] = False,
     rerun_map_every: Annotated[int, typer.Option(help="frames between two logs of the whole map to rerun",
                                                  rich_help_panel=_OUTPUT)] = 10,
+    checkpoint_every: Annotated[int, typer.Option(help="save the run's state every N mapped frames (0: never), so "
+                                                  "--resume can continue after a crash", rich_help_panel=_OUTPUT)] = 0,
+    resume: Annotated[bool, typer.Option("--resume", help="continue a run that was killed, from its last checkpoint "
+                                         "(same options as the first time)", rich_help_panel=_OUTPUT)] = False,
     maps: Annotated[str, typer.Option(help="maps built side by side, comma-separated, the first is the primary: "
                                            "octomap | voxelgrid | points", rich_help_panel=_MAPS)] = "octomap",
     fusion: Annotated[str | None, typer.Option(help="label fusion for every map: max | topk | bayes | bayes-prior | "
@@ -206,8 +211,32 @@ def run(
         output=OutputConfig(out=out, color_mode=parse_color_mode(color_mode), rerun=rerun, rerun_spawn=rerun_spawn,
                             rerun_map_every=rerun_map_every),
     ))
-    result = run_config(config, progress=progress_bar("mapping"), track_progress=progress_bar(f"tracking ({poses})"))
+    with _interruptible():
+        result = run_config(config, progress=progress_bar("mapping"),
+                            track_progress=progress_bar(f"tracking ({poses})"), checkpoint_every=checkpoint_every,
+                            resume=resume)
     _print_summary(result.report, result.out_dir)
+
+
+@contextlib.contextmanager
+def _interruptible():
+    """Ctrl-C: one line saying after which frame the run stopped and what was kept, and exit code 130 (typer would
+    exit 130 silently, and a Ctrl-C inside a numba kernel would show a SystemError)."""
+    from semmap.interrupt import RunInterrupted
+
+    try:
+        yield
+    except RunInterrupted as exc:
+        print(f"semmap: {exc}", file=sys.stderr)
+        raise typer.Exit(130) from None
+    except KeyboardInterrupt:
+        print("semmap: interrupted", file=sys.stderr)
+        raise typer.Exit(130) from None
+    except SystemError as exc:
+        if not isinstance(exc.__cause__ or exc.__context__, KeyboardInterrupt):
+            raise
+        print("semmap: interrupted", file=sys.stderr)
+        raise typer.Exit(130) from None
 
 
 def _size(text: str | None) -> tuple[int, int] | int | None:
@@ -711,7 +740,14 @@ def main() -> None:
     except SemmapError as exc:
         print(f"semmap: error: {exc}", file=sys.stderr)
         sys.exit(1)
-    except KeyboardInterrupt:
+    except KeyboardInterrupt as exc:
+        from semmap.interrupt import RunInterrupted
+
+        print(f"semmap: {exc}" if isinstance(exc, RunInterrupted) else "semmap: interrupted", file=sys.stderr)
+        sys.exit(130)
+    except SystemError as exc:  # a second Ctrl-C inside a numba kernel surfaces as SystemError
+        if not isinstance(exc.__cause__ or exc.__context__, KeyboardInterrupt):
+            raise
         print("semmap: interrupted", file=sys.stderr)
         sys.exit(130)
 

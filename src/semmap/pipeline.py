@@ -6,6 +6,7 @@ frame with a progress bar, write outputs).  This module and ``cli.py`` are the o
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import logging
 import time
@@ -25,7 +26,9 @@ from semmap.eval.report_md import write_report_md
 from semmap.eval.report_plots import write_report_plots
 from semmap.eval.semantic import confusion, evaluate_2d, evaluate_cloud_3d
 from semmap.geometry import backproject_world, pixel_normals
+from semmap.interrupt import RunInterrupted, checked, deferred_interrupts, stop_requested
 from semmap.io.atomic import write_text_atomic
+from semmap.io.staged_run import StagedRun
 from semmap.keys import TREE_MAX_VAL
 from semmap.maps.base import SemanticMap
 from semmap.maps.registry import compile_kernels, get_map
@@ -125,12 +128,21 @@ def semantics_for(frame: Frame, source: SemanticSource, *, segmenter: Segmenter 
 @dataclass
 class _LoopState:
     """What the frame loop keeps: the poses frames were mapped with (in order), when each waiting frame was
-    read, each frame's latency from being read to being in the maps, and the loop's wall time."""
+    read, each frame's latency from being read to being in the maps, and the loop's wall time; and what a
+    checkpoint saves besides the maps so that ``--resume`` continues exactly: the loop's sums, the segmentation
+    schedule's own state and the last frame mapped."""
 
     poses: list[np.ndarray] = field(default_factory=list)
     arrival: dict[int, float] = field(default_factory=dict)
     latency_ms: list[float] = field(default_factory=list)
     seconds: float = 0.0
+    timings: dict[str, float] = field(default_factory=dict)
+    no_pose: list[str] = field(default_factory=list)
+    segmented: int = 0
+    conf2d: np.ndarray | None = None
+    scheduler: Scheduler | None = None
+    last_index: int | None = None  # dataset index of the last frame mapped
+    last_name: str | None = None
 
 
 class FramePoses:
@@ -213,8 +225,11 @@ class Pipeline:
                  progress: Callable[[Iterator, int], Iterator] | None = None, dataset: Dataset | None = None,
                  ground_truth: GroundTruthFn | None = None, title: str = "semmap run",
                  track_progress: Callable[[Iterator, int], Iterator] | None = None,
-                 instances: InstanceSource | None = None):
+                 instances: InstanceSource | None = None, checkpoint_every: int = 0, resume: bool = False):
         self.config = config
+        self.checkpoint_every, self.resume = int(checkpoint_every), bool(resume)
+        self._out = config.output.out  # the staging folder while the run writes (io.staged_run)
+        self._loop = _LoopState()
         self.segmenter = segmenter
         self.instances = instances  # an instance source builds the object map beside the maps
         self._objects: ObjectStage | None = None
@@ -229,8 +244,40 @@ class Pipeline:
         self._gt: dict[float, tuple[np.ndarray, np.ndarray]] = {}
 
     def run(self) -> RunResult:
-        self._conf2d = None
+        """Map the sequence; outputs appear in ``--out`` all at once at the end (a failure or Ctrl-C leaves it as it
+        was, and with checkpoints the staging folder to ``--resume`` from)."""
         check_out_dir(self.config.output.out)
+        self._check_checkpoint_options()
+        staged = StagedRun(self.config.output.out, resume=self.resume)
+        with deferred_interrupts():
+            self._out = staged.open()
+            try:
+                result = self._run(staged)
+            except RunInterrupted as exc:
+                raise RunInterrupted(f"{exc}; {staged.abandon(keep_checkpoint=True)}") from None
+            except BaseException:
+                staged.abandon(keep_checkpoint=self.checkpoint_every > 0 or self.resume)
+                raise
+            finally:
+                self._out = self.config.output.out
+        return result
+
+    def _check_checkpoint_options(self) -> None:
+        if self.checkpoint_every < 0:
+            raise ConfigError(f"--checkpoint-every must be 0 (off) or a number of frames, got {self.checkpoint_every}")
+        if not (self.checkpoint_every or self.resume):
+            return
+        if self.config.mode == LoopMode.ONLINE:
+            raise ConfigError("--checkpoint-every / --resume work offline only (online, the tracker's state is not "
+                              "saved)")
+        if self.instances is not None:
+            raise ConfigError("--checkpoint-every / --resume do not support --instances yet (the object tracker's "
+                              "state is not saved)")
+        if self.segmenter is not None and self.config.semantics.batch_size > 1:
+            raise ConfigError("--checkpoint-every / --resume need --batch-size 1 (a batch reads frames ahead)")
+
+    def _run(self, staged: StagedRun) -> RunResult:
+        self._conf2d = None
         self._viewer = get_visualizer(self.config.output, name=self.title)
         dataset = self._open()
         label_set = self._label_set(dataset)
@@ -241,7 +288,15 @@ class Pipeline:
         maps = [get_map(kind, self.config, label_set) for kind in kinds]
         mapper = Mapper(maps, min_depth=self.config.mapping.min_depth, max_depth=self.config.mapping.max_depth,
                         pixel_stride=self.config.mapping.pixel_stride)
-        pose_of = self._pose_source(dataset)
+        self._staged = staged
+        resumed = staged.load_checkpoint(self.config.to_json()) if self.resume else None
+        if resumed is not None:  # the maps, poses and sums of the last checkpoint; its frames are not read again
+            (mapper, pose_of, self._loop), _, name = resumed
+            maps = mapper.maps
+            log.info("resuming %s after frame %s", self.config.input.dataset, name)
+        else:
+            pose_of = self._pose_source(dataset)
+            self._loop = _LoopState()
         startup_s += self._prepare_tracker(first)
         self._objects = ObjectStage(self.instances) if self.instances is not None else None
         timings, poses, no_pose = self._integrate_all(dataset, mapper, label_set, pose_of)
@@ -264,7 +319,7 @@ class Pipeline:
             report["miou_3d_before_crf"] = crf[maps[0].kind]["miou_3d_before"]
         if len(maps) > 1 or crf:
             report["maps"] = self._maps_report(maps, sizes, crf)
-        out = self.config.output.out
+        out = self._out
         write_text_atomic(out / "report.json", json.dumps(report, indent=2))
         plots = write_report_plots(out, report, used=pose_of.used_trajectory(), ground_truth=pose_of.ground_truth(),
                                    cloud=maps[0].cloud()) if self.config.output.plots else {}
@@ -273,7 +328,12 @@ class Pipeline:
         files["report"], files["report_md"] = out / "report.json", out / "report.md"
         files["report_html"] = out / "report.html"
         files.update({f"plot_{name}": out / file for name, file in plots.items()})
-        return RunResult(maps, out, report, files, poses)
+        if stop_requested():
+            raise RunInterrupted("interrupted while writing the outputs")
+        staged.commit()  # every file is there: the folder becomes --out in one rename
+        final = self.config.output.out
+        files = {key: final / Path(path).relative_to(out) for key, path in files.items()}
+        return RunResult(maps, final, report, files, poses)
 
     # ---------------------------------------------------------------- steps
     def _open(self) -> Dataset:
@@ -380,7 +440,9 @@ class Pipeline:
             tracker = make_pose_tracker(source, instances=self.instances)
             if self.config.mode == LoopMode.ONLINE:  # tracked in the frame loop, frame by frame
                 return FramePoses(source, tracker=tracker)
-            trajectory = estimate_trajectory(tracker, dataset, total=len(dataset), progress=self.track_progress)
+            progress = self.track_progress or (lambda it, n: it)
+            trajectory = estimate_trajectory(tracker, dataset, total=len(dataset),  # Ctrl-C stops between frames
+                                             progress=lambda it, n: checked(progress(it, n), "tracking"))
             tracking_s = time.perf_counter() - t0
             if len(trajectory) == 0:
                 raise ConfigError(f"{self.config.input.dataset}: the {source} tracker lost every frame")
@@ -410,7 +472,7 @@ class Pipeline:
         from semmap.io.trajectory import write_trajectory
 
         final = pose_of.tracker.trajectory()
-        files["trajectory_final"] = write_trajectory(self.config.output.out / "trajectory_final.txt", final)
+        files["trajectory_final"] = write_trajectory(self._out / "trajectory_final.txt", final)
         if isinstance(pose_of.tracker, LiveTracker):
             out["loop_closures"] = pose_of.tracker.loop_closures
         out["drift_left_in"] = drift_left_in(pose_of.used_trajectory(), final, self.config.mapping.resolution)
@@ -434,7 +496,7 @@ class Pipeline:
         out: dict = {"poses": pose_of.source}
         used = pose_of.used_trajectory()
         if len(used):
-            files["trajectory"] = write_trajectory(self.config.output.out / "trajectory.txt", used)
+            files["trajectory"] = write_trajectory(self._out / "trajectory.txt", used)
         if pose_of.tracking_s is not None:
             out["tracking_ms_per_frame"] = round(1e3 * pose_of.tracking_s / max(pose_of.tracked, 1), 2)
         gt = pose_of.ground_truth()
@@ -452,15 +514,16 @@ class Pipeline:
         Offline, poses are the tracker's final trajectory (tracked in a pass before) and due frames are segmented
         in batches; online, each frame is tracked as it arrives and due frames are segmented on a thread beside
         tracking. Either way ``_integrate_frame`` sees the same frames in the same order."""
-        timings: dict[str, float] = defaultdict(float)
-        loop = _LoopState()
-        no_pose: list[str] = []
-        self._segmented = 0
-        t0 = time.perf_counter()
+        loop = self._loop  # empty, or what a checkpoint saved
+        timings: dict[str, float] = defaultdict(float, loop.timings)
+        no_pose = loop.no_pose
+        self._segmented, self._conf2d = loop.segmented, loop.conf2d
+        t0 = time.perf_counter() - loop.seconds
         with self._semantic_stream(self._posed_frames(dataset, timings, no_pose, pose_of, loop), label_set,
                                    timings) as stream:
             for frame, T, sem in stream:
                 self._integrate_frame(frame, T, sem, mapper, label_set, timings, loop)
+                self._after_frame(frame, mapper, pose_of, timings)
         loop.seconds = time.perf_counter() - t0
         if not loop.poses:
             hint = " (poses come from the dataset's ground truth, e.g. TUM groundtruth.txt)" if no_pose else ""
@@ -479,7 +542,9 @@ class Pipeline:
             yield ((f, T, semantics_for(f, s.source, segmenter=None, label_set=label_set,
                                         label_confidence=s.label_confidence, k=s.k)) for f, T in posed)
             return
-        scheduler = Scheduler(SegmentationSchedule(every=s.segment_every, keyframes=s.keyframes))
+        if self._loop.scheduler is None:  # (a resumed run continues the checkpoint's schedule)
+            self._loop.scheduler = Scheduler(SegmentationSchedule(every=s.segment_every, keyframes=s.keyframes))
+        scheduler = self._loop.scheduler
         if self.config.mode == LoopMode.OFFLINE:
             yield with_semantics(posed, self.segmenter, scheduler, batch_size=s.batch_size, timings=timings)
             return
@@ -511,6 +576,19 @@ class Pipeline:
         loop.latency_ms.append((time.perf_counter() - loop.arrival.pop(id(frame))) * 1e3)
         self._viewer.log_frame(frame, T, sem, mapper.maps[0])
 
+    def _after_frame(self, frame: Frame, mapper: Mapper, pose_of: FramePoses, timings: dict[str, float]) -> None:
+        """Checkpoint every ``checkpoint_every`` mapped frames (and on Ctrl-C), then stop here if asked to."""
+        loop = self._loop
+        loop.last_index, loop.last_name = int(frame.index), frame.name
+        interrupted = stop_requested()
+        if self.checkpoint_every and (len(loop.poses) % self.checkpoint_every == 0 or interrupted):
+            loop.timings, loop.segmented, loop.conf2d = dict(timings), self._segmented, self._conf2d
+            saved = dataclasses.replace(loop, arrival={})  # (offline with batches of one: nothing is waiting)
+            self._staged.save_checkpoint((mapper, pose_of, saved), config_json=self.config.to_json(),
+                                         frame_index=loop.last_index, frame_name=frame.name)
+        if interrupted:
+            raise RunInterrupted(f"interrupted after frame {frame.name} ({len(loop.poses)} frames mapped)")
+
     def _warn_if_empty(self, primary: SemanticMap, mapper: Mapper, poses: list[np.ndarray]) -> None:
         """A run whose frames added nothing to the map says so, with the likely reason."""
         if len(primary.cloud()):
@@ -534,8 +612,15 @@ class Pipeline:
         """``(frame, T_world_cam)`` for every readable frame with a pose, behind the progress bar; frames
         without a pose are warned about and listed in ``no_pose``.  Online, the tracker runs here."""
         frames = self.progress(iter(dataset), len(dataset))
+        after = loop.last_index  # frames up to it are in the checkpoint's maps already
         t_load = time.perf_counter()
         for frame in frames:
+            if stop_requested():
+                raise RunInterrupted(f"interrupted after frame {loop.last_name or '(none)'} "
+                                     f"({len(loop.poses)} frames mapped)")
+            if after is not None and frame.index <= after:
+                t_load = time.perf_counter()
+                continue
             arrived = time.perf_counter()
             timings["load"] += (arrived - t_load) * 1e3
             T, reason = pose_of(frame)
@@ -567,7 +652,7 @@ class Pipeline:
 
     def _write_outputs(self, maps: list[SemanticMap], poses: list[np.ndarray]):
         """Every map's files, the preview of the primary map and the configuration."""
-        out = self.config.output.out
+        out = self._out
         out.mkdir(parents=True, exist_ok=True)
         sizes: dict[str, int] = {}
         for m in maps:

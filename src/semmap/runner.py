@@ -69,9 +69,11 @@ def instance_source_for(config: RunConfig, segmenter):
 
 
 def run_config(config: RunConfig, *, progress: Progress | None = None, track_progress: Progress | None = None,
-               title: str = "semmap run") -> RunResult:
-    """Map ``config.input.dataset`` into ``config.output.out`` exactly as ``semmap run`` does."""
+               title: str = "semmap run", checkpoint_every: int = 0, resume: bool = False) -> RunResult:
+    """Map ``config.input.dataset`` into ``config.output.out`` exactly as ``semmap run`` does (``checkpoint_every``
+    frames a checkpoint; ``resume`` continues from the last one)."""
     segmenter = segmenter_for(config)
     return Pipeline(config, segmenter=segmenter, progress=progress, track_progress=track_progress,
                     ground_truth=simulated_ground_truth(config.input.dataset), title=title,
-                    instances=instance_source_for(config, segmenter)).run()
+                    instances=instance_source_for(config, segmenter), checkpoint_every=checkpoint_every,
+                    resume=resume).run()

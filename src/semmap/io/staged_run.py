@@ -1,0 +1,125 @@
+"""The on-disk life of one run's outputs: written into a staging folder beside ``--out`` and moved into place only
+when every file is there, checkpoints kept in that folder, and a run killed half-way resumed from it.
+
+``.OUT.partial`` (beside ``OUT``) holds the files while the run writes them, ``owner`` (the pid of the run writing
+there) and ``checkpoint.npz`` (the run's state after some frame). ``commit()`` renames the staging folder to
+``OUT`` (an earlier ``OUT`` is moved aside first and removed after), so ``OUT`` only ever holds one complete run.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import logging
+import os
+import shutil
+from pathlib import Path
+
+from semmap.errors import ConfigError, FormatError
+
+LOG = logging.getLogger("semmap")
+CHECKPOINT = "checkpoint.npz"
+OWNER = "owner"
+
+
+def staging_folder(out: Path) -> Path:
+    """Where a run into ``out`` writes before its outputs are complete."""
+    return out.parent / f".{out.name}.partial"
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True
+
+
+class StagedRun:
+    """Staging folder, checkpoints and the final move of one run's outputs."""
+
+    def __init__(self, out: Path, *, resume: bool = False) -> None:
+        self.out = Path(out)
+        self.stage = staging_folder(self.out)
+        self.resume = resume
+        self.committed = False
+
+    # ------------------------------------------------------------------ start
+    def open(self) -> Path:
+        """Claim the staging folder (refusing one a live run owns); without ``resume`` an old one is cleared."""
+        owner = self.stage / OWNER
+        if owner.is_file():
+            try:
+                pid = int(owner.read_text().strip() or 0)
+            except (OSError, ValueError):
+                pid = 0
+            if pid and pid != os.getpid() and _alive(pid):
+                raise ConfigError(f"--out {self.out}: another semmap run (pid {pid}) is writing there now")
+        if self.stage.exists() and not self.resume:
+            shutil.rmtree(self.stage)  # what a crashed run left behind; only --resume picks it up
+        self.stage.mkdir(parents=True, exist_ok=True)
+        owner.write_text(str(os.getpid()))
+        return self.stage
+
+    # ------------------------------------------------------------------ checkpoints
+    @property
+    def checkpoint_path(self) -> Path:
+        return self.stage / CHECKPOINT
+
+    def save_checkpoint(self, state, *, config_json: str, frame_index: int, frame_name: str) -> None:
+        """The run's state after frame ``frame_index`` (written atomically: a kill mid-write keeps the last one)."""
+        from semmap.io.state import save_state
+
+        save_state(self.checkpoint_path, state, meta={"config": json.loads(config_json), "frame_index": frame_index,
+                                                      "frame_name": frame_name})
+
+    def load_checkpoint(self, config_json: str):
+        """``(state, frame_index, frame_name)`` of the last checkpoint of this configuration, or None (with a
+        warning) when there is none to resume from."""
+        from semmap.io.state import load_state
+
+        if not self.checkpoint_path.is_file():
+            LOG.warning("--resume: no checkpoint in %s; starting from the first frame", self.stage)
+            return None
+        try:
+            state, meta = load_state(self.checkpoint_path)
+        except FormatError as exc:
+            LOG.warning("--resume: the checkpoint cannot be read (%s); starting from the first frame", exc)
+            return None
+        if meta.get("config") != json.loads(config_json):
+            LOG.warning("--resume: the checkpoint in %s is of another configuration; starting from the first frame",
+                        self.stage)
+            return None
+        return state, int(meta["frame_index"]), str(meta.get("frame_name", meta["frame_index"]))
+
+    # ------------------------------------------------------------------ end
+    def commit(self) -> None:
+        """Move the finished outputs into ``out`` (replacing an earlier run's folder as a whole)."""
+        for name in (CHECKPOINT, OWNER):
+            with contextlib.suppress(FileNotFoundError):
+                (self.stage / name).unlink()
+        old = self.out.parent / f".{self.out.name}.old-{os.getpid()}"
+        if self.out.exists():
+            os.replace(self.out, old)
+        try:
+            os.replace(self.stage, self.out)
+        except OSError:
+            if old.exists():
+                os.replace(old, self.out)  # put the earlier run back rather than leave nothing
+            raise
+        shutil.rmtree(old, ignore_errors=True)
+        self.committed = True
+
+    def abandon(self, *, keep_checkpoint: bool) -> str:
+        """After a failure or an interruption: remove the staging folder, or keep it when it holds a checkpoint to
+        resume from; returns what was kept, for the user."""
+        if self.committed:
+            return "outputs written"
+        if keep_checkpoint and self.checkpoint_path.is_file():
+            with contextlib.suppress(FileNotFoundError):
+                (self.stage / OWNER).unlink()
+            return f"{self.out} untouched; checkpoint kept in {self.stage} (continue with --resume)"
+        shutil.rmtree(self.stage, ignore_errors=True)
+        return "nothing written"
