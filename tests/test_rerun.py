@@ -3,6 +3,8 @@ trajectory and the map in class colours; `semmap view` writes a finished map the
 
 from __future__ import annotations
 
+import json
+
 import numpy as np
 import pytest
 
@@ -112,3 +114,24 @@ def test_spawning_a_viewer_without_a_display_is_one_clear_line(room, tmp_path):
                         "--rerun-spawn"], capture_output=True, text=True, timeout=120, env=env)
     assert r.returncode == 1 and "cannot open a rerun viewer: no display" in r.stderr
     assert "Traceback" not in r.stderr and not (tmp_path / "o").exists()
+
+
+def test_objects_are_logged_as_labelled_boxes_when_the_run_builds_them(tmp_path):
+    from object_helpers import box_frames
+    from semmap.config import ObjectsConfig
+    from semmap.runner import run_config
+    from semmap.sim.labels import INDOOR_LABELS
+
+    chair, table = INDOOR_LABELS.id_of("chair"), INDOOR_LABELS.id_of("table")
+    boxes = [(np.array([-0.2, -0.8, 0.0]), np.array([0.2, -0.4, 0.8])),
+             (np.array([0.2, 0.9, 0.0]), np.array([1.2, 1.5, 0.75]))]
+    write_tum_sequence(tmp_path / "seq", box_frames(boxes, [chair, table], 16), label_set=INDOOR_LABELS)
+    rrd = tmp_path / "objects.rrd"
+    config = RunConfig(input=InputConfig(dataset=tmp_path / "seq"), mapping=MappingConfig(resolution=0.05),
+                       objects=ObjectsConfig(instances="oracle"),
+                       output=OutputConfig(out=tmp_path / "out", plots=False, rerun=rrd, rerun_map_every=8))
+    result = run_config(config)
+    labels = _column(_read_rrd(rrd)["/world/objects"], "Boxes3D:labels")[-1]
+    objects = json.loads((result.out_dir / "objects.json").read_text())["objects"]
+    assert len(labels) == len(objects) > 0
+    assert sorted(labels) == sorted(f"{o['id']} {o['class']}" for o in objects)

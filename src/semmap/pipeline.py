@@ -299,6 +299,8 @@ class Pipeline:
             self._loop = _LoopState()
         startup_s += self._prepare_tracker(first)
         self._objects = ObjectStage(self.instances) if self.instances is not None else None
+        if self._objects is not None:
+            self._viewer.show_objects(self._objects.map.real_objects, self._objects.map.label_set)
         timings, poses, no_pose = self._integrate_all(dataset, mapper, label_set, pose_of)
         self._viewer.finish(maps[0])
         self._warn_if_empty(maps[0], mapper, poses)

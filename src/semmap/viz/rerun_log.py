@@ -12,6 +12,7 @@ import logging
 import os
 import shutil
 import sys
+from collections.abc import Callable
 from pathlib import Path
 from typing import Protocol
 
@@ -47,6 +48,11 @@ class Visualizer(Protocol):
         """The final map; flush and close."""
         ...
 
+    def show_objects(self, objects: Callable[[], list], label_set: LabelSet | None) -> None:
+        """Log the object map too, whenever the map is logged: ``objects()`` gives its objects (``lo``, ``hi``,
+        ``id``, ``class_id``)."""
+        ...
+
 
 class NoVisualizer:
     """The visualizer of a run without a viewer: every call does nothing."""
@@ -55,6 +61,9 @@ class NoVisualizer:
         pass
 
     def finish(self, map_: MapLike) -> None:
+        pass
+
+    def show_objects(self, objects: Callable[[], list], label_set: LabelSet | None) -> None:
         pass
 
 
@@ -119,6 +128,7 @@ class RerunVisualizer:
         self._rr = rr
         self.rec = open_recording(recording_name, save=save, spawn=spawn)
         self.map_every = map_every
+        self._objects: tuple[Callable[[], list], LabelSet | None] | None = None
         self._positions: list[np.ndarray] = []
         self._frames = 0
         self._last_map_frame = -1
@@ -157,9 +167,14 @@ class RerunVisualizer:
             self.rec.log("world/trajectory", self._rr.LineStrips3D([np.stack(self._positions)],
                                                                   colors=[(255, 140, 0)]))
 
+    def show_objects(self, objects: Callable[[], list], label_set: LabelSet | None) -> None:
+        self._objects = (objects, label_set)
+
     def _log_map(self, map_: MapLike) -> None:
         self._last_map_frame = self._frames
         log_cloud(self.rec, "world/map", map_.cloud(), map_.label_set)
+        if self._objects is not None:
+            log_objects(self.rec, "world/objects", self._objects[0](), self._objects[1])
 
 
 def log_classes(rec, label_set: LabelSet) -> None:
@@ -179,6 +194,25 @@ def log_cloud(rec, entity: str, cloud: MapCloud, label_set: LabelSet | None) -> 
     class_ids = np.where(cloud.labels == EMPTY_LABEL, 0, cloud.labels).astype(np.uint16)
     rec.log(entity, rr.Boxes3D(centers=cloud.centers.astype(np.float32), half_sizes=[half, half, half],
                                colors=class_colors(cloud, label_set), class_ids=class_ids, fill_mode="solid"))
+
+
+def log_objects(rec, entity: str, objects: list, label_set: LabelSet | None) -> None:
+    """Objects as boxes around their points, in their class colour, labelled ``id class``."""
+    import rerun as rr
+
+    objects = [o for o in objects if np.isfinite(o.lo).all() and np.isfinite(o.hi).all()]
+    if not objects:
+        rec.log(entity, rr.Clear(recursive=False))
+        return
+    lo, hi = np.stack([o.lo for o in objects]), np.stack([o.hi for o in objects])
+    ids = np.array([o.class_id for o in objects], np.uint16)
+    names = label_set.names if label_set is not None else ()
+    labels = [f"{o.id} {names[o.class_id] if o.class_id < len(names) else o.class_id}" for o in objects]
+    colors = (label_set.colors[np.minimum(ids, len(label_set) - 1)] if label_set is not None
+              else np.full((len(objects), 3), 200, np.uint8))
+    rec.log(entity, rr.Boxes3D(centers=((lo + hi) / 2).astype(np.float32),
+                               half_sizes=((hi - lo) / 2).astype(np.float32), colors=colors, labels=labels,
+                               class_ids=ids))
 
 
 def get_visualizer(output, *, name: str = "semmap run") -> Visualizer:
