@@ -2,8 +2,8 @@
 
     python benchmarks/update_docs.py [--quick] [--only fusion,demo,...]
 
-``--only`` re-runs the named parts (octree, sim, tracking, segmenters, fusion, demo) and takes the others' last
-results from the JSON block at the end of docs/BENCHMARKS.md.
+``--only`` re-runs the named parts (octree, sim, tracking, segmenters, fusion, demo, end_to_end) and takes the
+others' last results from the JSON block at the end of docs/BENCHMARKS.md.
 
 Each benchmark runs as its own process and its last stdout line (one JSON object) is parsed, so the numbers in
 the docs are exactly what the scripts printed on this machine.
@@ -60,6 +60,33 @@ def octree_table(bench: dict) -> list[str]:
     return rows
 
 
+def octree_reference_table(bench: dict) -> list[str]:
+    """semmap's full insertion against the occupancy-only yardstick, consecutive and sparse frames (medians)."""
+    rows = ["| frames | resolution | semmap ms/frame | occupancy-only ms/frame | ×of the yardstick | state agreement |",
+            "|---|---|---|---|---|---|"]
+    for case, key in (("consecutive", "results"), (f"every {bench.get('sparse_stride', 50)}th", "sparse_results")):
+        for r in bench.get(key, []):
+            if "reference_median_ms" not in r:
+                continue
+            rows.append(f"| {case} | {r['resolution']} m | {r['semmap_median_ms']} | {r['reference_median_ms']} | "
+                        f"**{r['vs_reference_median']}** | {r['agreement']:.4%} |")
+    return rows
+
+
+def end_to_end_table(bench: dict) -> list[str]:
+    """Frames per second, latency, memory and ATE of online and offline runs (SLAM poses, ESPNetv2 every 5th)."""
+    rows = ["| sequence | resolution | mode | frames/s | latency ms (median / p95) | peak MB | ATE cm | "
+            "online / offline frames/s |", "|---|---|---|---|---|---|---|---|"]
+    for r in bench["results"]:
+        lat = r.get("latency_ms")
+        ratio = r.get("vs_offline", {}).get("fps", "")
+        rows.append(f"| {r['sequence']} | {r['resolution']} m | {r['mode']} | {r['fps']} | "
+                    + (f"{lat['median']:.0f} / {lat['p95']:.0f}" if lat else "-")
+                    + f" | {r['peak_rss_mb']:.0f} | " + ("-" if r["ate_m"] is None else f"{100 * r['ate_m']:.2f}")
+                    + f" | {f'**{ratio}**' if ratio else ''} |")
+    return rows
+
+
 #: methods shown in the README's tracking table (docs/BENCHMARKS.md lists them all)
 README_TRACKERS = ("semmap-slam", "semmap-slam-orb", "semmap-odometry", "open3d-f2f")
 
@@ -83,9 +110,13 @@ def tracking_table(bench: dict, methods: tuple[str, ...] | None = None, sim3: bo
 
 def segmenter_table(bench: dict) -> list[str]:
     """CPU time per 640x480 frame (everything a run pays) and of the network alone, per model, input, runtime."""
-    out = ["| model | network input | runtime | ms/frame | network ms |", "|---|---|---|---|---|"]
+    out = ["| model | network input | runtime | ms/frame | network ms | start-up s (first run / later) |",
+           "|---|---|---|---|---|---|"]
     for r in bench["results"]:
-        out.append(f"| {r['model']} | {r['input']} | {r['backend']} | {r['ms_per_frame']} | {r['network_ms']} |")
+        start = (f"{r['prepare_s']}" + (f" / {r['prepare_cached_s']}" if r.get("prepare_cached_s") else "")
+                 if "prepare_s" in r else "-")
+        out.append(f"| {r['model']} | {r['input']} | {r['backend']} | {r['ms_per_frame']} | {r['network_ms']} | "
+                   f"{start} |")
     return out
 
 
@@ -164,11 +195,25 @@ def demo_lines(report: dict) -> list[str]:
     ]
 
 
+def end_to_end_section(bench: dict | None, heading: bool = True) -> list[str]:
+    """The end-to-end table with its heading and how it was measured (nothing without results)."""
+    if not bench:
+        return []
+    head = ["## End to end (`semmap run --online`)", ""] if heading else []
+    return [*head, "`benchmarks/bench_end_to_end.py`: `semmap run` with `--poses slam` and ESPNetv2 s=2.0 (ONNX) "
+            f"every {bench['segment_every']}th frame, online and offline (track first, then map) on the same frames, "
+            "each in its own process; frames/s over a frame's work (start-up and writing files apart), latency from "
+            "a frame being read to its voxels being in the map:", "", *end_to_end_table(bench), ""]
+
+
 #: part -> (key in the JSON block, script); the demo is run through the CLI.
 PARTS = {"octree": ("octree_vs_octomap", "benchmarks/bench_octree_vs_octomap.py"),
          "sim": ("sim", "benchmarks/bench_sim.py"), "tracking": ("tracking", "benchmarks/bench_tracking.py"),
          "segmenters": ("segmenters", "benchmarks/bench_segmenters.py"),
-         "fusion": ("fusion", "benchmarks/bench_fusion.py"), "demo": ("demo", None)}
+         "fusion": ("fusion", "benchmarks/bench_fusion.py"), "demo": ("demo", None),
+         "end_to_end": ("end_to_end", "benchmarks/bench_end_to_end.py")}
+#: parts the docs can do without when an earlier run did not have them yet
+OPTIONAL = {"end_to_end"}
 #: What the docs use of the demo's report (kept in the JSON block so ``--only`` can reuse it).
 DEMO_KEYS = ("miou_3d", "oracle_miou_2d", "geometric_precision_3d", "frames_used", "ms_per_frame", "bytes_on_disk",
              "dense_point_cloud_bytes")
@@ -190,6 +235,8 @@ def collect(only: set[str], quick: bool) -> dict:
     out = {}
     for part, (key, script) in PARTS.items():
         if only and part not in only:
+            if key not in old and part in OPTIONAL:
+                continue
             if key not in old:
                 raise SystemExit(f"update_docs: no earlier {part} results in docs/BENCHMARKS.md; run it too")
             out[key] = old[key]
@@ -224,6 +271,10 @@ def main() -> None:
         "OctoMap (pyoctomap `OcTree.insertPointCloud`) occupancy only. Agreement: share of cells known to either map "
         "whose occupied / free / unknown state equals OctoMap's discretized insert.", "",
         *octree_table(octree), "",
+        "Against the occupancy-only yardstick (`benchmarks/occupancy_reference.py`: a plain hash map, no colour or "
+        "semantics), timed in turns with semmap, each frame's best of the repeats, median over frames; the sparse "
+        "case takes every 50th 7-Scenes frame, so each brings much new space:", "",
+        *octree_reference_table(octree), "",
         "Per-stage semmap times (ms/frame): " + "; ".join(
             f"{r['resolution']} m: " + ", ".join(f"{k} {v}" for k, v in r["semmap_stage_ms"].items())
             for r in octree["results"]), "",
@@ -250,6 +301,7 @@ def main() -> None:
         "per voxel), then refined by the 3D CRF and scored again. Means over the scenes; B/voxel is memory per "
         "stored voxel or point; ms/frame is integration only, on a machine shared with other jobs.", "",
         *fusion_table(fusion), "", *fusion_targets(fusion), "",
+        *end_to_end_section(results.get("end_to_end")),
         "## Demo (`semmap demo`)", "", *demo_lines(demo), "",
         "```json", json.dumps(results, indent=1), "```", "",
     ]
@@ -262,6 +314,7 @@ def main() -> None:
                  "[docs/BENCHMARKS.md](docs/BENCHMARKS.md)):", "", *tracking_table(tracking, README_TRACKERS), "",
                  "ESPNetv2 segmentation on the CPU (`benchmarks/bench_segmenters.py`):", "",
                  *segmenter_table(segmenters), "",
+                 *end_to_end_section(results.get("end_to_end"), heading=False),
                  "Label fusion and maps (`benchmarks/bench_fusion.py`; the full table in "
                  "[docs/BENCHMARKS.md](docs/BENCHMARKS.md)):", "", *fusion_targets(fusion), "", END]
         head, rest = readme.split(START, 1)

@@ -177,3 +177,36 @@ def test_dense_slam_live_pose_is_the_last_frame_through_the_optimised_keyframes(
     final = slam.trajectory()  # optimises the pose graph; the last frame has no next keyframe to blend towards
     np.testing.assert_allclose(slam.live_pose(), final.poses[-1], atol=1e-9)
     assert slam.loop_closures == 0
+
+
+def test_frames_read_ahead_come_in_order_bounded_and_stop_with_the_loop():
+    from semmap.datasets.prefetch import Prefetcher
+
+    read = []
+
+    def frames():
+        for i in range(50):
+            read.append(i)
+            yield i
+
+    with Prefetcher(frames(), depth=2) as ahead:
+        got = []
+        for item, stamp in ahead:
+            assert stamp <= time.perf_counter()
+            got.append(item)
+            time.sleep(0.002)
+            assert len(read) - len(got) <= 3  # two waiting, one in the reader's hands
+            if item == 9:
+                break
+    assert got == list(range(10)) and len(read) <= 13
+
+
+def test_a_reader_error_reaches_the_loop():
+    from semmap.datasets.prefetch import Prefetcher
+
+    def frames():
+        yield 1
+        raise OSError("disk gone")
+
+    with Prefetcher(frames()) as ahead, pytest.raises(OSError, match="disk gone"):
+        list(ahead)

@@ -147,7 +147,9 @@ class OnlineConfig(_Section):
     max_pending: int = Field(8, ge=1, description="frames waiting behind a frame still being segmented before "
                                                   "tracking waits too")
     segment_queue: int = Field(2, ge=1, description="frames queued for or in segmentation at once")
+    segment_threads: int = Field(1, ge=1, description="threads of the network runtime (ONNX Runtime / PyTorch)")
     segment_numba_threads: int = Field(1, ge=1, description="numba threads of the segmentation thread's kernels")
+    read_ahead: int = Field(2, ge=1, description="frames read (decoded, colour registered) ahead on a thread")
 
 
 class CrfConfig(_Section):

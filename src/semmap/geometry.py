@@ -70,7 +70,7 @@ def backproject(depth: np.ndarray, intrinsics: CameraIntrinsics, *, min_depth: f
     return points, vs.astype(np.int64) * intrinsics.width + us
 
 
-@nb.njit(cache=True, parallel=True)
+@nb.njit(cache=True, parallel=True, nogil=True)
 def _backproject_world(depth, rx, ry, T, min_depth, max_depth, stride):
     H, W = depth.shape
     rows = (H + stride - 1) // stride
@@ -184,7 +184,7 @@ def onto_depth_grid(frame: Frame, *per_color_pixel: np.ndarray) -> tuple[np.ndar
     return tuple(out)
 
 
-@nb.njit(cache=True, parallel=True)
+@nb.njit(cache=True, parallel=True, nogil=True)
 def _pixel_normals(depth, rx, ry, R, pixels, max_jump):
     H, W = depth.shape
     out = np.zeros((pixels.shape[0], 3), np.float32)

@@ -11,7 +11,7 @@ import json
 import logging
 import time
 from collections import defaultdict
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterable, Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -20,6 +20,7 @@ import numpy as np
 
 from semmap.config import ColorMode, LoopMode, RunConfig, SemanticSource
 from semmap.datasets import Dataset, open_dataset
+from semmap.datasets.prefetch import Prefetcher
 from semmap.errors import ConfigError
 from semmap.eval.report_html import write_report_html
 from semmap.eval.report_md import write_report_md
@@ -312,6 +313,10 @@ class Pipeline:
             report["segmenter_startup_s"] = round(segmenter_s, 3)
         report.update(self._trajectory_outputs(pose_of, files))
         report["peak_rss_mb"] = round(peak_rss_mb(), 1)
+        # frames per second of the work a frame needs (the tracking pass before, offline, and the frame loop)
+        before = (pose_of.tracking_s or 0.0) if pose_of.tracker is None else 0.0  # online it is inside the loop
+        pass_s = self._loop.seconds + before
+        report["frames_per_second"] = round(len(poses) / max(pass_s, 1e-9), 2)
         if self.config.mode == LoopMode.ONLINE:
             report["online"] = self._online_report(pose_of, files)
         if self._objects is not None:
@@ -612,30 +617,40 @@ class Pipeline:
     def _posed_frames(self, dataset: Dataset, timings: dict[str, float], no_pose: list[str], pose_of: FramePoses,
                       loop: _LoopState):
         """``(frame, T_world_cam)`` for every readable frame with a pose, behind the progress bar; frames
-        without a pose are warned about and listed in ``no_pose``.  Online, the tracker runs here."""
-        frames = self.progress(iter(dataset), len(dataset))
+        without a pose are warned about and listed in ``no_pose``.  Online, the next frames are read on a
+        thread meanwhile and the tracker runs here.  ``load`` is the time the loop waited for a frame."""
         after = loop.last_index  # frames up to it are in the checkpoint's maps already
-        t_load = time.perf_counter()
-        for frame in frames:
-            if stop_requested():
-                raise RunInterrupted(f"interrupted after frame {loop.last_name or '(none)'} "
-                                     f"({len(loop.poses)} frames mapped)")
-            if after is not None and frame.index <= after:
-                t_load = time.perf_counter()
-                continue
-            arrived = time.perf_counter()
-            timings["load"] += (arrived - t_load) * 1e3
-            T, reason = pose_of(frame)
-            if pose_of.tracker is not None:
-                timings["track"] += (time.perf_counter() - arrived) * 1e3
-            if T is not None:
-                loop.arrival[id(frame)] = arrived
-            if T is None:
-                log.warning("frame %s has no pose (%s); skipped", frame.name, reason)
-                no_pose.append(frame.name)
-            else:
-                yield frame, T
-            t_load = time.perf_counter()
+        with self._arrivals(dataset) as arrivals:
+            t_wait = time.perf_counter()
+            for frame, arrived in self.progress(arrivals, len(dataset)):
+                if stop_requested():
+                    raise RunInterrupted(f"interrupted after frame {loop.last_name or '(none)'} "
+                                         f"({len(loop.poses)} frames mapped)")
+                if after is not None and frame.index <= after:
+                    t_wait = time.perf_counter()
+                    continue
+                t_pose = time.perf_counter()
+                timings["load"] += (t_pose - t_wait) * 1e3
+                T, reason = pose_of(frame)
+                if pose_of.tracker is not None:
+                    timings["track"] += (time.perf_counter() - t_pose) * 1e3
+                if T is None:
+                    log.warning("frame %s has no pose (%s); skipped", frame.name, reason)
+                    no_pose.append(frame.name)
+                else:
+                    loop.arrival[id(frame)] = arrived
+                    yield frame, T
+                t_wait = time.perf_counter()
+
+    @contextmanager
+    def _arrivals(self, dataset: Dataset) -> Iterator[Iterable[tuple[Frame, float]]]:
+        """The dataset's frames with the time each was read: read ahead on a thread online (bounded), in turn
+        offline."""
+        if self.config.mode == LoopMode.ONLINE:
+            with Prefetcher(dataset, depth=self.config.online.read_ahead) as frames:
+                yield frames
+        else:
+            yield ((frame, time.perf_counter()) for frame in dataset)
 
     def _score_segmentation(self, sem: TopKProbs, gt_labels: np.ndarray, num_classes: int) -> None:
         """Accumulate the per-pixel confusion of the segmenter against ground-truth labels."""

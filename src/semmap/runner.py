@@ -7,7 +7,7 @@ from __future__ import annotations
 from collections.abc import Callable, Iterator
 from pathlib import Path
 
-from semmap.config import RunConfig, SemanticSource
+from semmap.config import LoopMode, RunConfig, SemanticSource
 from semmap.pipeline import Pipeline, RunResult
 
 Progress = Callable[[Iterator, int], Iterator]
@@ -46,9 +46,11 @@ def segmenter_for(config: RunConfig):
 
         label_set = open_dataset(config.input.dataset, config.input.format, max_frames=1,
                                  ros=config.input.ros.options()).label_set
+    # online, the network has one core to itself beside tracking and mapping (its own threads would fight theirs)
+    threads = config.online.segment_threads if config.mode == LoopMode.ONLINE else None
     return make_segmenter(name, weights=s.weights, label_set=label_set, k=s.k, label_confidence=s.label_confidence,
                           oracle_preset=s.oracle_preset, seed=s.seed, backend=s.backend, batch_size=s.batch_size,
-                          input_size=s.input_size)
+                          input_size=s.input_size, threads=threads)
 
 
 def instance_source_for(config: RunConfig, segmenter):

@@ -41,7 +41,7 @@ PREFETCH_AHEAD = 32
 _FUSE_SCRATCH = 16
 
 
-@nb.njit(cache=True, parallel=True)
+@nb.njit(cache=True, parallel=True, nogil=True)
 def point_keys(points: np.ndarray, res_factor: float, n_chunks: int, keys: np.ndarray, valid: np.ndarray):
     """Fill ``keys`` (N, 3) int32 with the keys of points (float32 or float64, taken as float32) and ``valid``
     (N,) with "finite and inside the key range"; returns per-chunk bounding boxes (n_chunks, 6) = (min xyz,
@@ -102,7 +102,7 @@ def _target(kx, ky, kz, ox: np.float32, oy: np.float32, oz: np.float32, resoluti
     return False
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)
 def scan_endpoints(keys: np.ndarray, valid: np.ndarray, grid: np.ndarray,
                    g0x: int, g0y: int, g0z: int, gnx: int, gny: int, gnz: int,
                    origin: np.ndarray, resolution: float, max_range: float,
@@ -139,7 +139,7 @@ def scan_endpoints(keys: np.ndarray, valid: np.ndarray, grid: np.ndarray,
     return m
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)
 def far_targets(keys: np.ndarray, idx: np.ndarray, origin: np.ndarray, resolution: float,
                 max_range: float) -> np.ndarray:
     """Ray targets (M, 3) float32 of endpoint cells beyond the range-limited grid (all max-range readings)."""
@@ -163,7 +163,7 @@ def _trace_chunk(origin, targets, lo: int, hi: int, resolution, res_factor, grid
     return s
 
 
-@nb.njit(cache=True, parallel=True)
+@nb.njit(cache=True, parallel=True, nogil=True)
 def _cast_rays_parallel(origin, targets, resolution, res_factor, grid, g0x, g0y, g0z, gny, gnz, n_chunks) -> int:
     m = targets.shape[0]
     chunk = (m + n_chunks - 1) // n_chunks
@@ -174,7 +174,7 @@ def _cast_rays_parallel(origin, targets, resolution, res_factor, grid, g0x, g0y,
     return steps.sum()
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)
 def _cast_rays_serial(origin, targets, resolution, res_factor, grid, g0x, g0y, g0z, gny, gnz) -> int:
     return _trace_chunk(origin, targets, 0, targets.shape[0], resolution, res_factor, grid, g0x, g0y, g0z, gny, gnz)
 
@@ -188,7 +188,7 @@ def cast_rays(origin: np.ndarray, targets: np.ndarray, resolution: float, res_fa
     return int(_cast_rays_serial(origin, targets, resolution, res_factor, grid, g0x, g0y, g0z, gny, gnz))
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)
 def collect_free(grid: np.ndarray, n_cells: int, g0x: int, g0y: int, g0z: int, gny: int, gnz: int,
                  out: np.ndarray):
     """Packed keys of the cells marked free in the first ``n_cells`` bytes of the grid, in grid order, read 8
@@ -244,7 +244,7 @@ def _update_part(cells, n: int, part: int, n_parts: int, start: int, keys, logod
     return n
 
 
-@nb.njit(cache=True, parallel=True)
+@nb.njit(cache=True, parallel=True, nogil=True)
 def _update_parallel(cells, n, progress, keys, logodds, attr, counts, shard_cap, delta, clamp_lo, clamp_hi,
                      fill_limit, slots) -> None:
     n_parts = progress.shape[0]
@@ -253,7 +253,7 @@ def _update_parallel(cells, n, progress, keys, logodds, attr, counts, shard_cap,
                                       shard_cap, delta, clamp_lo, clamp_hi, fill_limit, slots)
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)
 def _update_serial(cells, n, progress, keys, logodds, attr, counts, shard_cap, delta, clamp_lo, clamp_hi,
                    fill_limit, slots) -> None:
     n_parts = progress.shape[0]
@@ -279,7 +279,7 @@ def update_cells(cells: np.ndarray, n: int, progress: np.ndarray, keys: np.ndarr
     return bool((progress >= n).all())
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)
 def assign_rows(attr: np.ndarray, slots: np.ndarray, hit: np.ndarray, n_attr: int, rows: np.ndarray) -> int:
     """Attribute row of every hit cell (a first hit gets the next free row, in cell order) into ``rows`` (-1 for
     max-range cells); returns the new row count."""
@@ -331,7 +331,7 @@ def _attribute_chunk(rows, point_index, lo: int, hi: int, colors, has_colors: bo
                       map_labels[a], map_probs[a], si, sf)
 
 
-@nb.njit(cache=True, parallel=True)
+@nb.njit(cache=True, parallel=True, nogil=True)
 def _attributes_parallel(rows, point_index, colors, has_colors, sem_labels, sem_probs, has_semantics,
                          rgb, rgb_count, map_labels, map_probs, lam, max_confidence, n_chunks) -> None:
     m = rows.shape[0]
@@ -341,7 +341,7 @@ def _attributes_parallel(rows, point_index, colors, has_colors, sem_labels, sem_
                          sem_probs, has_semantics, rgb, rgb_count, map_labels, map_probs, lam, max_confidence)
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)
 def _attributes_serial(rows, point_index, colors, has_colors, sem_labels, sem_probs, has_semantics,
                        rgb, rgb_count, map_labels, map_probs, lam, max_confidence) -> None:
     _attribute_chunk(rows, point_index, 0, rows.shape[0], colors, has_colors, sem_labels, sem_probs,
@@ -362,7 +362,7 @@ def update_attributes(rows: np.ndarray, point_index: np.ndarray, colors: np.ndar
         _attributes_serial(*args)
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)
 def max_class_id(labels: np.ndarray, empty: int) -> int:
     """Largest class id in a (N, k) uint16 array, empty slots aside (-1 when there is none)."""
     flat = labels.reshape(-1)

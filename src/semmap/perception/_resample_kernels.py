@@ -12,7 +12,7 @@ import numba as nb
 import numpy as np
 
 
-@nb.njit(parallel=True, cache=True)
+@nb.njit(parallel=True, cache=True, nogil=True)
 def softmax_channels_last(logits: np.ndarray) -> np.ndarray:
     """(h, w, K) float32 probabilities from (K, h, w) float32 logits (max-subtracted, so large logits are safe)."""
     n_classes, h, w = logits.shape
@@ -33,7 +33,7 @@ def softmax_channels_last(logits: np.ndarray) -> np.ndarray:
     return out
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)
 def _taps(n_out: int, n_src: int, scale: float, offset: float):
     """For each output index i, the two source indices and the weight of the second for s = scale*i + offset,
     clamped to the source grid (the border pixels repeat, as in torch and OpenCV)."""
@@ -49,7 +49,7 @@ def _taps(n_out: int, n_src: int, scale: float, offset: float):
     return i0, i1, frac
 
 
-@nb.njit(parallel=True, cache=True)
+@nb.njit(parallel=True, cache=True, nogil=True)
 def resample_topk(probs: np.ndarray, out_h: int, out_w: int, sy: float, oy: float, sx: float, ox: float,
                   k: int, empty_label: int):
     """Bilinearly sample (h, w, K) ``probs`` at rows ``sy*y + oy`` and columns ``sx*x + ox`` of an

@@ -78,7 +78,7 @@ def _accumulate(row, p0, p1, p2, g0, g1, g2, r, delta):
     row[27] += r * r
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)
 def _sum_rows(acc):
     total = np.zeros(acc.shape[1])
     for y in range(acc.shape[0]):
@@ -87,7 +87,7 @@ def _sum_rows(acc):
     return total
 
 
-@nb.njit(parallel=True, cache=True, error_model="numpy")
+@nb.njit(parallel=True, cache=True, error_model="numpy", nogil=True)
 def photometric_geometric_system(src_vertex, src_intensity, tgt_depth, tgt_intensity, tgt_depth_dx, tgt_depth_dy,
                                  tgt_intensity_dx, tgt_intensity_dy, K, T, depth_trunc, depth_huber,
                                  intensity_huber, depth_weight, intensity_weight):
@@ -132,7 +132,7 @@ def photometric_geometric_system(src_vertex, src_intensity, tgt_depth, tgt_inten
     return _sum_rows(acc)
 
 
-@nb.njit(parallel=True, cache=True, error_model="numpy")
+@nb.njit(parallel=True, cache=True, error_model="numpy", nogil=True)
 def point_to_plane_system(src_vertex, tgt_vertex, tgt_normal, K, T, distance_trunc, huber):
     """Normal equations of ``sum huber(n_t . (p - q_t))`` where ``p = T * vertex`` projects to the nearest target
     pixel, ``q_t`` and ``n_t`` are that pixel's vertex and normal, and ``|p - q_t| <= distance_trunc``."""
