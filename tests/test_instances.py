@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import importlib.util
+
 import numpy as np
 import pytest
 
@@ -170,8 +172,10 @@ def _iou(a, b) -> float:
     return inter / ((a[2] - a[0]) * (a[3] - a[1]) + (b[2] - b[0]) * (b[3] - b[1]) - inter)
 
 
+@pytest.mark.skipif(importlib.util.find_spec("torchvision") is None, reason="torchvision is not installed")
 def test_maskrcnn_runs_on_the_cpu_with_random_weights(tmp_path):
-    torch = pytest.importorskip("torch")
+    import torch
+
     from semmap.perception.instances.maskrcnn import MaskRcnnInstances, build_maskrcnn
 
     torch.manual_seed(0)
