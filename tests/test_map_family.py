@@ -26,11 +26,13 @@ def test_run_builds_every_map_side_by_side_and_info_reads_every_file(tmp_path):
     seq, out = tmp_path / "room", tmp_path / "out"
     write_tum_sequence(seq, make_room_frames(8), label_set=room_label_set())
     r = run_cli("run", str(seq), "--out", str(out), "--resolution", "0.1", "--maps", "voxelgrid,octomap,points",
-                "--point-resolution", "0.05", "--crf")
+                "--point-resolution", "0.05", "--crf", "--crf-every", "2", "--top-k", "2")
     assert r.returncode == 0, r.stderr
     report = json.loads((out / "report.json").read_text())
     assert list(report["maps"]) == ["voxelgrid", "octomap", "points"]
     assert report["occupied_voxels"] == report["maps"]["voxelgrid"]["occupied_voxels"]  # the first map is primary
+    assert report["ms_per_frame"]["crf"] > 0  # refined every second keyframe too
+    assert json.loads((out / "config.json").read_text())["semantics"]["k"] == 2
     for kind, files in (("voxelgrid", ("voxelgrid.semmap", "voxelgrid.ply")), ("octomap", ("map.ot", "map.bt")),
                         ("points", ("points.semmap", "points.ply"))):
         entry = report["maps"][kind]
