@@ -1,9 +1,11 @@
 """Run every benchmark and the demo, then write docs/BENCHMARKS.md and the numbers section of README.md.
 
-    python benchmarks/update_docs.py [--quick] [--only fusion,demo,...]
+    python benchmarks/update_docs.py [--quick] [--only fusion,demo,...|none] [--results FILE]
 
-``--only`` re-runs the named parts (octree, sim, tracking, segmenters, fusion, demo, end_to_end) and takes the
-others' last results from the JSON block at the end of docs/BENCHMARKS.md.
+``--only`` re-runs the named parts (octree, sim, tracking, segmenters, fusion, demo, end_to_end; ``none``:
+nothing) and takes the others' results from ``--results`` (a JSON object of part results, e.g. ``{"fusion":
+<bench_fusion.py's last line>}``) or else from the JSON block at the end of docs/BENCHMARKS.md. Without demo
+results the docs keep their current demo lines.
 
 Each benchmark runs as its own process and its last stdout line (one JSON object) is parsed, so the numbers in
 the docs are exactly what the scripts printed on this machine.
@@ -228,18 +230,18 @@ def previous_results() -> dict:
         return {}
 
 
-def collect(only: set[str], quick: bool) -> dict:
-    """Every part's result: run if named in ``only`` (all when empty), else from the last docs."""
+def collect(only: set[str] | None, quick: bool, given: dict) -> dict:
+    """Every part's result: run if named in ``only`` (every part when None), else from ``given`` or the last docs
+    (the demo may be missing: its lines are then kept as they are)."""
     extra = ["--quick"] if quick else []
-    old = previous_results()
+    old = {**previous_results(), **given}
     out = {}
     for part, (key, script) in PARTS.items():
-        if only and part not in only:
-            if key not in old and part in OPTIONAL:
-                continue
-            if key not in old:
-                raise SystemExit(f"update_docs: no earlier {part} results in docs/BENCHMARKS.md; run it too")
-            out[key] = old[key]
+        if only is not None and part not in only:
+            if key in old:
+                out[key] = old[key]
+            elif part not in OPTIONAL and part != "demo":
+                raise SystemExit(f"update_docs: no earlier {part} results (docs/BENCHMARKS.md, --results); run it")
         elif script is None:
             report = run_demo(ROOT / "outputs" / "demo")
             out[key] = {k: report[k] for k in DEMO_KEYS}
@@ -248,18 +250,43 @@ def collect(only: set[str], quick: bool) -> dict:
     return out
 
 
+def json_block(results: dict) -> str:
+    """All results as one JSON object; bench_fusion's hundreds of result rows one per line."""
+    parts = []
+    for key, value in results.items():
+        if key == "fusion":
+            rows = ",\n  ".join(json.dumps(r) for r in value["results"])
+            rest = json.dumps({k: v for k, v in value.items() if k != "results"})
+            parts.append(f' "{key}": {{"results": [\n  {rows}],\n  {rest[1:]}')
+        else:
+            parts.append(f' "{key}": ' + json.dumps(value, indent=1).replace("\n", "\n "))
+    return "{\n" + ",\n".join(parts) + "\n}"
+
+
+def current_demo_lines() -> list[str]:
+    """The demo lines of the current docs/BENCHMARKS.md (when the demo is neither run nor in the results)."""
+    text = (ROOT / "docs" / "BENCHMARKS.md").read_text()
+    section = text.split("## Demo (`semmap demo`)", 1)[1].split("```json", 1)[0]
+    return [line for line in section.splitlines() if line.startswith("- ")]
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--quick", action="store_true", help="quick variants of the benchmarks")
-    ap.add_argument("--only", default="", help=f"comma-separated parts to re-run: {', '.join(PARTS)}")
+    ap.add_argument("--only", default="", help=f"comma-separated parts to re-run: {', '.join(PARTS)}, or none")
+    ap.add_argument("--results", type=Path, help="JSON object of part results to use instead of running them")
     args = ap.parse_args()
-    only = {p.strip() for p in args.only.split(",") if p.strip()}
-    unknown = only - set(PARTS)
+    only = {p.strip() for p in args.only.split(",") if p.strip()} or None
+    if only == {"none"}:
+        only = set()
+    unknown = (only or set()) - set(PARTS)
     if unknown:
         raise SystemExit(f"update_docs: unknown part(s) {', '.join(sorted(unknown))}; choose from {', '.join(PARTS)}")
-    results = collect(only, args.quick)
+    given = json.loads(args.results.read_text()) if args.results else {}
+    results = collect(only, args.quick, given)
     octree, sim, tracking = results["octree_vs_octomap"], results["sim"], results["tracking"]
-    segmenters, fusion, demo = results["segmenters"], results["fusion"], results["demo"]
+    segmenters, fusion = results["segmenters"], results["fusion"]
+    demo = demo_lines(results["demo"]) if "demo" in results else current_demo_lines()
     stamp = time.strftime("%Y-%m-%d")
     lines = [
         "# Benchmarks", "",
@@ -302,15 +329,15 @@ def main() -> None:
         "stored voxel or point; ms/frame is integration only, on a machine shared with other jobs.", "",
         *fusion_table(fusion), "", *fusion_targets(fusion), "",
         *end_to_end_section(results.get("end_to_end")),
-        "## Demo (`semmap demo`)", "", *demo_lines(demo), "",
-        "```json", json.dumps(results, indent=1), "```", "",
+        "## Demo (`semmap demo`)", "", *demo, "",
+        "```json", json_block(results), "```", "",
     ]
     (ROOT / "docs" / "BENCHMARKS.md").write_text("\n".join(lines))
     readme = (ROOT / "README.md").read_text()
     if START in readme and END in readme:
         block = [START, "", f"Measured on {stamp} ({machine()}) by `benchmarks/update_docs.py`:", "",
                  *octree_table(octree), "", f"- Simulator: {sim['fps']} frames/s at 640×480, all channels.",
-                 *demo_lines(demo), "", "Camera tracking (`benchmarks/bench_tracking.py`; all trackers in "
+                 *demo, "", "Camera tracking (`benchmarks/bench_tracking.py`; all trackers in "
                  "[docs/BENCHMARKS.md](docs/BENCHMARKS.md)):", "", *tracking_table(tracking, README_TRACKERS), "",
                  "ESPNetv2 segmentation on the CPU (`benchmarks/bench_segmenters.py`):", "",
                  *segmenter_table(segmenters), "",
@@ -320,8 +347,10 @@ def main() -> None:
         head, rest = readme.split(START, 1)
         readme = head + "\n".join(block) + rest.split(END, 1)[1]
         (ROOT / "README.md").write_text(readme)
-    print(json.dumps({"octree": octree["results"], "sim_fps": sim["fps"], "miou_3d": demo["miou_3d"],
-                      "oracle_miou_2d": demo["oracle_miou_2d"]}))
+    demo_report = results.get("demo", {})
+    print(json.dumps({"octree": octree["results"], "sim_fps": sim["fps"], "miou_3d": demo_report.get("miou_3d"),
+                      "oracle_miou_2d": demo_report.get("oracle_miou_2d"),
+                      "fusion_upper_bound": fusion["upper_bound"], "fusion_timing": fusion["timing"]}))
 
 
 if __name__ == "__main__":
