@@ -16,6 +16,7 @@ from enum import Enum
 import numpy as np
 
 from semmap.errors import ConfigError
+from semmap.localization._kernels import compile_kernels
 from semmap.localization.filter import FilterSettings, ParticleFilter, PoseEstimate
 from semmap.localization.motion import GroundTilt, MotionSource
 from semmap.localization.observation import DEFAULT_POINTS, make_scan
@@ -124,6 +125,7 @@ def localize(prior: PriorMap, frames: Iterable[Frame], motion: MotionSource, *, 
              progress: Callable[[Iterator, int], Iterator] | None = None, total: int = 0) -> LocalizationResult:
     """Localize the camera of ``frames`` in ``prior``: one filter update per frame that the motion source (and in
     ground mode ``tilt_of``) has a pose for; ``init_pose`` (tracking) defaults to the first frame's ground truth."""
+    compile_kernels()  # first-use compilation stays out of the timed updates
     pf = ParticleFilter(prior, settings, seed=seed)
     rng = np.random.default_rng([seed, 0x5CA])
     result = LocalizationResult(settings, init, motion.name)
