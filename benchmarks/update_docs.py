@@ -2,9 +2,9 @@
 
     python benchmarks/update_docs.py [--quick] [--only fusion,demo,...|none] [--results FILE]
 
-``--only`` re-runs the named parts (octree, sim, tracking, segmenters, fusion, demo, end_to_end; ``none``:
-nothing) and takes the others' results from ``--results`` (a JSON object of part results, e.g. ``{"fusion":
-<bench_fusion.py's last line>}``) or else from the JSON block at the end of docs/BENCHMARKS.md. Without demo
+``--only`` re-runs the named parts (octree, sim, tracking, segmenters, fusion, demo, end_to_end, localization;
+``none``: nothing) and takes the others' results from ``--results`` (a JSON object of part results, e.g.
+``{"fusion": <bench_fusion.py's last line>}``) or else from the JSON block at the end of docs/BENCHMARKS.md. Without demo
 results the docs keep their current demo lines.
 
 Each benchmark runs as its own process and its last stdout line (one JSON object) is parsed, so the numbers in
@@ -181,6 +181,45 @@ def fusion_targets(bench: dict) -> list[str]:
     ]
 
 
+def localization_table(bench: dict) -> list[str]:
+    """Convergence, error after convergence and ms per update per model (benchmarks/bench_localization.py)."""
+    rows = ["| rooms | initialisation | model | particles | converged | updates to converge | error after "
+            "(cm / °) | ms per update (median / best; CPU) |", "|---|---|---|---|---|---|---|---|"]
+    for g in bench["summary"]:
+        err = "–" if g["median_pos_err_m"] is None else \
+            f"{100 * g['median_pos_err_m']:.1f} / {g['median_rot_err_deg']:.2f}"
+        rows.append(f"| {g['rooms']} | {g['init']} ({g['mode']}) | {g['model']} | {g['particles']} | "
+                    f"{g['converged_rate']:.0%} of {g['runs']} | {g['median_frames_to_converge'] or '–'} | {err} | "
+                    f"{g['median_ms_per_update']} / {g['best_ms_per_update']}; "
+                    f"{g.get('median_cpu_ms_per_update', '–')} |")
+    return rows
+
+
+def localization_section(bench: dict | None) -> list[str]:
+    """The BENCHMARKS.md section on localization (nothing when bench_localization.py has not been run)."""
+    if bench is None:
+        return []
+    return [
+        "## Localization in a prior map", "",
+        "`benchmarks/bench_localization.py`: simulated rooms (half of them symmetric: geometry identical under a "
+        "180° turn, only classes differ) mapped with ground-truth poses, then localized along another path (10 "
+        "updates per second of motion, ground truth with 5 % drift as odometry). A run converges when the filter "
+        "says so and its median error after that is under 25 cm / 10°; errors are medians over converged runs. The "
+        f"paper's per-particle local map costs {bench['peer']['paper_style_ms_per_particle']} ms per "
+        "particle in the same run.", "",
+        *localization_table(bench), ""]
+
+
+def localization_readme(bench: dict | None) -> list[str]:
+    """The README lines on localization: global initialisation in ground mode."""
+    if bench is None:
+        return []
+    return ["Localization in a prior map (`benchmarks/bench_localization.py`, global initialisation in ground "
+            "mode; all runs in [docs/BENCHMARKS.md](docs/BENCHMARKS.md)):", "",
+            *[r for r in localization_table(bench)
+              if not r.startswith("| ") or "global (ground)" in r or r.startswith("| rooms")], ""]
+
+
 def demo_lines(report: dict) -> list[str]:
     sizes = report["bytes_on_disk"]
     ms = report["ms_per_frame"]
@@ -213,9 +252,10 @@ PARTS = {"octree": ("octree_vs_octomap", "benchmarks/bench_octree_vs_octomap.py"
          "sim": ("sim", "benchmarks/bench_sim.py"), "tracking": ("tracking", "benchmarks/bench_tracking.py"),
          "segmenters": ("segmenters", "benchmarks/bench_segmenters.py"),
          "fusion": ("fusion", "benchmarks/bench_fusion.py"), "demo": ("demo", None),
-         "end_to_end": ("end_to_end", "benchmarks/bench_end_to_end.py")}
+         "end_to_end": ("end_to_end", "benchmarks/bench_end_to_end.py"),
+         "localization": ("localization", "benchmarks/bench_localization.py")}
 #: parts the docs can do without when an earlier run did not have them yet
-OPTIONAL = {"end_to_end"}
+OPTIONAL = {"end_to_end", "localization"}
 #: What the docs use of the demo's report (kept in the JSON block so ``--only`` can reuse it).
 DEMO_KEYS = ("miou_3d", "oracle_miou_2d", "geometric_precision_3d", "frames_used", "ms_per_frame", "bytes_on_disk",
              "dense_point_cloud_bytes")
@@ -287,6 +327,7 @@ def main() -> None:
     octree, sim, tracking = results["octree_vs_octomap"], results["sim"], results["tracking"]
     segmenters, fusion = results["segmenters"], results["fusion"]
     demo = demo_lines(results["demo"]) if "demo" in results else current_demo_lines()
+    localization = results.get("localization")
     stamp = time.strftime("%Y-%m-%d")
     lines = [
         "# Benchmarks", "",
@@ -329,6 +370,7 @@ def main() -> None:
         "stored voxel or point; ms/frame is integration only, on a machine shared with other jobs.", "",
         *fusion_table(fusion), "", *fusion_targets(fusion), "",
         *end_to_end_section(results.get("end_to_end")),
+        *localization_section(localization),
         "## Demo (`semmap demo`)", "", *demo, "",
         "```json", json_block(results), "```", "",
     ]
@@ -343,7 +385,8 @@ def main() -> None:
                  *segmenter_table(segmenters), "",
                  *end_to_end_section(results.get("end_to_end"), heading=False),
                  "Label fusion and maps (`benchmarks/bench_fusion.py`; the full table in "
-                 "[docs/BENCHMARKS.md](docs/BENCHMARKS.md)):", "", *fusion_targets(fusion), "", END]
+                 "[docs/BENCHMARKS.md](docs/BENCHMARKS.md)):", "", *fusion_targets(fusion), "",
+                 *localization_readme(localization), END]
         head, rest = readme.split(START, 1)
         readme = head + "\n".join(block) + rest.split(END, 1)[1]
         (ROOT / "README.md").write_text(readme)

@@ -149,12 +149,7 @@ def _moments(result: LocalizationResult, panels: int = PLOT_PANELS) -> list[int]
     keys = sorted(result.snapshots)
     first_conv = result.first_converged()
     wanted = [keys[0], keys[len(keys) // 4], first_conv if first_conv is not None else keys[len(keys) // 2], keys[-1]]
-    out: list[int] = []
-    for k in wanted[:panels]:
-        nearest = min(keys, key=lambda s, k=k: abs(s - k))
-        if nearest not in out:
-            out.append(nearest)
-    return out
+    return sorted({min(keys, key=lambda s, k=k: abs(s - k)) for k in wanted[:panels]})
 
 
 def _draw(ax, result: LocalizationResult, k: int, img: np.ndarray, extent) -> None:
@@ -168,7 +163,8 @@ def _draw(ax, result: LocalizationResult, k: int, img: np.ndarray, extent) -> No
     ax.plot(est[:, 0], est[:, 1], color="tab:red", lw=1.0, label="estimate")
     e = result.updates[k].estimate
     ax.plot(*est[-1, :2], marker="o", color="tab:red", ms=5)
-    ax.set_title(f"update {k}: {'converged' if e.converged else f'spread {100 * e.spread_m:.0f} cm'}", fontsize=9)
+    state = "converged" if e.converged else f"cluster of {e.cluster_mass:.0%}, spread {100 * e.spread_m:.0f} cm"
+    ax.set_title(f"update {k}: {state}", fontsize=9)
     ax.set_xlim(extent[0], extent[1])
     ax.set_ylim(extent[2], extent[3])
     ax.set_aspect("equal")

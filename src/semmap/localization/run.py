@@ -88,7 +88,9 @@ class LocalizationResult:
                      "frames_to_converge": None if first is None else first + 1,
                      "seconds_to_converge": None if first is None
                      else round(ups[first].timestamp - ups[0].timestamp, 3),
-                     "ms_per_update": _stats(ms), "ms_per_scan": _stats(np.array([u.scan_ms for u in ups])),
+                     "ms_per_update": _stats(ms),
+                     "cpu_ms_per_update": _stats(np.array([u.estimate.ms.get("cpu", np.nan) for u in ups])),
+                     "ms_per_scan": _stats(np.array([u.scan_ms for u in ups])),
                      "ms_per_segmentation": _stats(np.array([u.segment_ms for u in ups]))}
         errs = [(u.pos_err_m, u.rot_err_deg) for u in ups if u.pos_err_m is not None]
         if errs:
