@@ -71,10 +71,9 @@ def octomap_states(tree, resolution: float) -> dict[tuple[int, int, int], bool]:
     return out
 
 
-def likelihood_scores(R, t, pts, labels, probs, others, prior, lut_geo, lut_sem, d2_scale, f_scale, use_semantics,
-                      eps, log_rand):
+def likelihood_scores(R, t, pts, labels, probs, others, prior, tables, use_semantics, eps, log_rand):
     """Per-particle sum of tabulated log-likelihoods, one particle and point at a time (localization kernel)."""
-    n_cls = prior.class_q.shape[1]
+    n_cls = prior.num_classes
     out = np.zeros(len(R))
     for i in range(len(R)):
         for j in range(len(pts)):
@@ -89,17 +88,21 @@ def likelihood_scores(R, t, pts, labels, probs, others, prior, lut_geo, lut_sem,
                 continue
             cell = np.floor((prior.centers[v].astype(np.float64) - prior.origin) / prior.resolution)
             d2 = float(np.sum((x - (prior.origin + (cell + 0.5) * prior.resolution)) ** 2))
-            qd = min(int(d2 * d2_scale + 0.5), len(lut_geo) - 1)
-            if not use_semantics or others[j] < 0:
-                out[i] += lut_geo[qd]
+            qd = min(int(d2 * tables.d2_scale + 0.5), len(tables.geo) - 1)
+            if qd == len(tables.geo) - 1:
+                out[i] += log_rand
                 continue
-            pm = {int(c): prior.class_q[v, c] / 255.0 for c in labels[j] if 0 < c < n_cls}
-            s = sum(float(p) * pm[int(c)] for c, p in zip(labels[j], probs[j], strict=True) if 0 < c < n_cls)
-            rest = n_cls - 1 - len(pm)
-            if rest > 0:
-                s += others[j] * max(1.0 - sum(pm.values()), 0.0) / rest
+            if not use_semantics or others[j] < 0:
+                out[i] += tables.geo[qd]
+                continue
+            valid = [(int(c), float(p)) for c, p in zip(labels[j], probs[j], strict=True) if 0 < c < n_cls]
+            q = {c: float(prior.class_q[v, c]) for c, _ in valid}
+            rest = n_cls - 1 - len(valid)
+            share = others[j] / rest if rest > 0 else 0.0
+            s = (sum(p * q[c] for c, p in valid) + share * max(255.0 - sum(q.values()), 0.0)) / 255.0
             f = (1 - eps) * (n_cls - 1) * s + eps
-            out[i] += lut_sem[qd, min(int(f * f_scale + 0.5), lut_sem.shape[1] - 1)]
+            x = tables.gauss[qd] * f
+            out[i] += tables.log_mix[min(int(x * tables.x_scale + 0.5), len(tables.log_mix) - 1)]
     return out
 
 

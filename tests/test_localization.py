@@ -78,9 +78,8 @@ def test_likelihood_kernel_matches_the_slow_reference():
     for kind, semantic in ((ObservationKind.SEMANTIC, True), (ObservationKind.GEOMETRY, False)):
         out = np.zeros(len(R))
         score(kind, prior, R, t, scan, params, out)
-        ref = naive.likelihood_scores(R, t, scan.points, scan.labels, scan.probs, scan.others, prior, tables.geo,
-                                      tables.sem, tables.d2_scale, tables.f_scale, semantic,
-                                      params.semantic_floor, math.log(params.z_rand))
+        ref = naive.likelihood_scores(R, t, scan.points, scan.labels, scan.probs, scan.others, prior, tables,
+                                      semantic, params.semantic_floor, math.log(params.z_rand))
         np.testing.assert_allclose(out, ref * params.effective_points / len(scan), rtol=1e-6, atol=1e-6)
 
 
@@ -89,14 +88,14 @@ def test_likelihood_tables_follow_the_mixture_formula():
     tab = likelihood_tables(params, 29)
     for d in (0.0, 0.01, 0.03, 0.07, 0.12):
         qd = min(int(d * d * tab.d2_scale + 0.5), len(tab.geo) - 1)
-        exact = math.log(params.z_hit * math.exp(-d * d / (2 * params.sigma**2)) + params.z_rand)
-        assert tab.geo[qd] == pytest.approx(exact, abs=2e-3)
+        g = math.exp(-d * d / (2 * params.sigma**2))
+        assert tab.geo[qd] == pytest.approx(math.log(params.z_hit * g + params.z_rand), abs=2e-3)
         for f in (0.3, 1.0, 7.5):
-            qf = int(f * tab.f_scale + 0.5)
-            exact_f = math.log(params.z_hit * math.exp(-d * d / (2 * params.sigma**2)) * f + params.z_rand)
-            assert tab.sem[qd, qf] == pytest.approx(exact_f, abs=0.06)
+            x = tab.gauss[qd] * f
+            got = tab.log_mix[min(int(x * tab.x_scale + 0.5), len(tab.log_mix) - 1)]
+            assert got == pytest.approx(math.log(params.z_hit * g * f + params.z_rand), abs=0.02)
     far = math.log(params.z_rand)
-    assert tab.geo[-1] == pytest.approx(far) and tab.sem[-1, -1] == pytest.approx(far)
+    assert tab.geo[-1] == pytest.approx(far) and tab.gauss[-1] == 0.0 and tab.log_mix[0] == pytest.approx(far)
 
 
 def test_cosine_kernel_matches_the_slow_reference():
@@ -262,14 +261,15 @@ class _HiddenJump:
 
 def test_a_kidnapped_filter_recovers_by_injecting_particles(office):
     _, prior, frames = office
-    seq = frames[:12] + frames[26:]  # carried 14 frames ahead along the loop without the motion showing it
+    seq = frames[:10] + frames[22:]  # carried 12 frames ahead along the loop without the motion showing it
     settings_ = FilterSettings(particles=1000, mode=MotionMode.GROUND)
-    result = localize(prior, seq, _HiddenJump(seq, 12), settings=settings_, init=InitMode.TRACKING,
+    result = localize(prior, seq, _HiddenJump(seq, 10), settings=settings_, init=InitMode.TRACKING,
                       segment=lambda f: f.semantics, tilt_of=lambda f: GroundTilt.from_pose(f.T_world_cam),
                       points=300)
-    assert result.updates[11].pos_err_m < 0.05 and result.updates[12].pos_err_m > 0.5
-    assert sum(u.estimate.injected for u in result.updates[12:]) > 0
-    assert result.updates[-1].pos_err_m < 0.05 and result.updates[-1].estimate.converged
+    errors = [u.pos_err_m for u in result.updates]
+    assert max(errors[:10]) < 0.05 and errors[10] > 0.5
+    assert sum(u.estimate.injected for u in result.updates[10:]) > 0
+    assert max(errors[-3:]) < 0.05
 
 
 def test_semantics_tell_a_symmetric_room_from_its_turned_twin():

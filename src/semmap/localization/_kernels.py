@@ -43,29 +43,30 @@ def propagate_6dof(R, t, uR, ut, noise):
 
 
 @nb.njit(cache=True, parallel=True, fastmath=True)
-def score_likelihood(R, t, pts, labels, probs, others, origin, res, nx, ny, nz, nearest_packed, class_q,
-                     use_semantics, eps, lut_geo, lut_sem, d2_scale, f_scale, log_rand, out):
+def score_likelihood(R, t, pts, labels, probs, others_share, origin, res, nx, ny, nz, nearest_packed, class_q,
+                     n_cls, use_semantics, eps, lut_geo, lut_gauss, lut_log, d2_scale, x_scale, log_rand, out):
     """Sum over the scan's points of log p(point | particle) for each particle (Thrun's likelihood field with a
     class term): ``log(z_hit · exp(-d²/2σ²) · f + z_rand)`` with d the distance from the point, placed by the
     particle, to the nearest occupied voxel's centre, and f = ``(1 - eps) · C' · Σ_c q(c) P_map(c) + eps`` the
-    agreement of the point's class distribution q with the voxel's P_map (C' real classes, so that an
-    uninformative class gives f = 1); f = 1 for points without classes (``others < 0``) or with
+    agreement of the point's class distribution q with the voxel's P_map (C' = n_cls - 1 real classes, so that an
+    uninformative class gives f = 1); f = 1 for points without classes (``others_share < 0``) or with
     ``use_semantics`` off.  Points off the grid or farther than the cutoff score ``log_rand`` = log(z_rand).
 
-    The mixture is read from tables (no exp/log per point): ``lut_geo[round(d² · d2_scale)]`` for f = 1 and
-    ``lut_sem[round(d² · d2_scale), round(f · f_scale)]``, the last row standing for every larger distance.
+    The mixture is read from small tables (no exp/log per point, all in the L1/L2 cache):
+    ``lut_geo[round(d² · d2_scale)]`` for f = 1, else ``lut_log[round(x · x_scale)]`` with x =
+    ``lut_gauss[round(d² · d2_scale)] · f``; the last distance entry stands for every larger distance.
     The cell record (:func:`~semmap.localization.prior.pack_nearest`) gives the voxel and its cell offset, so
     the distance needs no second memory access; the class row is read only for points near a surface.
-    R (N, 3, 3), t (N, 3) float64 camera poses; pts (P, 3) float32 camera-frame points; labels/probs (P, k)
-    top-k sets, others (P,) their "others" mass; class_q (M, C) uint8 voxel class probabilities x 255;
-    result in out (N,)."""
+    R (N, 3, 3), t (N, 3) float64 camera poses; pts (P, 3) float32 camera-frame points; labels/probs (P, k) their
+    top-k sets (classes outside 1..C-1 given as 0 with probability 0); others_share (P,) the "others" mass per
+    class outside the set; class_q (M, >= C) uint8 voxel class probabilities x 255, class 0 zero; result in
+    out (N,)."""
     n = R.shape[0]
     n_pts = pts.shape[0]
     k = labels.shape[1]
-    n_cls = class_q.shape[1]
     real = n_cls - 1
     last_d = lut_geo.shape[0] - 1
-    last_f = lut_sem.shape[1] - 1
+    last_x = lut_log.shape[0] - 1
     q_scale = 1.0 / 255.0
     inv_res = 1.0 / res
     d2_cells = d2_scale * res * res
@@ -97,25 +98,20 @@ def score_likelihood(R, t, pts, labels, probs, others, origin, res, nx, ny, nz, 
             if qd == last_d:
                 acc += log_rand
                 continue
-            v = rec & 0xFFFFFFFF
-            if not use_semantics or others[j] < 0.0:
+            share = others_share[j]
+            if not use_semantics or share < 0.0:
                 acc += lut_geo[qd]
                 continue
+            v = rec & 0xFFFFFFFF
             s = 0.0
             in_set = 0.0
-            n_valid = 0
             for c in range(k):
-                lab = labels[j, c]
-                if lab > 0 and lab < n_cls:
-                    pm = class_q[v, lab] * q_scale
-                    s += probs[j, c] * pm
-                    in_set += pm
-                    n_valid += 1
-            rest_classes = real - n_valid
-            if rest_classes > 0:
-                s += others[j] * max(1.0 - in_set, 0.0) / rest_classes
+                q = float(class_q[v, labels[j, c]])
+                s += probs[j, c] * q
+                in_set += q
+            s = (s + share * max(255.0 - in_set, 0.0)) * q_scale
             f = (1.0 - eps) * real * s + eps
-            acc += lut_sem[qd, min(int(f * f_scale + 0.5), last_f)]
+            acc += lut_log[min(int(lut_gauss[qd] * f * x_scale + 0.5), last_x)]
         out[i] = acc
 
 
@@ -191,7 +187,7 @@ def compile_kernels() -> None:
     nearest = np.full(8, -1, np.int32)
     out = np.zeros(2)
     propagate_6dof(R, t, np.eye(3), np.zeros(3), np.zeros((2, 6)))
-    score_likelihood(R, t, pts, labels, probs, others, origin, 0.5, 2, 2, 2, packed, np.zeros((1, 3), np.uint8),
-                     True, 0.2, np.zeros(4), np.zeros((4, 4)), 1.0, 1.0, -3.0, out)
+    score_likelihood(R, t, pts, labels, probs, others, origin, 0.5, 2, 2, 2, packed, np.zeros((1, 32), np.uint8),
+                     3, True, 0.2, np.zeros(4), np.zeros(4), np.zeros(4), 1.0, 1.0, -3.0, out)
     score_cosine(R, t, pts, labels[:, 0].copy(), origin, 2.0, 2, 2, 2, np.zeros(8, np.uint16), out)
     inlier_fraction(R[0], t[0], pts, origin, 2.0, 2, 2, 2, nearest, np.zeros((1, 3), np.float32), 0.01)

@@ -148,27 +148,44 @@ def score(kind: ObservationKind, prior: PriorMap, R: np.ndarray, t: np.ndarray, 
     semantic = kind == ObservationKind.SEMANTIC
     if semantic and prior.class_probs is None:
         raise ConfigError("the semantic model needs a prior map with classes (use --model geometry)")
-    class_q = prior.class_q if prior.class_q is not None else np.zeros((1, 2), np.uint8)
-    tables = likelihood_tables(params, max(prior.num_classes - 1, 1))
-    kern.score_likelihood(R, t, scan.points, scan.labels, scan.probs, scan.others, prior.origin, prior.resolution,
-                          nx, ny, nz, prior.nearest_packed, class_q, semantic, params.semantic_floor, tables.geo,
-                          tables.sem, tables.d2_scale, tables.f_scale, math.log(params.z_rand), out)
+    n_cls = max(prior.num_classes, 2)
+    class_q = prior.class_q if prior.class_q is not None else np.zeros((1, n_cls), np.uint8)
+    labels, probs, share = kernel_classes(scan, n_cls)
+    tables = likelihood_tables(params, n_cls - 1)
+    kern.score_likelihood(R, t, scan.points, labels, probs, share, prior.origin, prior.resolution, nx, ny, nz,
+                          prior.nearest_packed, class_q, n_cls, semantic, params.semantic_floor, tables.geo,
+                          tables.gauss, tables.log_mix, tables.d2_scale, tables.x_scale, math.log(params.z_rand), out)
     out *= params.effective_points / len(scan)
     return out
 
 
+def kernel_classes(scan: Scan, num_classes: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The scan's class sets as the kernel reads them: classes outside 1..C-1 (void, empty slots) as class 0 with
+    probability 0, and per point the "others" mass per real class outside its set (-1: the point has no
+    classes), so that the kernel's inner loop has no branches."""
+    valid = (scan.labels > 0) & (scan.labels < num_classes)
+    labels = np.where(valid, scan.labels, 0).astype(np.uint16)
+    probs = np.where(valid, scan.probs, 0.0).astype(np.float32)
+    outside = (num_classes - 1) - valid.sum(axis=1)
+    share = np.where(outside > 0, np.maximum(scan.others, 0.0) / np.maximum(outside, 1), 0.0)
+    share = np.where(scan.others < 0, -1.0, share).astype(np.float32)
+    return np.ascontiguousarray(labels), np.ascontiguousarray(probs), share
+
+
 @dataclass(frozen=True)
 class LikelihoodTables:
-    """``log(z_hit · exp(-d²/2σ²) · f + z_rand)`` tabulated over d² (rows, up to (4σ)², the last row standing for
-    any larger distance) and f (columns, the class term up to its largest value); ``geo`` is the f = 1 column."""
+    """The likelihood-field mixture tabulated: over d² (up to (4σ)², the last entry standing for any larger
+    distance) ``geo`` = log(z_hit · g + z_rand) and ``gauss`` = g = exp(-d²/2σ²); over x = g · f (up to the class
+    term's largest value) ``log_mix`` = log(z_hit · x + z_rand).  Small enough to stay in the L1/L2 cache."""
 
     geo: np.ndarray  # (D_BINS,) float64
-    sem: np.ndarray  # (D_BINS, F_BINS) float64
-    d2_scale: float  # row = round(d² · d2_scale)
-    f_scale: float  # column = round(f · f_scale)
+    gauss: np.ndarray  # (D_BINS,) float64
+    log_mix: np.ndarray  # (X_BINS,) float64
+    d2_scale: float  # index = round(d² · d2_scale)
+    x_scale: float  # index = round(x · x_scale)
 
 
-D_BINS, F_BINS = 1024, 256
+D_BINS, X_BINS = 1024, 4096
 
 
 @lru_cache(maxsize=16)
@@ -176,15 +193,12 @@ def likelihood_tables(params: LikelihoodParams, real_classes: int) -> Likelihood
     """Tables of the likelihood-field mixture for ``params`` and a label set of ``real_classes`` classes."""
     d2_max = (4.0 * params.sigma) ** 2
     d2_scale = (D_BINS - 2) / d2_max
-    d2 = np.arange(D_BINS) / d2_scale
-    g = np.exp(-d2 / (2.0 * params.sigma**2))
+    g = np.exp(-np.arange(D_BINS) / d2_scale / (2.0 * params.sigma**2))
     g[-1] = 0.0  # beyond 4 σ
-    f_max = (1.0 - params.semantic_floor) * real_classes + params.semantic_floor
-    f_scale = (F_BINS - 1) / f_max
-    f = np.arange(F_BINS) / f_scale
-    sem = np.log(params.z_hit * g[:, None] * f[None, :] + params.z_rand)
-    geo = np.log(params.z_hit * g + params.z_rand)
-    return LikelihoodTables(geo, sem, float(d2_scale), float(f_scale))
+    x_max = (1.0 - params.semantic_floor) * real_classes + params.semantic_floor
+    x_scale = (X_BINS - 1) / x_max
+    log_mix = np.log(params.z_hit * np.arange(X_BINS) / x_scale + params.z_rand)
+    return LikelihoodTables(np.log(params.z_hit * g + params.z_rand), g, log_mix, float(d2_scale), float(x_scale))
 
 
 def fit(prior: PriorMap, T_world_cam: np.ndarray, scan: Scan, max_distance: float) -> float:

@@ -45,7 +45,7 @@ class PriorMap:
     nearest_packed: np.ndarray  # (cells,) int64 the same voxel | its cell offset (dx, dy, dz) + 128 << 32, 40, 48
     centers: np.ndarray  # (M, 3) float32 occupied voxel centres
     class_probs: np.ndarray | None  # (M, C) float32 class distribution per occupied voxel (None: no semantics)
-    class_q: np.ndarray | None  # (M, C) uint8 the same x 255, rounded (one cache line per voxel in the kernel)
+    class_q: np.ndarray | None  # (M, >= C) uint8 the same x 255, rounded, rows padded to a cache-line fraction
     top_label: np.ndarray  # (cells,) uint16 most probable class of the occupied voxel in the cell, 0 = none
     free_clear: np.ndarray  # (cells,) bool: known free and at least ``clearance`` from every occupied voxel
     floor_z: float
@@ -192,7 +192,11 @@ def build_prior(occupied_centers: np.ndarray, resolution: float, *, free_centers
         top[tuple(occ_ijk.T)] = np.where((first != EMPTY_LABEL) & (first < len(label_set)), first, 0)
     z = occ[:, 2]
     known_z = known[:, 2]  # the ceiling may be unmapped (cameras look down): the known space's top bounds it then
-    class_q = None if class_probs is None else np.round(class_probs * 255.0).astype(np.uint8)
+    class_q = None
+    if class_probs is not None:  # rows padded to 32 (or a multiple of 64) bytes: one cache line per voxel
+        width = 32 if class_probs.shape[1] <= 32 else -(-class_probs.shape[1] // 64) * 64
+        class_q = np.zeros((len(class_probs), width), np.uint8)
+        class_q[:, : class_probs.shape[1]] = np.round(class_probs * 255.0)
     return PriorMap(res, origin.astype(np.float64), shape, np.ascontiguousarray(nearest.reshape(-1), np.int32),
                     packed.reshape(-1),
                     np.ascontiguousarray(occ, np.float32), class_probs, class_q, top.reshape(-1),
