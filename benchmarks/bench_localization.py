@@ -70,8 +70,11 @@ QUICK_SCENES = (SceneSpec("office", 0, False), SceneSpec("office", 0, True))
 
 
 def build_map(spec: SceneSpec, out: Path, map_stride: int):
-    """Map the scene along a loop with ground-truth poses and the cnn-like oracle; returns (scene, seconds)."""
+    """Map the scene along a loop with ground-truth poses and the cnn-like oracle (unless ``out`` holds its map
+    already, from an earlier run with ``--out``); returns (scene, seconds)."""
     scene = generate_scene(spec.seed, spec.kind, "medium", symmetric=spec.symmetric)
+    if (out / "map.semmap").is_file() and (out / "config.json").is_file():
+        return scene, 0.0
     poses = make_trajectory(scene, "loop", MAP_FRAMES, seed=spec.seed)[::map_stride]
     if spec.symmetric:  # every other pose and its turned twin: the map covers both halves alike
         poses = np.concatenate([poses[::2], turned(scene) @ poses[::2]])
@@ -202,7 +205,8 @@ def _median(values: list) -> float | None:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--quick", action="store_true", help="2 scenes, one seed, fewer runs (under 10 minutes)")
-    parser.add_argument("--out", type=Path, default=None, help="keep the maps here (default: a temporary folder)")
+    parser.add_argument("--out", type=Path, default=None, help="keep the maps here, and reuse those found there "
+                        "(default: a temporary folder)")
     args = parser.parse_args()
     scenes = QUICK_SCENES if args.quick else FULL_SCENES
     loc_frames = 210 if args.quick else 300
