@@ -4,8 +4,8 @@
 
 ``--only`` re-runs the named parts (octree, sim, tracking, segmenters, fusion, demo, end_to_end, localization;
 ``none``: nothing) and takes the others' results from ``--results`` (a JSON object of part results, e.g.
-``{"fusion": <bench_fusion.py's last line>}``) or else from the JSON block at the end of docs/BENCHMARKS.md. Without demo
-results the docs keep their current demo lines.
+``{"fusion": <bench_fusion.py's last line>}``) or else from the JSON block at the end of docs/BENCHMARKS.md.
+Without demo results the docs keep their current demo lines.
 
 Each benchmark runs as its own process and its last stdout line (one JSON object) is parsed, so the numbers in
 the docs are exactly what the scripts printed on this machine.
