@@ -80,6 +80,22 @@ def test_frames_beyond_max_range_warn_that_they_added_nothing(room, tmp_path, ca
     assert "5 frames added nothing to the map" in caplog.text and "--max-range 0.0" in caplog.text
 
 
+def test_poses_a_million_metres_away_warn_why_the_map_is_empty(room, tmp_path, caplog):
+    from semmap.config import PosesConfig
+    from semmap.io.trajectory import read_trajectory, write_trajectory
+    from semmap.types import Trajectory
+
+    gt = read_trajectory(room / "groundtruth.txt")
+    far = gt.poses.copy()
+    far[:, :3, 3] += 1e6
+    write_trajectory(tmp_path / "far.txt", Trajectory(gt.timestamps, far))
+    config = _config(room, tmp_path / "o").model_copy(update={"poses": PosesConfig(source=str(tmp_path / "far.txt"))})
+    with caplog.at_level(logging.WARNING, logger="semmap"):
+        Pipeline(config).run()
+    assert "5 frames added nothing to the map" in caplog.text and "1,000,0" in caplog.text
+    assert "beyond the ±6,554 m a map of resolution 0.2 m can hold" in caplog.text
+
+
 def test_opencv_says_nothing_of_its_own_about_a_corrupt_image(room, tmp_path):
     seq = tmp_path / "seq"
     shutil.copytree(room, seq)
