@@ -274,8 +274,10 @@ def test_threaded_and_serial_insertion_give_identical_maps(monkeypatch):
 
     tree = pyoctomap.OcTree(0.05)
     threaded, stats = build(tree)
-    assert stats.hits >= kern.PARALLEL_MIN_ITEMS and stats.free_cells >= kern.PARALLEL_MIN_ITEMS
-    monkeypatch.setattr(kern, "PARALLEL_MIN_ITEMS", 1 << 40)
+    assert stats.hits >= max(kern.RAYS_PARALLEL_MIN, kern.ROWS_PARALLEL_MIN)
+    assert stats.free_cells >= kern.CELLS_PARALLEL_MIN
+    for name in ("RAYS_PARALLEL_MIN", "CELLS_PARALLEL_MIN", "ROWS_PARALLEL_MIN"):
+        monkeypatch.setattr(kern, name, 1 << 40)
     serial, _ = build()
     a, b = threaded.cells(), serial.cells()
     assert np.array_equal(a.packed, b.packed) and np.array_equal(a.logodds, b.logodds)

@@ -126,6 +126,19 @@ def semantics_for(frame: Frame, source: SemanticSource, *, segmenter: Segmenter 
     return None
 
 
+class _FirstFrame:
+    """A dataset's first frame, read only when something asks for it (a ROS bag pays a pass over its index)."""
+
+    def __init__(self, dataset: Dataset):
+        self._dataset, self._read, self._frame = dataset, False, None
+
+    @property
+    def frame(self) -> Frame | None:
+        if not self._read:
+            self._frame, self._read = next(iter(self._dataset), None), True
+        return self._frame
+
+
 @dataclass
 class _LoopState:
     """What the frame loop keeps: the poses frames were mapped with (in order), when each waiting frame was
@@ -284,7 +297,7 @@ class Pipeline:
         label_set = self._label_set(dataset)
         kinds = self._map_kinds()
         startup_s = compile_kernels(kinds)  # keeps numba's first-use compilation out of the per-frame timings
-        first = next(iter(dataset), None)  # what a segmenter and an online tracker get ready on
+        first = _FirstFrame(dataset)  # what a segmenter and an online tracker get ready on (read if needed)
         segmenter_s = self._prepare_segmenter(first)  # and an ONNX export / session out of the first frame's
         maps = [get_map(kind, self.config, label_set) for kind in kinds]
         mapper = Mapper(maps, min_depth=self.config.mapping.min_depth, max_depth=self.config.mapping.max_depth,
@@ -350,26 +363,26 @@ class Pipeline:
         return open_dataset(c.dataset, c.format, labels=c.labels, stride=c.stride, max_frames=c.max_frames,
                             raw_color=c.raw_color, ros=c.ros.options(), strict=c.strict)
 
-    def _prepare_segmenter(self, first: Frame | None) -> float:
+    def _prepare_segmenter(self, first: _FirstFrame) -> float:
         """Let a segmenter with a start-up cost pay it on the dataset's first frame; returns the seconds."""
-        if not isinstance(self.segmenter, Preparable) or first is None:
+        if not isinstance(self.segmenter, Preparable) or first.frame is None:
             return 0.0
-        return self.segmenter.prepare(first)
+        return self.segmenter.prepare(first.frame)
 
-    def _prepare_tracker(self, first: Frame | None) -> float:
+    def _prepare_tracker(self, first: _FirstFrame) -> float:
         """Online, run a throwaway tracker of the same kind on the first frame twice, so that its kernels are
         compiled (or loaded) before the first frame's latency is counted; returns the seconds."""
-        if self.config.mode != LoopMode.ONLINE or first is None or self.config.poses.source == "gt":
+        if self.config.mode != LoopMode.ONLINE or self.config.poses.source == "gt":
             return 0.0
         from semmap.poses.track import METHODS, make_tracker
 
         source = self.config.poses.source
-        if source not in METHODS:  # (object-constrained trackers share the instance source's state: not warmed)
-            return 0.0
+        if source not in METHODS or first.frame is None:  # (object-constrained trackers share the instance
+            return 0.0  # source's state: not warmed)
         t0 = time.perf_counter()
         warm = make_tracker(source)
         for _ in range(2):
-            warm.track(first)
+            warm.track(first.frame)
         return time.perf_counter() - t0
 
     def _label_set(self, dataset: Dataset) -> LabelSet | None:

@@ -14,7 +14,7 @@ One scan is inserted as OctoMap's ``insertPointCloud(discretize=True)`` does it,
    cells split by shard between threads (disjoint shards need no atomics), attribute rows of first hits in cell
    order, then colour running means and top-k Bayesian fusion per row.
 
-Passes over many items run on every thread, passes over few on one (``PARALLEL_MIN_ITEMS``).  The table and
+Passes with enough work run on every thread, passes with little on one (``*_PARALLEL_MIN``).  The table and
 attribute passes prefetch the cache lines of the item ``PREFETCH_AHEAD`` places ahead: the table is far bigger
 than the caches, and cells in grid order fall into its z-groups several at a time, so without the hint the CPU
 waits for one group's miss after another.
@@ -32,9 +32,12 @@ from semmap.maps._hashtable import find_or_insert, find_slot, prefetch_home, sha
 from semmap.maps._keys import KEY_LIMIT, coord_to_key, key_to_coord, pack_key, trace_ray
 from semmap.maps._prefetch import prefetch
 
-#: Items (rays, cells, attribute rows) from which a pass runs on all threads; fewer run on one, where
-#: waking the others costs more than it saves (and much more when other processes hold the cores).
-PARALLEL_MIN_ITEMS = 8192
+#: Items from which a pass runs on every thread: about 0.2 ms of work each (rays of 50-100 cells, table
+#: updates, attribute rows with fusion); below that waking the other threads costs about what it saves, and far
+#: more when other processes hold the cores.
+RAYS_PARALLEL_MIN = 1024
+CELLS_PARALLEL_MIN = 8192
+ROWS_PARALLEL_MIN = 2048
 #: Cells ahead whose table lines a table pass prefetches (measured: 9.5 -> 6.0 ms for 340k cells at 2 cm).
 PREFETCH_AHEAD = 32
 #: Scratch width of ``fuse_sets`` (the union of two sets of at most 8 labels).
@@ -182,7 +185,7 @@ def _cast_rays_serial(origin, targets, resolution, res_factor, grid, g0x, g0y, g
 def cast_rays(origin: np.ndarray, targets: np.ndarray, resolution: float, res_factor: float, grid: np.ndarray,
               g0x: int, g0y: int, g0z: int, gny: int, gnz: int, n_threads: int) -> int:
     """Mark the free cells of every ray origin→target in the grid; returns the number of cells visited."""
-    if n_threads > 1 and targets.shape[0] >= PARALLEL_MIN_ITEMS:
+    if n_threads > 1 and targets.shape[0] >= RAYS_PARALLEL_MIN:
         return int(_cast_rays_parallel(origin, targets, resolution, res_factor, grid, g0x, g0y, g0z, gny, gnz,
                                        n_threads))
     return int(_cast_rays_serial(origin, targets, resolution, res_factor, grid, g0x, g0y, g0z, gny, gnz))
@@ -272,7 +275,7 @@ def update_cells(cells: np.ndarray, n: int, progress: np.ndarray, keys: np.ndarr
     filling past ``fill_limit``: grow the table and call again."""
     args = (cells, n, progress, keys, logodds, attr, counts, shard_cap, delta, clamp_lo, clamp_hi, fill_limit,
             slots)
-    if progress.shape[0] > 1 and n >= PARALLEL_MIN_ITEMS:
+    if progress.shape[0] > 1 and n >= CELLS_PARALLEL_MIN:
         _update_parallel(*args)
     else:
         _update_serial(*args)
@@ -356,7 +359,7 @@ def update_attributes(rows: np.ndarray, point_index: np.ndarray, colors: np.ndar
     most once) from the points ``point_index``."""
     args = (rows, point_index, colors, has_colors, sem_labels, sem_probs, has_semantics, rgb, rgb_count,
             map_labels, map_probs, lam, max_confidence)
-    if n_threads > 1 and rows.shape[0] >= PARALLEL_MIN_ITEMS:
+    if n_threads > 1 and rows.shape[0] >= ROWS_PARALLEL_MIN:
         _attributes_parallel(*args, n_threads)
     else:
         _attributes_serial(*args)
