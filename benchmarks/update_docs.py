@@ -2,9 +2,9 @@
 
     python benchmarks/update_docs.py [--quick] [--only fusion,demo,...|none] [--results FILE]
 
-``--only`` re-runs the named parts (octree, sim, tracking, segmenters, fusion, demo, end_to_end, localization;
-``none``: nothing) and takes the others' results from ``--results`` (a JSON object of part results, e.g.
-``{"fusion": <bench_fusion.py's last line>}``) or else from the JSON block at the end of docs/BENCHMARKS.md.
+``--only`` re-runs the named parts (octree, sim, tracking, segmenters, fusion, demo, end_to_end, localization,
+networks; ``none``: nothing) and takes the others' results from ``--results`` (a JSON object of part results,
+e.g. ``{"fusion": <bench_fusion.py's last line>}``) or else from the JSON block at the end of docs/BENCHMARKS.md.
 Without demo results the docs keep their current demo lines.
 
 Each benchmark runs as its own process and its last stdout line (one JSON object) is parsed, so the numbers in
@@ -220,13 +220,59 @@ def localization_readme(bench: dict | None) -> list[str]:
               if not r.startswith("| ") or "global (ground)" in r or r.startswith("| rooms")], ""]
 
 
+#: The papers' own numbers beside semmap's network table (CBAM paper Table 2, ADE20K; RGB-D paper Table 3, NYUDv2).
+PAPER_NETWORKS = ("CBAM paper, Table 2 (ADE20K, ResNet-50, full size): FCN MPA 69.83 / MIoU 26.23, PSPNet 71.70 / "
+                  "30.69, CBAM-PSPNet 74.25 / 32.57. RGB-D paper, Table 3 (NYUDv2): colour only 54.8 / 35.4, "
+                  "RGB-D 59.5 / 39.4 (+4.0 MIoU).")
+
+
+def networks_table(bench: dict) -> list[str]:
+    """Test scores and CPU time per 640x480 frame of the shipped networks (ONNX Runtime rows carry the timing)."""
+    out = ["| network | input | params | MPA | MIoU | ms/frame torch | ms/frame ONNX |",
+           "|---|---|---|---|---|---|---|"]
+    rows: dict[str, dict] = {}
+    for r in bench["results"]:
+        rows.setdefault(r["model"], {})[r["runtime"]] = r
+    for model, by in rows.items():
+        t = by.get("torch", by.get("onnx"))
+        if t.get("miou") is None:
+            acc = f"– | shared classes {t['miou_shared']:.3f}"
+        else:
+            acc = f"{t['mpa']:.3f} | **{t['miou']:.3f}**"
+        out.append(f"| {model} | {t['input']} | {t['params'] / 1e6:.2f} M | {acc} | "
+                   f"{by.get('torch', {}).get('ms_per_frame', '–')} | {by.get('onnx', {}).get('ms_per_frame', '–')} |")
+    return out
+
+
+def networks_section(bench: dict | None) -> list[str]:
+    """The BENCHMARKS.md section on the trained networks (nothing when bench_networks.py has not been run)."""
+    if bench is None:
+        return []
+    return ["## The papers' networks, trained by semmap", "",
+            f"`benchmarks/bench_networks.py`: shipped weights (weights/) on {bench['frames']} held-out simulated "
+            f"frames ({', '.join(bench['test_scenes'])}), 640×480, {bench['threads']} CPU threads. "
+            "ESPNetv2 (PASCAL VOC) scored on the classes VOC shares with the simulator.", "",
+            *networks_table(bench), "", PAPER_NETWORKS, ""]
+
+
+def networks_readme(bench: dict | None) -> list[str]:
+    """The README lines on the trained networks."""
+    if bench is None:
+        return []
+    return ["The papers' networks as semmap trains and ships them, on held-out simulated frames "
+            "(`benchmarks/bench_networks.py`):", "", *networks_table(bench), "", PAPER_NETWORKS, ""]
+
+
 def demo_lines(report: dict) -> list[str]:
     sizes = report["bytes_on_disk"]
     ms = report["ms_per_frame"]
     mapping_ms = sum(v for k, v in ms.items() if k not in ("load", "segment", "total"))
+    seg = report.get("segmenter", "oracle")
+    what = ("cnn-like oracle, ~75 % pixel accuracy" if seg == "oracle"
+            else f"the shipped {seg} network, trained by semmap on other simulated scenes")
     return [
         f"- 3D semantic mIoU of the fused map **{report['miou_3d']:.3f}** against ground-truth voxels, versus "
-        f"**{report['oracle_miou_2d']:.3f}** for the single-frame (cnn-like, ~75 % pixel accuracy) segmentation "
+        f"**{report[f'{seg}_miou_2d']:.3f}** for the single-frame segmentation ({what}) "
         f"it was built from; geometric precision {report['geometric_precision_3d']:.3f}.",
         f"- {report['frames_used']} frames, {ms['total']:.0f} ms per frame in all (rendering {ms['load']:.0f} ms, "
         f"segmentation {ms['segment']:.0f} ms, mapping {mapping_ms:.0f} ms).",
@@ -253,11 +299,12 @@ PARTS = {"octree": ("octree_vs_octomap", "benchmarks/bench_octree_vs_octomap.py"
          "segmenters": ("segmenters", "benchmarks/bench_segmenters.py"),
          "fusion": ("fusion", "benchmarks/bench_fusion.py"), "demo": ("demo", None),
          "end_to_end": ("end_to_end", "benchmarks/bench_end_to_end.py"),
-         "localization": ("localization", "benchmarks/bench_localization.py")}
+         "localization": ("localization", "benchmarks/bench_localization.py"),
+         "networks": ("networks", "benchmarks/bench_networks.py")}
 #: parts the docs can do without when an earlier run did not have them yet
-OPTIONAL = {"end_to_end", "localization"}
+OPTIONAL = {"end_to_end", "localization", "networks"}
 #: What the docs use of the demo's report (kept in the JSON block so ``--only`` can reuse it).
-DEMO_KEYS = ("miou_3d", "oracle_miou_2d", "geometric_precision_3d", "frames_used", "ms_per_frame", "bytes_on_disk",
+DEMO_KEYS = ("segmenter", "miou_3d", "geometric_precision_3d", "frames_used", "ms_per_frame", "bytes_on_disk",
              "dense_point_cloud_bytes")
 
 
@@ -284,7 +331,8 @@ def collect(only: set[str] | None, quick: bool, given: dict) -> dict:
                 raise SystemExit(f"update_docs: no earlier {part} results (docs/BENCHMARKS.md, --results); run it")
         elif script is None:
             report = run_demo(ROOT / "outputs" / "demo")
-            out[key] = {k: report[k] for k in DEMO_KEYS}
+            seg = report.get("segmenter", "oracle")
+            out[key] = {k: report[k] for k in (*DEMO_KEYS, f"{seg}_miou_2d") if k in report}
         else:
             out[key] = run_json([script, *extra])
     return out
@@ -328,6 +376,7 @@ def main() -> None:
     segmenters, fusion = results["segmenters"], results["fusion"]
     demo = demo_lines(results["demo"]) if "demo" in results else current_demo_lines()
     localization = results.get("localization")
+    networks = results.get("networks")
     stamp = time.strftime("%Y-%m-%d")
     lines = [
         "# Benchmarks", "",
@@ -371,6 +420,7 @@ def main() -> None:
         *fusion_table(fusion), "", *fusion_targets(fusion), "",
         *end_to_end_section(results.get("end_to_end")),
         *localization_section(localization),
+        *networks_section(networks),
         "## Demo (`semmap demo`)", "", *demo, "",
         "```json", json_block(results), "```", "",
     ]
@@ -386,13 +436,15 @@ def main() -> None:
                  *end_to_end_section(results.get("end_to_end"), heading=False),
                  "Label fusion and maps (`benchmarks/bench_fusion.py`; the full table in "
                  "[docs/BENCHMARKS.md](docs/BENCHMARKS.md)):", "", *fusion_targets(fusion), "",
-                 *localization_readme(localization), END]
+                 *localization_readme(localization),
+                 *networks_readme(networks), END]
         head, rest = readme.split(START, 1)
         readme = head + "\n".join(block) + rest.split(END, 1)[1]
         (ROOT / "README.md").write_text(readme)
     demo_report = results.get("demo", {})
     print(json.dumps({"octree": octree["results"], "sim_fps": sim["fps"], "miou_3d": demo_report.get("miou_3d"),
-                      "oracle_miou_2d": demo_report.get("oracle_miou_2d"),
+                      "segmenter": demo_report.get("segmenter", "oracle"),
+                      "miou_2d": demo_report.get(f"{demo_report.get('segmenter', 'oracle')}_miou_2d"),
                       "fusion_upper_bound": fusion["upper_bound"], "fusion_timing": fusion["timing"]}))
 
 

@@ -188,3 +188,24 @@ def test_missing_shipped_weights_say_how_to_get_them(tmp_path, monkeypatch) -> N
     monkeypatch.setenv("SEMMAP_WEIGHTS", str(tmp_path))
     with pytest.raises(ConfigError, match="semmap train"):
         make_segmenter("cbam-pspnet")
+
+
+def test_a_mapping_run_segments_with_an_rgbd_network(tmp_path) -> None:
+    from helpers import room_label_set
+    from semmap.config import InputConfig, MappingConfig, OutputConfig, RunConfig, SemanticsConfig
+    from semmap.datasets.tum_writer import write_tum_sequence
+    from semmap.pipeline import Pipeline
+
+    labels = room_label_set()
+    root = tmp_path / "room"
+    write_tum_sequence(root, make_room_frames(3), label_set=labels)
+    torch.manual_seed(0)
+    spec = NetworkSpec("rgbd-net", len(labels), **SMALL)
+    path = save_weights(tmp_path / "w.pt", build_network(spec).eval(), spec, labels, (64, 48))
+    seg = make_segmenter("rgbd-net", weights=path)
+    config = RunConfig(input=InputConfig(dataset=root), mapping=MappingConfig(resolution=0.2),
+                       semantics=SemanticsConfig(segmenter="rgbd-net", weights=path),
+                       output=OutputConfig(out=tmp_path / "out"))
+    report = Pipeline(config, segmenter=seg).run().report
+    assert report["segmenter"] == "rgbd-net" and report["frames_segmented"] == 3
+    assert 0.0 <= report["rgbd-net_miou_2d"] <= 1.0

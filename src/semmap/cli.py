@@ -267,8 +267,8 @@ def _print_summary(report: dict, out_dir: Path) -> None:
 
     t = Table(title=f"semmap: {out_dir}", show_header=False)
     for key in ("frames_used", "frames_skipped", "occupied_voxels", "free_voxels", "occupied_leaves",
-                "free_leaves", "bytes_in_memory", "miou_3d", "oracle_miou_2d", "segmentation_miou_2d",
-                "frames_segmented"):
+                "free_leaves", "bytes_in_memory", "miou_3d",
+                *(k for k in report if k.endswith("_miou_2d")), "frames_segmented"):
         if key in report:
             t.add_row(key, str(report[key]))
     if "trajectory_vs_ground_truth" in report:
@@ -344,29 +344,54 @@ def demo(
     resolution: Annotated[float, typer.Option(help="finest voxel size (m)")] = 0.05,
     scene_seed: Annotated[int, typer.Option(help="scene generator seed")] = 0,
     rerun: Annotated[Path | None, typer.Option(help="also log the run to this rerun recording (.rrd)")] = None,
+    semantics: Annotated[str, typer.Option(help="network (the shipped network named in weights/manifest.json, "
+                                                "ONNX Runtime) | oracle (the cnn-like error model)")] = "network",
 ) -> None:
-    """Simulate the default scene, map it with ground-truth poses and the cnn-like oracle segmenter, and write
-    the outputs of `semmap run` plus report.md with 3D accuracy against ground truth."""
+    """Simulate the default scene, map it with ground-truth poses and the shipped segmentation network (or the
+    cnn-like oracle), and write the outputs of `semmap run` plus report.md with 3D accuracy against ground truth."""
     _setup_logging(False)
     from semmap.config import InputConfig, MappingConfig, OutputConfig, RunConfig, SemanticsConfig
     from semmap.datasets.simulated import SimulatedDataset
-    from semmap.perception.oracle import OracleSegmenter
     from semmap.pipeline import Pipeline
     from semmap.sim.ground_truth import gt_voxels
 
+    if semantics not in ("network", "oracle"):
+        raise SemmapError(f"--semantics must be network or oracle, got {semantics!r}")
     dataset = SimulatedDataset.default(scene_seed=scene_seed, frames=frames)
+    network = _demo_network() if semantics == "network" else None
+    sem_config = (SemanticsConfig(segmenter=network, backend="onnx") if network is not None
+                  else SemanticsConfig(source="oracle"))
     config = _validated(lambda: RunConfig(
         input=InputConfig(dataset=Path(dataset.name)), mapping=MappingConfig(resolution=resolution),
-        semantics=SemanticsConfig(source="oracle"), output=OutputConfig(out=out, rerun=rerun)))
-    segmenter = OracleSegmenter(dataset.label_set, preset=config.semantics.oracle_preset, seed=scene_seed)
+        semantics=sem_config, output=OutputConfig(out=out, rerun=rerun)))
+    if network is not None:
+        from semmap.perception.registry import trained_network_segmenter
+
+        segmenter = trained_network_segmenter(network, backend="onnx")
+    else:
+        from semmap.perception.oracle import OracleSegmenter
+
+        segmenter = OracleSegmenter(dataset.label_set, preset=config.semantics.oracle_preset, seed=scene_seed)
 
     def ground_truth(res: float):
         gt = gt_voxels(dataset.scene, res)
         return gt.keys, gt.class_ids
 
     result = Pipeline(config, segmenter=segmenter, dataset=dataset, ground_truth=ground_truth,
-                      progress=progress_bar("simulate + map"), title=f"semmap demo: {dataset.name}").run()
+                      progress=progress_bar("simulate + map"),
+                      title=f"semmap demo: {dataset.name} ({segmenter.name})").run()
     _print_summary(result.report, result.out_dir)
+
+
+def _demo_network() -> str | None:
+    """The shipped network the demo segments with (weights/manifest.json), or None with a warning."""
+    from semmap.perception.registry import demo_network
+
+    name = demo_network()
+    if name is None:
+        logging.getLogger("semmap").warning("no shipped network weights (weights/manifest.json); the demo uses the "
+                                            "oracle segmenter")
+    return name
 
 
 @app.command()

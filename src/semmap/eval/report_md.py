@@ -24,7 +24,7 @@ def render_report_md(report: dict, *, title: str = "semmap run", plots: dict[str
     if "miou_3d" in report:
         seg = next((k[: -len("_miou_2d")] for k in report if k.endswith("_miou_2d")), None)
         lines += ["## Semantic accuracy", "",
-                  "| measure | fused 3D map | single-frame segmentation |", "|---|---|---|",
+                  f"| measure | fused 3D map | single-frame segmentation ({seg}) |", "|---|---|---|",
                   f"| mIoU | **{report['miou_3d']:.3f}** | {report.get(f'{seg}_miou_2d', float('nan')):.3f} |",
                   f"| accuracy (voxels / pixels) | {report['voxel_accuracy_3d']:.3f} | "
                   f"{report.get(f'{seg}_pixel_accuracy_2d', float('nan')):.3f} |",

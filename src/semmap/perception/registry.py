@@ -30,12 +30,27 @@ SEGMENTERS = {
 TRAINED_NETWORKS = ("fcn", "pspnet", "cbam-pspnet", "rgbd-net", "rgb-only")
 #: Environment variable naming another folder of shipped weights.
 WEIGHTS_ENV = "SEMMAP_WEIGHTS"
+#: The shipped weights' manifest (sha256, training command, data seeds, metrics, the demo's network).
+MANIFEST = "manifest.json"
 
 
 def shipped_weights_dir() -> Path:
     """The repository's ``weights/`` folder (or ``$SEMMAP_WEIGHTS``)."""
     env = os.environ.get(WEIGHTS_ENV)
     return Path(env) if env else Path(__file__).resolve().parents[3] / "weights"
+
+
+def demo_network() -> str | None:
+    """The shipped network ``semmap demo`` segments with: ``demo.network`` of ``weights/manifest.json`` (the
+    best MIoU per millisecond), or None when the manifest or its weight file is missing."""
+    import json
+
+    path = shipped_weights_dir() / MANIFEST
+    try:
+        name = json.loads(path.read_text())["demo"]["network"]
+    except (OSError, ValueError, KeyError, TypeError):
+        return None
+    return name if name in TRAINED_NETWORKS and shipped_weights(name).is_file() else None
 
 
 def shipped_weights(name: str) -> Path:

@@ -1,0 +1,155 @@
+"""The papers' networks as semmap trains and ships them (weights/), on held-out simulated scenes.
+
+Test frames: scene seeds 0-3 (office, kitchen, living_room, bedroom; medium; the demo's 300-frame loop),
+disjoint from the training (100-139) and validation (200-203) scenes, rendered at 640x480 with depth noise;
+every 10th frame (every 30th with --quick).  For every shipped network and runtime (PyTorch, ONNX Runtime):
+MPA and MIoU (eqs. 11-12 of the CBAM paper, classes present in the ground truth, void pixels left out) of the
+top class at 640x480, parameters, and ms per 640x480 frame through the segmenter `semmap run` uses (resize,
+network, softmax, sampling at every pixel, top-3).  ESPNetv2 (PASCAL VOC weights in ../shared) is the peer:
+timed in the same run, scored on the classes VOC shares with the simulator (``miou_shared``; every network gets
+that column too).  ONNX rows report the share of pixels whose top class equals PyTorch's.
+
+Timings depend on the machine's load: the development machine is shared (2 cores, other jobs running).
+The last line is JSON: {"bench": "networks", "results": [{"model", "input", "params", "mpa", "miou",
+"ms_per_frame", "runtime", ...}, ...]}
+
+    python benchmarks/bench_networks.py [--quick] [--threads 2] [--weights-dir weights]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+from pathlib import Path
+
+import numpy as np
+
+from semmap.eval.semantic import confusion, scores
+from semmap.perception.networks.registry import count_parameters, load_weights
+from semmap.perception.registry import TRAINED_NETWORKS, make_segmenter, shipped_weights_dir
+from semmap.sim.export import simulate_frames
+from semmap.sim.labels import INDOOR_LABELS
+from semmap.sim.scene import generate_scene
+from semmap.sim.trajectory import make_trajectory
+from semmap.types import Frame
+
+SHARED = Path(__file__).resolve().parents[1].parent / "shared"
+ESPNETV2 = SHARED / "weights" / "espnetv2" / "espnetv2_s_2.0_pascal_384x384.pth"
+#: Held-out test scenes: (scene seed, kind), medium size, the demo's loop trajectory of 300 frames.
+TEST_SCENES = ((0, "office"), (1, "kitchen"), (2, "living_room"), (3, "bedroom"))
+TRAJECTORY_FRAMES = 300
+#: PASCAL VOC class -> simulator class, for the classes both have.
+VOC_TO_INDOOR = {"chair": "chair", "diningtable": "table", "sofa": "sofa", "tvmonitor": "monitor",
+                 "bottle": "bottle", "pottedplant": "plant", "person": "person"}
+VOID = 0
+
+
+def test_frames(step: int) -> list[Frame]:
+    """Every ``step``-th frame of the test scenes' loops."""
+    frames = []
+    for seed, kind in TEST_SCENES:
+        scene = generate_scene(seed, kind, "medium")
+        poses = make_trajectory(scene, "loop", TRAJECTORY_FRAMES, seed=seed)
+        frames += list(simulate_frames(scene, poses[::step], noise=True, seed=seed))
+    return frames
+
+
+def shared_ids(to_indoor: np.ndarray) -> np.ndarray:
+    """Map simulator ids to 0 (other) or themselves for the classes VOC shares."""
+    keep = np.zeros(len(INDOOR_LABELS), np.int64)
+    for name in VOC_TO_INDOOR.values():
+        keep[INDOOR_LABELS.id_of(name)] = INDOOR_LABELS.id_of(name)
+    return keep[to_indoor]
+
+
+def evaluate(seg, frames: list[Frame], voc: bool = False) -> tuple[dict, list[np.ndarray]]:
+    """Scores, ms per frame (after one warm-up frame) and the top-class images of a segmenter."""
+    k = len(INDOOR_LABELS)
+    conf = np.zeros((k, k), np.int64)
+    conf_shared = np.zeros((k, k), np.int64)
+    lut = None
+    if voc:
+        lut = np.zeros(len(seg.label_set), np.int64)
+        for voc_name, name in VOC_TO_INDOOR.items():
+            lut[seg.label_set.id_of(voc_name)] = INDOOR_LABELS.id_of(name)
+    seg.segment(frames[0])
+    preds, elapsed = [], 0.0
+    for f in frames:
+        t0 = time.perf_counter()
+        top = seg.segment(f).labels[..., 0]
+        elapsed += time.perf_counter() - t0
+        pred = np.where(top < len(seg.label_set), top, 0).astype(np.int64)
+        if lut is not None:
+            pred = lut[pred]
+        preds.append(pred)
+        if not voc:
+            conf += confusion(pred, f.labels, k, ignore=VOID)
+        gt = f.labels.astype(np.int64)
+        conf_shared += confusion(shared_ids(pred), np.where(gt == VOID, -1, shared_ids(gt)), k, ignore=-1)
+    shared = scores(conf_shared, ignore=None)
+    shared_iou = shared.iou[[INDOOR_LABELS.id_of(n) for n in VOC_TO_INDOOR.values()]]
+    out = {"ms_per_frame": round(1e3 * elapsed / len(frames), 1),
+           "miou_shared": round(float(np.nanmean(shared_iou)), 4)}
+    if not voc:
+        s = scores(conf, ignore=VOID)
+        out |= {"mpa": round(s.mpa, 4), "miou": round(s.miou, 4), "pixel_accuracy": round(s.accuracy, 4)}
+    return out, preds
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--quick", action="store_true", help="every 30th frame of each test loop (40 frames)")
+    parser.add_argument("--threads", type=int, default=2, help="CPU threads of both runtimes")
+    parser.add_argument("--weights-dir", type=Path, default=None, help="folder of <network>.pt (default: weights/)")
+    args = parser.parse_args()
+    wdir = args.weights_dir or shipped_weights_dir()
+    t0 = time.perf_counter()
+    frames = test_frames(30 if args.quick else 10)
+    print(f"{len(frames)} test frames (scene seeds {[s for s, _ in TEST_SCENES]}) rendered in "
+          f"{time.perf_counter() - t0:.1f} s; machine shared: timings are indicative")
+    results = []
+    for name in TRAINED_NETWORKS:
+        path = wdir / f"{name}.pt"
+        if not path.is_file():
+            print(f"skipping {name}: {path} not found")
+            continue
+        loaded = load_weights(path)
+        base = {"model": loaded.spec.describe(), "network": name,
+                "input": "x".join(map(str, loaded.input_size)), "params": count_parameters(loaded.model)}
+        torch_preds = None
+        for runtime in ("torch", "onnx"):
+            seg = make_segmenter(name, weights=path, backend=runtime, threads=args.threads)
+            row, preds = evaluate(seg, frames)
+            row = base | row | {"runtime": runtime}
+            if torch_preds is None:
+                torch_preds = preds
+            else:
+                same = np.mean([np.mean(a == b) for a, b in zip(preds, torch_preds, strict=True)])
+                row["agreement_with_torch"] = round(float(same), 5)
+            results.append(row)
+            print(f"{row['model']:26s} {runtime:5s} {row['input']:>7s}  MIoU {row['miou']:.3f}  MPA {row['mpa']:.3f}"
+                  f"  shared-class MIoU {row['miou_shared']:.3f}  {row['ms_per_frame']:6.1f} ms/frame"
+                  + (f"  agrees with torch on {100 * row['agreement_with_torch']:.2f} % of pixels"
+                     if "agreement_with_torch" in row else ""))
+    if ESPNETV2.is_file():
+        for runtime in ("torch", "onnx"):
+            seg = make_segmenter("espnetv2", weights=ESPNETV2, backend=runtime, threads=args.threads)
+            row, _ = evaluate(seg, frames, voc=True)
+            row = {"model": "espnetv2-s2.0-voc", "network": "espnetv2", "input": "432x320",
+                   "params": count_parameters(seg._model), "mpa": None, "miou": None, "runtime": runtime} | row
+            results.append(row)
+            print(f"{row['model']:26s} {runtime:5s} {row['input']:>7s}  shared-class MIoU {row['miou_shared']:.3f}"
+                  f"  {row['ms_per_frame']:6.1f} ms/frame (peer)")
+        peer = {r["runtime"]: r["ms_per_frame"] for r in results if r["network"] == "espnetv2"}
+        for r in results:
+            if r["network"] != "espnetv2" and r["runtime"] in peer:
+                r["speed_vs_espnetv2"] = round(peer[r["runtime"]] / r["ms_per_frame"], 2)
+    else:
+        print(f"skipping the ESPNetv2 peer: {ESPNETV2} not found")
+    print(json.dumps({"bench": "networks", "frames": len(frames), "frame": "640x480", "threads": args.threads,
+                      "test_scenes": [f"{k}-medium-seed{s}-loop" for s, k in TEST_SCENES], "results": results}))
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,103 @@
+"""Copy the shipped training runs' best checkpoints into weights/ and write weights/manifest.json.
+
+For every network: the file's sha256 and size, the architecture, the exact training command, the data (scene
+seeds of scripts/make_training_data.py), the validation scores of the kept checkpoint and, given the JSON line
+of benchmarks/bench_networks.py (--bench), the held-out test scores and timings.  With --bench the manifest also
+names the demo's network: the best test MIoU per millisecond (ONNX Runtime, 640x480 frame).
+
+    python scripts/ship_weights.py --runs outputs/train-runs [--bench outputs/bench-networks.json]
+"""
+
+from __future__ import annotations
+
+import argparse
+import hashlib
+import json
+import shutil
+import sys
+from pathlib import Path
+
+from semmap.io.atomic import write_text_atomic
+from semmap.perception.networks.registry import load_weights
+from semmap.perception.registry import MANIFEST, TRAINED_NETWORKS, shipped_weights_dir
+
+sys.path.insert(0, str(Path(__file__).parent))
+from make_training_data import FPS, TRAIN_FRAMES, VAL_FRAMES, train_plan, val_plan
+
+#: Largest shipped weight file (bytes).
+MAX_BYTES = 10 * 1024 * 1024
+TEST_SCENES = "scene seeds 0-3 (office, kitchen, living_room, bedroom; medium; loop of 300 frames), 640x480"
+
+
+def command(config: dict) -> str:
+    """The ``semmap train`` command line a run folder's config.json records."""
+    w, h = config["input_size"]
+    return (f"semmap train --model {config['model']} --data {' --data '.join(config['data'])} "
+            f"--val {' --val '.join(config['val'])} --out {config['out']} --iterations {config['iterations_total']} "
+            f"--batch {config['batch']} --lr {config['lr']:g} --input-size {w}x{h} --width {config['width']:g} "
+            f"--resnet-depth {config['depth']} --seed {config['seed']} --threads {config['threads']} "
+            f"--eval-every {config['eval_every']}")
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--runs", type=Path, default=Path("outputs/train-runs"))
+    parser.add_argument("--bench", type=Path, default=None, help="JSON line of benchmarks/bench_networks.py")
+    args = parser.parse_args()
+    out = shipped_weights_dir()
+    out.mkdir(parents=True, exist_ok=True)
+    bench = json.loads(args.bench.read_text().strip().splitlines()[-1]) if args.bench else None
+    networks = {}
+    for name in TRAINED_NETWORKS:
+        run = args.runs / name
+        if not (run / "final.pt").is_file():
+            print(f"{name}: no finished run in {run}; not shipped")
+            continue
+        target = out / f"{name}.pt"
+        shutil.copyfile(run / "best.pt", target)
+        data = target.read_bytes()
+        if len(data) > MAX_BYTES:
+            raise SystemExit(f"{target}: {len(data)} bytes exceeds the {MAX_BYTES} byte limit")
+        loaded = load_weights(target)
+        config = json.loads((run / "config.json").read_text())
+        log = json.loads((run / "log.json").read_text())
+        entry = {"file": target.name, "sha256": hashlib.sha256(data).hexdigest(), "bytes": len(data),
+                 "network": loaded.spec.describe(), "spec": loaded.spec.to_dict(),
+                 "parameters": loaded.meta.get("parameters"), "input_size": list(loaded.input_size),
+                 "command": command(config),
+                 "best_iteration": loaded.meta.get("iteration"), "validation": loaded.meta.get("metrics"),
+                 "train_seconds": log["rows"][-1]["seconds"], "train_images": config["train_images"],
+                 "val_images": config["val_images"]}
+        if bench is not None:
+            rows = [r for r in bench["results"] if r["network"] == name]
+            entry["test"] = {r["runtime"]: {k: r.get(k) for k in ("miou", "mpa", "pixel_accuracy", "miou_shared",
+                                                                   "ms_per_frame", "agreement_with_torch")}
+                             for r in rows}
+        networks[name] = entry
+        print(f"{name}: {entry['network']}, {len(data) / 1e6:.2f} MB, val mIoU {entry['validation']['val_miou']}")
+    manifest = {
+        "about": "Segmentation networks trained by semmap on simulated scenes (CPU, see docs/DESIGN.md); "
+                 "regenerate with scripts/make_training_data.py, scripts/train_shipped.sh, scripts/ship_weights.py",
+        "data": {"train": {"scene_seeds": [p[0] for p in train_plan()], "frames_per_scene": TRAIN_FRAMES,
+                           "fps": FPS, "scenes": [f"{k}-{s}-seed{seed}-{t}" for seed, k, s, t in train_plan()]},
+                 "val": {"scene_seeds": [p[0] for p in val_plan()], "frames_per_scene": VAL_FRAMES, "fps": FPS},
+                 "test": TEST_SCENES,
+                 "generate": "python scripts/make_training_data.py --out outputs/train-data --image-size 160x120"},
+        "networks": networks,
+    }
+    if bench is not None:
+        onnx = {n: e["test"]["onnx"] for n, e in networks.items() if "onnx" in e.get("test", {})}
+        best = max(onnx, key=lambda n: onnx[n]["miou"] / onnx[n]["ms_per_frame"])
+        manifest["demo"] = {"network": best, "rule": "highest test MIoU per ms (ONNX Runtime, 640x480 frame)",
+                            "miou": onnx[best]["miou"], "ms_per_frame": onnx[best]["ms_per_frame"],
+                            "bench_frames": bench["frames"], "bench_threads": bench["threads"]}
+        print(f"demo network: {best}")
+    elif (out / MANIFEST).is_file():  # keep an earlier choice when only re-copying
+        old = json.loads((out / MANIFEST).read_text())
+        if "demo" in old:
+            manifest["demo"] = old["demo"]
+    write_text_atomic(out / MANIFEST, json.dumps(manifest, indent=1) + "\n")
+
+
+if __name__ == "__main__":
+    main()
