@@ -2,12 +2,13 @@
 
 Test frames: scene seeds 0-3 (office, kitchen, living_room, bedroom; medium; the demo's 300-frame loop),
 disjoint from the training (100-139) and validation (200-203) scenes, rendered at 640x480 with depth noise;
-every 10th frame (every 30th with --quick).  For every shipped network and runtime (PyTorch, ONNX Runtime):
-MPA and MIoU (eqs. 11-12 of the CBAM paper, classes present in the ground truth, void pixels left out) of the
-top class at 640x480, parameters, and ms per 640x480 frame through the segmenter `semmap run` uses (resize,
-network, softmax, sampling at every pixel, top-3).  ESPNetv2 (PASCAL VOC weights in ../shared) is the peer:
-timed in the same run, scored on the classes VOC shares with the simulator (``miou_shared``; every network gets
-that column too).  ONNX rows report the share of pixels whose top class equals PyTorch's.
+every 10th frame, 120 in all (every 60th with --quick: 20 frames).  For every shipped network and runtime
+(PyTorch, ONNX Runtime): MPA and MIoU (eqs. 11-12 of the CBAM paper, classes present in the ground truth, void
+pixels left out) of the top class at 640x480, parameters, and ms per 640x480 frame through the segmenter
+`semmap run` uses (resize, network, softmax, sampling at every pixel, top-3).  ESPNetv2 (PASCAL VOC weights in
+../shared) is the peer: timed in the same run, scored on the classes VOC shares with the simulator
+(``miou_shared``; every network gets that column too).  ONNX rows report the share of pixels whose top class
+equals PyTorch's.
 
 Timings depend on the machine's load: the development machine is shared (2 cores, other jobs running).
 The last line is JSON: {"bench": "networks", "results": [{"model", "input", "params", "mpa", "miou",
@@ -99,13 +100,13 @@ def evaluate(seg, frames: list[Frame], voc: bool = False) -> tuple[dict, list[np
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--quick", action="store_true", help="every 30th frame of each test loop (40 frames)")
+    parser.add_argument("--quick", action="store_true", help="every 60th frame of each test loop (20 frames)")
     parser.add_argument("--threads", type=int, default=2, help="CPU threads of both runtimes")
     parser.add_argument("--weights-dir", type=Path, default=None, help="folder of <network>.pt (default: weights/)")
     args = parser.parse_args()
     wdir = args.weights_dir or shipped_weights_dir()
     t0 = time.perf_counter()
-    frames = test_frames(30 if args.quick else 10)
+    frames = test_frames(60 if args.quick else 10)
     print(f"{len(frames)} test frames (scene seeds {[s for s, _ in TEST_SCENES]}) rendered in "
           f"{time.perf_counter() - t0:.1f} s; machine shared: timings are indicative")
     results = []

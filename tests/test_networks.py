@@ -209,3 +209,45 @@ def test_a_mapping_run_segments_with_an_rgbd_network(tmp_path) -> None:
     report = Pipeline(config, segmenter=seg).run().report
     assert report["segmenter"] == "rgbd-net" and report["frames_segmented"] == 3
     assert 0.0 <= report["rgbd-net_miou_2d"] <= 1.0
+
+
+def test_shipped_weights_match_their_manifest() -> None:
+    import hashlib
+    import json
+
+    from semmap.perception.registry import MANIFEST, TRAINED_NETWORKS, demo_network, shipped_weights_dir
+    from semmap.sim.labels import INDOOR_LABELS
+
+    manifest_path = shipped_weights_dir() / MANIFEST
+    if not manifest_path.is_file():
+        pytest.skip("no shipped weights")
+    manifest = json.loads(manifest_path.read_text())
+    assert set(manifest["networks"]) == set(TRAINED_NETWORKS)
+    total = 0
+    for name, entry in manifest["networks"].items():
+        data = (shipped_weights_dir() / entry["file"]).read_bytes()
+        total += len(data)
+        assert len(data) <= 10 * 1024 * 1024 and hashlib.sha256(data).hexdigest() == entry["sha256"], name
+        loaded = load_weights(shipped_weights_dir() / entry["file"])
+        assert loaded.spec.model == name and loaded.label_set == INDOOR_LABELS
+        assert entry["command"].startswith(f"semmap train --model {name} ")
+        assert not set(manifest["data"]["train"]["scene_seeds"]) & set(range(10))  # test scenes are seeds 0-9
+    assert total <= 60 * 1024 * 1024
+    assert demo_network() == manifest["demo"]["network"]
+
+
+def test_demo_segments_with_the_shipped_network(tmp_path) -> None:
+    import json
+
+    from semmap.perception.registry import demo_network
+    from test_pipeline_cli import run_cli
+
+    name = demo_network()
+    if name is None:
+        pytest.skip("no shipped weights")
+    r = run_cli("demo", "--frames", "6", "--out", str(tmp_path / "demo"), "--resolution", "0.1")
+    assert r.returncode == 0, r.stderr
+    report = json.loads((tmp_path / "demo" / "report.json").read_text())
+    assert report["segmenter"] == name and report["frames_segmented"] == 6
+    assert f"{name}_miou_2d" in report and "miou_3d" in report
+    assert f"single-frame segmentation ({name})" in (tmp_path / "demo" / "report.md").read_text()

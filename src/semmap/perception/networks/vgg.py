@@ -1,6 +1,6 @@
 """VGG-16 feature blocks (Simonyan & Zisserman 2015) with a width multiplier: five blocks of 2, 2, 3, 3, 3
-3x3 conv + BN + ReLU layers.  BatchNorm is added (the papers' Caffe/VGG nets had none) because semmap trains
-from scratch, without ImageNet initialisation, where plain VGG-16 does not converge in a short schedule."""
+3x3 conv + BN + ReLU layers.  BatchNorm is added (the papers' Caffe VGG-16 had none but started from ImageNet
+weights) because semmap trains from scratch, where BN keeps a 13-layer plain stack trainable."""
 
 from __future__ import annotations
 
