@@ -62,6 +62,17 @@ def test_components_of_label_images_give_objects_too(box_sequence, tmp_path):
     assert sorted(r["class"] for r in records) == ["chair", "chair", "table"]
 
 
+def test_a_run_with_object_constrained_poses_reports_its_object_edges(box_sequence, tmp_path):
+    out = tmp_path / "o"
+    r = run_cli("run", str(box_sequence), "--out", str(out), "--resolution", "0.05", "--poses", "odometry-objects",
+                "--instances", "oracle", "--instance-errors", "exact")
+    assert r.returncode == 0, r.stderr
+    report = json.loads((out / "report.json").read_text())
+    edges = report["object_pose_edges"]
+    assert set(edges) >= {"keyframes", "candidate_edges", "agreeing_edges", "edges", "edges_ignored"}
+    assert edges["keyframes"] >= 2 and report["poses"] == "odometry-objects"
+
+
 def test_object_poses_need_an_instance_source(box_sequence, tmp_path):
     r = run_cli("run", str(box_sequence), "--out", str(tmp_path / "o"), "--poses", "slam-objects")
     assert r.returncode == 1 and "needs an instance source" in r.stderr and "Traceback" not in r.stderr

@@ -164,9 +164,11 @@ class FramePoses:
     name); remembers the poses used and the frames' own ground truth, for ``trajectory.txt`` and its score."""
 
     def __init__(self, source: str, *, by_name: dict[str, np.ndarray] | None = None, lookup=None,
-                 tracking_s: float | None = None, tracked: int = 0, tracker: PoseTracker | None = None):
+                 tracking_s: float | None = None, tracked: int = 0, tracker: PoseTracker | None = None,
+                 edge_stats: dict | None = None):
         self.source, self.by_name, self.lookup = source, by_name, lookup
         self.tracking_s, self.tracked = tracking_s, tracked
+        self.edge_stats = edge_stats  # what object constraints did to the trajectory (X-objects trackers)
         self.tracker = tracker  # online: tracked frame by frame, as the frames arrive
         self._used: list[tuple[float, str, np.ndarray]] = []
         self._gt: list[tuple[float, str, np.ndarray]] = []
@@ -466,8 +468,10 @@ class Pipeline:
             tracking_s = time.perf_counter() - t0
             if len(trajectory) == 0:
                 raise ConfigError(f"{self.config.input.dataset}: the {source} tracker lost every frame")
+            stats = getattr(tracker, "stats", None)
             return FramePoses(source, by_name=dict(zip(trajectory.names, trajectory.poses, strict=True)),
-                              tracking_s=tracking_s, tracked=len(trajectory))
+                              tracking_s=tracking_s, tracked=len(trajectory),
+                              edge_stats=dataclasses.asdict(stats) if dataclasses.is_dataclass(stats) else None)
         from semmap.poses.file import TrajectoryPoses
 
         path = Path(source)
@@ -519,6 +523,8 @@ class Pipeline:
             files["trajectory"] = write_trajectory(self._out / "trajectory.txt", used)
         if pose_of.tracking_s is not None:
             out["tracking_ms_per_frame"] = round(1e3 * pose_of.tracking_s / max(pose_of.tracked, 1), 2)
+        if pose_of.edge_stats is not None:
+            out["object_pose_edges"] = pose_of.edge_stats
         gt = pose_of.ground_truth()
         if pose_of.source != "gt" and len(gt) >= 3 and len(used) >= 3:
             from semmap.eval.trajectory import evaluate_trajectory
