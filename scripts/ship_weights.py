@@ -22,7 +22,7 @@ from semmap.perception.networks.registry import load_weights
 from semmap.perception.registry import MANIFEST, TRAINED_NETWORKS, shipped_weights_dir
 
 sys.path.insert(0, str(Path(__file__).parent))
-from make_training_data import FPS, TRAIN_FRAMES, VAL_FRAMES, train_plan, val_plan
+from make_training_data import PATH_SECONDS, TRAIN_FRAMES, VAL_FRAMES, train_plan, val_plan
 
 #: Largest shipped weight file (bytes).
 MAX_BYTES = 10 * 1024 * 1024
@@ -79,8 +79,10 @@ def main() -> None:
         "about": "Segmentation networks trained by semmap on simulated scenes (CPU, see docs/DESIGN.md); "
                  "regenerate with scripts/make_training_data.py, scripts/train_shipped.sh, scripts/ship_weights.py",
         "data": {"train": {"scene_seeds": [p[0] for p in train_plan()], "frames_per_scene": TRAIN_FRAMES,
-                           "fps": FPS, "scenes": [f"{k}-{s}-seed{seed}-{t}" for seed, k, s, t in train_plan()]},
-                 "val": {"scene_seeds": [p[0] for p in val_plan()], "frames_per_scene": VAL_FRAMES, "fps": FPS},
+                           "path_seconds": PATH_SECONDS,
+                           "scenes": [f"{k}-{s}-seed{seed}-{t}" for seed, k, s, t in train_plan()]},
+                 "val": {"scene_seeds": [p[0] for p in val_plan()], "frames_per_scene": VAL_FRAMES,
+                         "path_seconds": PATH_SECONDS},
                  "test": TEST_SCENES,
                  "generate": "python scripts/make_training_data.py --out outputs/train-data --image-size 160x120"},
         "networks": networks,

@@ -1,6 +1,6 @@
 #!/bin/bash
 # The five shipped networks: same size (width 0.25, ResNet-18 or VGG-16 backbone), same data, same schedule
-# (2000 SGD steps of 8 images at 160x120 = 8 epochs of the 2000 training frames, lr 0.05, poly 0.9, seed 0),
+# (2000 SGD steps of 8 images at 160x120 = 8 epochs of the 2040 training frames, lr 0.05, poly 0.9, seed 0),
 # one CPU thread each, run one after another.  Data: python scripts/make_training_data.py --out outputs/train-data
 # Afterwards: python scripts/ship_weights.py copies each run's best.pt into weights/ and writes the manifest.
 set -euo pipefail
