@@ -43,7 +43,14 @@ from scipy.optimize import linear_sum_assignment
 
 from semmap.errors import ConfigError
 from semmap.geometry import pixel_rays
-from semmap.maps._object_kernels import grid_neighbour_distances
+from semmap.maps._object_kernels import (
+    cells_per_segment,
+    grid_neighbour_distances,
+    merge_cells,
+    segment_bounds_and_mean,
+    sorted_intersection_size,
+    sorted_union,
+)
 from semmap.types import CameraIntrinsics, Instances, LabelSet
 
 #: Cell keys are packed as three 21-bit signed fields: +-1e6 cells (10 km at 1 cm).
@@ -296,22 +303,23 @@ class ObjectMap:
             first = np.ones(len(order), bool)
             first[1:] = group[1:] != group[:-1]
         rep = order[first]
-        keys = np.zeros(len(world), np.int64)
-        keys[rep] = pack_cells(cell[rep])
         rep_det = det[rep]
         bounds = np.searchsorted(rep_det, np.arange(clouds.n + 1))
-        cells, cell_bounds = _cells_per_detection(world[rep], rep_det, clouds.n, p.overlap_voxel)
-        coarse, coarse_bounds = _cells_per_detection(world[rep], rep_det, clouds.n, p.merge_voxel)
+        rep_world = world[rep]
+        cells, cell_bounds = cells_per_segment(rep_world, bounds, p.overlap_voxel, _KEY_BITS)
+        coarse, coarse_bounds = cells_per_segment(rep_world, bounds, p.merge_voxel, _KEY_BITS)
+        mean, lo, hi = segment_bounds_and_mean(rep_world, bounds)
+        rep_keys, rep_points = pack_cells(cell[rep]), rep_world.astype(np.float32)
+        rep_colors, rep_cam = clouds.colors[rep], pts[rep]
         out: list[Sighting] = []
         for k in range(clouds.n):
-            r = rep[bounds[k]:bounds[k + 1]]
-            if len(r) < p.min_points:
+            a, b = bounds[k], bounds[k + 1]
+            if b - a < p.min_points:
                 continue
-            w = world[r]
             out.append(Sighting(k, int(clouds.class_ids[k]), float(clouds.scores[k]), int(clouds.track_ids[k]),
-                                keys[r], w.astype(np.float32), clouds.colors[r],
-                                cells[cell_bounds[k]:cell_bounds[k + 1]], w.mean(axis=0), pts[r], w.min(axis=0),
-                                w.max(axis=0), coarse[coarse_bounds[k]:coarse_bounds[k + 1]]))
+                                rep_keys[a:b], rep_points[a:b], rep_colors[a:b],
+                                cells[cell_bounds[k]:cell_bounds[k + 1]], mean[k], rep_cam[a:b], lo[k], hi[k],
+                                coarse[coarse_bounds[k]:coarse_bounds[k + 1]]))
         return out
 
     # ------------------------------------------------------------------ association
@@ -404,19 +412,15 @@ class ObjectMap:
             obj.sightings += 1
             obj.last_cells = s.cells
         else:
-            obj.last_cells = np.union1d(obj.last_cells, s.cells)
+            obj.last_cells = sorted_union(obj.last_cells, s.cells)
         obj._last_keyframe = self.keyframes
         obj.last_frame = frame_index
-        # cells the object already has keep their point; both key lists are sorted, so the new ones are inserted
-        pos = np.searchsorted(obj.keys, s.keys)
-        new = (pos >= len(obj.keys)) | (obj.keys[np.minimum(pos, max(len(obj.keys) - 1, 0))] != s.keys) \
-            if len(obj.keys) else np.ones(len(s.keys), bool)
-        obj.keys = np.insert(obj.keys, pos[new], s.keys[new])
-        obj.points = np.insert(obj.points, pos[new], s.points[new], axis=0)
-        obj.colors = np.insert(obj.colors, pos[new], s.colors[new], axis=0)
-        obj._point_sum = obj._point_sum + s.points[new].sum(axis=0, dtype=np.float64)
-        obj.cells = np.union1d(obj.cells, s.cells)
-        obj.coarse = np.union1d(obj.coarse, s.coarse)
+        # cells the object already has keep their point; both key lists are sorted: one merge pass
+        obj.keys, obj.points, obj.colors, added = merge_cells(obj.keys, obj.points, obj.colors, s.keys, s.points,
+                                                              s.colors)
+        obj._point_sum = obj._point_sum + added
+        obj.cells = sorted_union(obj.cells, s.cells)
+        obj.coarse = sorted_union(obj.coarse, s.coarse)
 
     # ------------------------------------------------------------------ merging
     def _merge_around(self, obj_id: int) -> None:
@@ -449,17 +453,13 @@ class ObjectMap:
         keep.sightings = keep.sightings + gone.sightings
         keep.first_frame = min(keep.first_frame, gone.first_frame)
         keep.last_frame = max(keep.last_frame, gone.last_frame)
-        keep.last_cells = np.union1d(keep.last_cells, gone.last_cells) if gone._last_keyframe == self.keyframes \
+        keep.last_cells = sorted_union(keep.last_cells, gone.last_cells) if gone._last_keyframe == self.keyframes \
             else keep.last_cells
-        new = ~np.isin(gone.keys, keep.keys, assume_unique=True)
-        keys = np.concatenate([keep.keys, gone.keys[new]])
-        order = np.argsort(keys, kind="stable")
-        keep.keys = keys[order]
-        keep.points = np.concatenate([keep.points, gone.points[new]])[order]
-        keep._point_sum = keep._point_sum + gone.points[new].sum(axis=0, dtype=np.float64)
-        keep.colors = np.concatenate([keep.colors, gone.colors[new]])[order]
-        keep.cells = np.union1d(keep.cells, gone.cells)
-        keep.coarse = np.union1d(keep.coarse, gone.coarse)
+        keep.keys, keep.points, keep.colors, added = merge_cells(keep.keys, keep.points, keep.colors, gone.keys,
+                                                                 gone.points, gone.colors)
+        keep._point_sum = keep._point_sum + added
+        keep.cells = sorted_union(keep.cells, gone.cells)
+        keep.coarse = sorted_union(keep.coarse, gone.coarse)
         del self.objects[gone.id]
         self.merged_into[gone.id] = keep.id
 
@@ -490,38 +490,22 @@ def overlap_iou(a: np.ndarray, b: np.ndarray) -> float:
     """Eq. 21, ``M = AB / (A + B - AB)``, of two sorted unique cell-key arrays."""
     if len(a) == 0 or len(b) == 0:
         return 0.0
-    ab = len(np.intersect1d(a, b, assume_unique=True))
+    ab = sorted_intersection_size(a, b)
     return ab / (len(a) + len(b) - ab)
-
-
-def _cells_per_detection(points: np.ndarray, det: np.ndarray, n: int, cell: float) -> tuple[np.ndarray, np.ndarray]:
-    """Sorted unique cell keys (size ``cell``) of each detection's points, concatenated by detection (ascending
-    ``det``), and where each detection's run starts: one sort for all detections."""
-    c = np.floor(points / cell).astype(np.int64)
-    if len(c) == 0:
-        return np.zeros(0, np.int64), np.zeros(n + 1, np.int64)
-    rel = c - c.min(axis=0)
-    if rel.max() >= 1 << 16 or n >= 1 << 7:  # far from the keyframe's corner: the slower, general way
-        both = np.unique(np.stack([det, pack_cells(c)], 1), axis=0)
-        return both[:, 1], np.searchsorted(both[:, 0], np.arange(n + 1))
-    key = np.unique((det.astype(np.int64) << 48) | (rel[:, 0] << 32) | (rel[:, 1] << 16) | rel[:, 2])
-    mask = (1 << 16) - 1
-    cells = np.column_stack([(key >> 32) & mask, (key >> 16) & mask, key & mask]) + c.min(axis=0)
-    return pack_cells(cells), np.searchsorted(key >> 48, np.arange(n + 1))
 
 
 def overlap_share(a: np.ndarray, b: np.ndarray) -> float:
     """``AB / A``: the share of cell set ``a`` that ``b`` also holds."""
     if len(a) == 0:
         return 0.0
-    return len(np.intersect1d(a, b, assume_unique=True)) / len(a)
+    return sorted_intersection_size(a, b) / len(a)
 
 
 def overlap_containment(a: np.ndarray, b: np.ndarray) -> float:
     """``AB / min(A, B)``: the share of the smaller cell set the larger one also holds."""
     if len(a) == 0 or len(b) == 0:
         return 0.0
-    return len(np.intersect1d(a, b, assume_unique=True)) / min(len(a), len(b))
+    return sorted_intersection_size(a, b) / min(len(a), len(b))
 
 
 @dataclass(frozen=True)
