@@ -290,7 +290,10 @@ def end_to_end_section(bench: dict | None, heading: bool = True) -> list[str]:
     return [*head, "`benchmarks/bench_end_to_end.py`: `semmap run` with `--poses slam` and ESPNetv2 s=2.0 (ONNX) "
             f"every {bench['segment_every']}th frame, online and offline (track first, then map) on the same frames, "
             "each in its own process; frames/s over a frame's work (start-up and writing files apart), latency from "
-            "a frame being read to its voxels being in the map:", "", *end_to_end_table(bench), ""]
+            "a frame's arrival to its voxels being in the map. `online` reads frames as fast as the loop takes them, "
+            "so its latency is mostly the queue of frames waiting; `online@N Hz` replays them as a camera delivers "
+            "them (`--rate N`, N the frame-rate target) and its latency is a frame's own:", "",
+            *end_to_end_table(bench), ""]
 
 
 #: part -> (key in the JSON block, script); the demo is run through the CLI.

@@ -13,7 +13,16 @@ import pytest
 import torch
 
 from helpers import make_room_frames, room_label_set
-from semmap.config import InputConfig, LoopMode, MappingConfig, OutputConfig, PosesConfig, RunConfig, SemanticsConfig
+from semmap.config import (
+    InputConfig,
+    LoopMode,
+    MappingConfig,
+    OnlineConfig,
+    OutputConfig,
+    PosesConfig,
+    RunConfig,
+    SemanticsConfig,
+)
 from semmap.datasets.tum_writer import write_tum_sequence
 from semmap.io.trajectory import read_trajectory
 from semmap.perception.network import NetworkInput, NetworkSegmenter
@@ -210,3 +219,43 @@ def test_a_reader_error_reaches_the_loop():
 
     with Prefetcher(frames()) as ahead, pytest.raises(OSError, match="disk gone"):
         list(ahead)
+
+
+def test_frames_replayed_at_a_rate_arrive_at_their_due_times_and_not_before():
+    from semmap.datasets.prefetch import Prefetcher
+
+    read_at = []
+
+    def frames():
+        for i in range(6):
+            read_at.append(time.perf_counter())
+            yield i
+
+    with Prefetcher(frames(), depth=4, rate=50.0) as paced:
+        got = [(item, stamp, time.perf_counter()) for item, stamp in paced]
+    assert [g[0] for g in got] == list(range(6))
+    stamps = np.array([g[1] for g in got])
+    np.testing.assert_allclose(np.diff(stamps), 1 / 50, atol=1e-9)  # one camera period apart, however fast
+    assert all(read >= stamp - 1e-6 for read, stamp in zip(read_at, stamps, strict=True))  # never read early
+    assert all(taken >= stamp for _, stamp, taken in got)
+    with pytest.raises(ValueError, match="positive"):
+        Prefetcher(iter(()), rate=0.0)
+
+
+def test_an_online_run_at_a_camera_rate_measures_latency_from_each_due_time(room, tmp_path):
+    config = RunConfig(input=InputConfig(dataset=room), mapping=MappingConfig(resolution=0.1),
+                       poses=PosesConfig(source="gt"), mode=LoopMode.ONLINE, online=OnlineConfig(rate=20.0),
+                       output=OutputConfig(out=tmp_path / "paced", preview=False, plots=False))
+    t0 = time.perf_counter()
+    result = Pipeline(config).run()
+    assert time.perf_counter() - t0 >= 9 / 20  # ten frames at 20 per second take at least 0.45 s
+    latency = result.report["online"]["latency_ms"]
+    assert 0 < latency["median"] <= latency["max"] < 1000
+    assert result.report["online"]["fps"] <= 21
+
+
+def test_a_rate_needs_an_online_run(room, tmp_path):
+    with pytest.raises(ValueError, match="--online"):
+        RunConfig(input=InputConfig(dataset=room), online=OnlineConfig(rate=10.0), output=OutputConfig(out=tmp_path))
+    r = run_cli("run", str(room), "--out", str(tmp_path / "x"), "--rate", "10")
+    assert r.returncode != 0 and "needs an online run" in r.stderr and "Traceback" not in r.stderr

@@ -131,6 +131,9 @@ def run(
     online: Annotated[bool, typer.Option("--online", help="map each frame as soon as the tracker has its pose, "
                                          "segmenting beside tracking (default: track the whole sequence first)",
                                          rich_help_panel=_POSES)] = False,
+    rate: Annotated[float | None, typer.Option(help="with --online: replay the frames at this many per second, as "
+                                                    "a live camera delivers them (latency counts from each "
+                                                    "frame's due time)", rich_help_panel=_POSES)] = None,
     color_mode: Annotated[str, typer.Option(help="class | rgb: voxel colour in map.ot",
                                             rich_help_panel=_OUTPUT)] = "class",
     rerun: Annotated[Path | None, typer.Option(help="log images, poses and the growing map to this rerun "
@@ -183,6 +186,7 @@ def run(
         LoopMode,
         MappingConfig,
         ObjectsConfig,
+        OnlineConfig,
         OutputConfig,
         PosesConfig,
         RosConfig,
@@ -211,6 +215,7 @@ def run(
                                   fusion=fusion, class_prior=class_prior),
         poses=PosesConfig(source=poses),
         mode=LoopMode.ONLINE if online else LoopMode.OFFLINE,
+        online=OnlineConfig(rate=rate),
         crf=CrfConfig(enabled=crf, every=crf_every),
         objects=ObjectsConfig(instances=instances, weights=instance_weights, errors=instance_errors),
         output=OutputConfig(out=out, color_mode=parse_color_mode(color_mode), rerun=rerun, rerun_spawn=rerun_spawn,
@@ -259,6 +264,8 @@ def _validated(make):
     except ValidationError as exc:
         first = exc.errors()[0]
         where = ".".join(str(p) for p in first["loc"])
+        if not where:  # a rule across options
+            raise SemmapError(str(first["msg"]).removeprefix("Value error, ")) from None
         raise SemmapError(f"invalid option {where}: {first['msg']}") from None
 
 

@@ -8,7 +8,7 @@ from __future__ import annotations
 from enum import Enum
 from pathlib import Path
 
-from pydantic import BaseModel, ConfigDict, Field, field_validator
+from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 
 from semmap.fusion.topk_bayes import DEFAULT_LAMBDA, DEFAULT_MAX_CONFIDENCE
 from semmap.geometry import DEFAULT_MAX_DEPTH, DEFAULT_MIN_DEPTH
@@ -150,6 +150,9 @@ class OnlineConfig(_Section):
     segment_threads: int = Field(1, ge=1, description="threads of the network runtime (ONNX Runtime / PyTorch)")
     segment_numba_threads: int = Field(1, ge=1, description="numba threads of the segmentation thread's kernels")
     read_ahead: int = Field(2, ge=1, description="frames read (decoded, colour registered) ahead on a thread")
+    rate: float | None = Field(None, gt=0, description="replay the frames at this many per second, as a live camera "
+                                                       "delivers them (latency counts from each frame's due time); "
+                                                       "None: as fast as the loop takes them")
 
 
 class CrfConfig(_Section):
@@ -189,6 +192,13 @@ class RunConfig(_Section):
     crf: CrfConfig = CrfConfig()
     objects: ObjectsConfig = ObjectsConfig()
     output: OutputConfig
+
+    @model_validator(mode="after")
+    def _rate_needs_online(self) -> RunConfig:
+        if self.online.rate is not None and self.mode != LoopMode.ONLINE:
+            raise ValueError("a replay rate (--rate) needs an online run (--online): offline, frames are not "
+                             "taken as they arrive")
+        return self
 
     def to_json(self) -> str:
         return self.model_dump_json(indent=2)

@@ -663,10 +663,10 @@ class Pipeline:
 
     @contextmanager
     def _arrivals(self, dataset: Dataset) -> Iterator[Iterable[tuple[Frame, float]]]:
-        """The dataset's frames with the time each was read: read ahead on a thread online (bounded), in turn
-        offline."""
+        """The dataset's frames with the time each arrived: read ahead on a thread online (bounded; at
+        ``online.rate`` frames per second when set, as a live camera delivers them), in turn offline."""
         if self.config.mode == LoopMode.ONLINE:
-            with Prefetcher(dataset, depth=self.config.online.read_ahead) as frames:
+            with Prefetcher(dataset, depth=self.config.online.read_ahead, rate=self.config.online.rate) as frames:
                 yield frames
         else:
             yield ((frame, time.perf_counter()) for frame in dataset)

@@ -2,11 +2,13 @@
 
 Image decoding (OpenCV) and the colour-to-depth resampling release the GIL, so an online run reads frame i+1
 while it tracks and maps frame i.  At most ``depth`` frames wait read: the reader stops there rather than
-running ahead of the loop without bound.
+running ahead of the loop without bound.  With a ``rate``, frames are replayed as a live camera delivers them:
+frame i is read no earlier than i / rate seconds after the first, and that moment is its arrival.
 """
 
 from __future__ import annotations
 
+import itertools
 import queue
 import threading
 import time
@@ -21,19 +23,29 @@ _POLL_S = 0.05
 
 class Prefetcher:
     """Iterate ``frames`` on a background thread; iterating the prefetcher gives ``(frame, seconds)`` in order,
-    with the ``time.perf_counter()`` at which the frame was read (when it "arrived").  Use it as a context manager:
-    leaving it stops the reader, also when the loop stops early."""
+    with the ``time.perf_counter()`` at which the frame was read, or was due at ``rate`` (when it "arrived").  Use
+    it as a context manager: leaving it stops the reader, also when the loop stops early."""
 
-    def __init__(self, frames: Iterable[Frame], *, depth: int = 2):
+    def __init__(self, frames: Iterable[Frame], *, depth: int = 2, rate: float | None = None):
+        if rate is not None and not rate > 0:
+            raise ValueError(f"a replay rate must be positive frames per second, got {rate}")
         self._queue: queue.Queue = queue.Queue(maxsize=max(1, int(depth)))
         self._stop = threading.Event()
+        self._rate = rate
         self._thread = threading.Thread(target=self._read, args=(iter(frames),), name="semmap-read", daemon=True)
         self._thread.start()
 
     def _read(self, it: Iterator[Frame]) -> None:
         try:
-            for frame in it:
-                if not self._put((frame, time.perf_counter())):
+            start = time.perf_counter()
+            for i in itertools.count():
+                due = None if self._rate is None else start + i / self._rate
+                if due is not None and self._stop.wait(max(0.0, due - time.perf_counter())):
+                    return  # (stopped while waiting for the frame's time)
+                frame = next(it, _DONE)
+                if frame is _DONE:
+                    break
+                if not self._put((frame, time.perf_counter() if due is None else due)):
                     return
             self._put(_DONE)
         except BaseException as exc:  # handed to the consumer, which raises it
