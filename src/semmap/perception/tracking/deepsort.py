@@ -19,6 +19,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from enum import Enum
 
+import numba as nb
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
@@ -192,12 +193,10 @@ class DeepSort:
             cost_all = p.motion_weight * maha / kalman.CHI2_GATE_4DOF + (1.0 - p.motion_weight) * appearance
             cost_all[(maha > kalman.CHI2_GATE_4DOF) | (appearance > p.max_cosine_distance)] = _INFEASIBLE
             ages = np.array([self.tracks[i].time_since_update for i in confirmed])
-            for level in range(1, p.max_age + 1):  # matching cascade: most recently seen tracks first
+            for level in np.unique(ages[(ages >= 1) & (ages <= p.max_age)]).tolist():  # cascade: most recent first
                 if not unmatched:
                     break
                 rows = np.flatnonzero(ages == level)
-                if len(rows) == 0:
-                    continue
                 found = _assign(cost_all[np.ix_(rows, unmatched)], 1.0)
                 matches += [(confirmed[rows[r]], unmatched[c]) for r, c in found]
                 taken = {unmatched[c] for _, c in found}
@@ -217,10 +216,14 @@ class DeepSort:
     def _appearance_cost(self, rows: list[int], feats: np.ndarray) -> np.ndarray:
         """(len(rows), N) smallest cosine distance between each track's kept features and each detection's."""
         cost = np.ones((len(rows), len(feats)))
-        for r, i in enumerate(rows):
-            gallery = self.tracks[i].features
-            if gallery is not None and len(feats) and gallery.shape[1] == feats.shape[1]:
-                cost[r] = 1.0 - (feats @ gallery.T).max(axis=1)
+        usable = [r for r, i in enumerate(rows) if self.tracks[i].features is not None
+                  and self.tracks[i].features.shape[1] == feats.shape[1] and len(self.tracks[i].features)]
+        if not usable or not len(feats):
+            return cost
+        galleries = [self.tracks[rows[r]].features for r in usable]
+        starts = np.cumsum([0] + [len(g) for g in galleries[:-1]])
+        similarity = feats @ np.concatenate(galleries).T  # (N, all kept features): one product for every track
+        cost[usable] = 1.0 - np.maximum.reduceat(similarity, starts, axis=1).T
         return cost
 
     def _hit(self, track: _Track, feat: np.ndarray, cls: int, score: float) -> None:
@@ -279,9 +282,22 @@ def box_iou(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 
 def mask_depths(depth: np.ndarray, ids: np.ndarray, n: int, stride: int = 4) -> np.ndarray:
     """(n,) mean valid depth (metres) of masks 1..n over every ``stride``-th pixel (0 where none has depth)."""
-    d = np.asarray(depth[::stride, ::stride], np.float64).ravel()
-    k = np.asarray(ids[::stride, ::stride]).ravel()
-    valid = (d > 0) & np.isfinite(d)
-    sums = np.bincount(k[valid], weights=d[valid], minlength=n + 1)[1:n + 1]
-    counts = np.bincount(k[valid], minlength=n + 1)[1:n + 1]
-    return np.where(counts > 0, sums / np.maximum(counts, 1), 0.0)
+    return _mask_depths(np.asarray(depth), np.asarray(ids), n, stride)
+
+
+@nb.njit(cache=True)
+def _mask_depths(depth: np.ndarray, ids: np.ndarray, n: int, stride: int) -> np.ndarray:
+    sums = np.zeros(n)
+    counts = np.zeros(n, np.int64)
+    for v in range(0, ids.shape[0], stride):
+        for u in range(0, ids.shape[1], stride):
+            k = ids[v, u]
+            d = np.float64(depth[v, u])
+            if 1 <= k <= n and d > 0 and np.isfinite(d):
+                sums[k - 1] += d
+                counts[k - 1] += 1
+    out = np.zeros(n)
+    for k in range(n):
+        if counts[k] > 0:
+            out[k] = sums[k] / counts[k]
+    return out
