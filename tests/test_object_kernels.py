@@ -54,7 +54,8 @@ def test_cells_per_segment_are_each_segments_unique_packed_cells(sizes: list[int
     rng = np.random.default_rng(seed)
     points = rng.uniform(-3, 3, (sum(sizes), 3))
     bounds = np.concatenate([[0], np.cumsum(sizes)]).astype(np.int64)
-    got, got_bounds = cells_per_segment(points, bounds, cell, _KEY_BITS)
+    got, got_bounds, ok = cells_per_segment(points, bounds, cell, _KEY_BITS)
+    assert ok
     mean, lo, hi = segment_bounds_and_mean(points, bounds)
     for k in range(len(sizes)):
         seg = points[bounds[k]:bounds[k + 1]]
@@ -79,3 +80,9 @@ def test_colour_histograms_count_each_masks_quantised_colours() -> None:
         expect = np.sqrt(counts) / np.linalg.norm(np.sqrt(counts))
         np.testing.assert_allclose(hist[k - 1], expect, atol=1e-6)
     assert colour_histograms(rgb, ids, 0).shape == (0, BINS_PER_CHANNEL**3)
+
+
+def test_cells_out_of_the_key_range_are_reported() -> None:
+    points = np.array([[0.0, 0.0, 0.0], [2e4, 0.0, 0.0]])  # 2 million 1 cm cells from the origin
+    assert not cells_per_segment(points, np.array([0, 2]), 0.01, _KEY_BITS)[2]
+    assert cells_per_segment(points, np.array([0, 2]), 0.1, _KEY_BITS)[2]

@@ -108,13 +108,15 @@ def merge_cells(keys: np.ndarray, points: np.ndarray, colors: np.ndarray, new_ke
 def cells_per_segment(points: np.ndarray, bounds: np.ndarray, cell: float, key_bits: int):
     """Sorted unique packed keys of the ``cell``-sized cells holding each segment's points (segment ``k`` is
     ``points[bounds[k]:bounds[k + 1]]``), concatenated, and where each segment's keys start. Keys pack the three
-    cell coordinates as ``key_bits``-bit fields offset by half their range (``objects.pack_cells``; the caller has
-    checked the range at a finer cell)."""
+    cell coordinates as ``key_bits``-bit fields offset by half their range (``objects.pack_cells``). The third
+    value is False when a coordinate fell outside that range (the keys are then not to be used)."""
     n = len(bounds) - 1
     offset = 1 << (key_bits - 1)
     keys = np.empty(len(points), np.int64)
     out_bounds = np.zeros(n + 1, np.int64)
     m = 0
+    ok = True
+    top = 1 << key_bits
     for k in range(n):
         start = bounds[k]
         seg = np.empty(bounds[k + 1] - start, np.int64)
@@ -122,6 +124,7 @@ def cells_per_segment(points: np.ndarray, bounds: np.ndarray, cell: float, key_b
             c0 = np.int64(np.floor(points[start + i, 0] / cell)) + offset
             c1 = np.int64(np.floor(points[start + i, 1] / cell)) + offset
             c2 = np.int64(np.floor(points[start + i, 2] / cell)) + offset
+            ok = ok and 0 <= c0 < top and 0 <= c1 < top and 0 <= c2 < top
             seg[i] = (c0 << (2 * key_bits)) | (c1 << key_bits) | c2
         seg.sort()
         for i in range(len(seg)):
@@ -129,7 +132,7 @@ def cells_per_segment(points: np.ndarray, bounds: np.ndarray, cell: float, key_b
                 keys[m] = seg[i]
                 m += 1
         out_bounds[k + 1] = m
-    return keys[:m].copy(), out_bounds
+    return keys[:m].copy(), out_bounds, ok
 
 
 @nb.njit(cache=True)

@@ -56,6 +56,7 @@ from semmap.types import CameraIntrinsics, Instances, LabelSet
 #: Cell keys are packed as three 21-bit signed fields: +-1e6 cells (10 km at 1 cm).
 _KEY_BITS = 21
 _KEY_OFFSET = 1 << (_KEY_BITS - 1)
+_OUT_OF_RANGE = "object map: point coordinates out of range (more than a million cells from the origin)"
 #: A sighting holding this share of each of two or more objects' last clouds merged them: it is left out.
 SPAN_SHARE = 0.5
 #: Objects must span this many merge cells each before their coarse overlap counts (a book spans two or three).
@@ -306,8 +307,10 @@ class ObjectMap:
         rep_det = det[rep]
         bounds = np.searchsorted(rep_det, np.arange(clouds.n + 1))
         rep_world = world[rep]
-        cells, cell_bounds = cells_per_segment(rep_world, bounds, p.overlap_voxel, _KEY_BITS)
-        coarse, coarse_bounds = cells_per_segment(rep_world, bounds, p.merge_voxel, _KEY_BITS)
+        cells, cell_bounds, cells_ok = cells_per_segment(rep_world, bounds, p.overlap_voxel, _KEY_BITS)
+        coarse, coarse_bounds, coarse_ok = cells_per_segment(rep_world, bounds, p.merge_voxel, _KEY_BITS)
+        if not (cells_ok and coarse_ok):
+            raise ConfigError(_OUT_OF_RANGE)
         mean, lo, hi = segment_bounds_and_mean(rep_world, bounds)
         rep_keys, rep_points = pack_cells(cell[rep]), rep_world.astype(np.float32)
         rep_colors, rep_cam = clouds.colors[rep], pts[rep]
@@ -482,7 +485,7 @@ def pack_cells(cells: np.ndarray) -> np.ndarray:
     """(N,) int64 keys of (N, 3) integer cell coordinates (21 bits each, offset to stay non-negative)."""
     c = np.asarray(cells, np.int64) + _KEY_OFFSET
     if c.size and (c.min() < 0 or c.max() >= 1 << _KEY_BITS):
-        raise ConfigError("object map: point coordinates out of range (more than a million cells from the origin)")
+        raise ConfigError(_OUT_OF_RANGE)
     return (c[:, 0] << (2 * _KEY_BITS)) | (c[:, 1] << _KEY_BITS) | c[:, 2]
 
 
