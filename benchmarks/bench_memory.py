@@ -57,9 +57,9 @@ def main() -> None:
     start = time.perf_counter()
 
     class Measured(Pipeline):
-        def _after_frame(self, frame, mapper, pose_of, timings) -> None:
-            super()._after_frame(frame, mapper, pose_of, timings)
-            n = len(self._loop.poses)
+        def _after_frame(self, frame, mapper, pose_of, record) -> None:
+            super()._after_frame(frame, mapper, pose_of, record)
+            n = len(record.poses)
             if n % args.every == 0 or n == frames:
                 rss, peak = rss_mb()
                 map_mb = sum(m.describe().get("bytes_in_memory", 0) for m in mapper.maps) / 2**20

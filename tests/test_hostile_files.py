@@ -15,6 +15,7 @@ import pytest
 
 from helpers import make_room_frames, room_label_set, write_7scenes_sequence, write_png
 from hostile import MAX_RSS_MB
+from semmap import pipeline
 from semmap.config import InputConfig, MappingConfig, OutputConfig, RunConfig
 from semmap.datasets import open_dataset
 from semmap.datasets.tum_writer import write_tum_sequence
@@ -66,7 +67,7 @@ def test_out_that_is_a_file_is_refused_before_mapping(room, tmp_path, monkeypatc
     out = tmp_path / "taken"
     out.write_text("not a folder")
     opened = []
-    monkeypatch.setattr(Pipeline, "_open", lambda self: opened.append(1))
+    monkeypatch.setattr(pipeline, "open_dataset_of", lambda *a, **k: opened.append(1))
     with pytest.raises(ConfigError, match="is a file; give a folder \\(nothing was mapped\\)"):
         Pipeline(_config(room, out)).run()
     with pytest.raises(ConfigError, match=r"lies below .*taken, which is a file"):

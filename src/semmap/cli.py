@@ -194,7 +194,6 @@ def run(
         SemanticsConfig,
     )
     from semmap.maps.registry import map_kind
-    from semmap.pipeline import color_mode as parse_color_mode
     from semmap.runner import run_config
 
     kinds = tuple(map_kind(name.strip()) for name in maps.split(",") if name.strip())
@@ -218,7 +217,7 @@ def run(
         online=OnlineConfig(rate=rate),
         crf=CrfConfig(enabled=crf, every=crf_every),
         objects=ObjectsConfig(instances=instances, weights=instance_weights, errors=instance_errors),
-        output=OutputConfig(out=out, color_mode=parse_color_mode(color_mode), rerun=rerun, rerun_spawn=rerun_spawn,
+        output=OutputConfig(out=out, color_mode=_color_mode(color_mode), rerun=rerun, rerun_spawn=rerun_spawn,
                             rerun_map_every=rerun_map_every),
     ))
     with _interruptible():
@@ -247,6 +246,16 @@ def _interruptible():
             raise
         print("semmap: interrupted", file=sys.stderr)
         raise typer.Exit(130) from None
+
+
+def _color_mode(value: str):
+    """``--color-mode`` as the config's enum, or one clear line."""
+    from semmap.config import ColorMode
+
+    try:
+        return ColorMode(value)
+    except ValueError:
+        raise SemmapError(f"--color-mode must be one of {[m.value for m in ColorMode]}, got {value!r}") from None
 
 
 def _size(text: str | None) -> tuple[int, int] | int | None:
@@ -357,48 +366,15 @@ def demo(
     """Simulate the default scene, map it with ground-truth poses and the shipped segmentation network (or the
     cnn-like oracle), and write the outputs of `semmap run` plus report.md with 3D accuracy against ground truth."""
     _setup_logging(False)
-    from semmap.config import InputConfig, MappingConfig, OutputConfig, RunConfig, SemanticsConfig
-    from semmap.datasets.simulated import SimulatedDataset
-    from semmap.pipeline import Pipeline
-    from semmap.sim.ground_truth import gt_voxels
+    from semmap.runner import run_demo
 
     if semantics not in ("network", "oracle"):
         raise SemmapError(f"--semantics must be network or oracle, got {semantics!r}")
-    dataset = SimulatedDataset.default(scene_seed=scene_seed, frames=frames)
-    network = _demo_network() if semantics == "network" else None
-    sem_config = (SemanticsConfig(segmenter=network, backend="onnx") if network is not None
-                  else SemanticsConfig(source="oracle"))
-    config = _validated(lambda: RunConfig(
-        input=InputConfig(dataset=Path(dataset.name)), mapping=MappingConfig(resolution=resolution),
-        semantics=sem_config, output=OutputConfig(out=out, rerun=rerun)))
-    if network is not None:
-        from semmap.perception.registry import trained_network_segmenter
-
-        segmenter = trained_network_segmenter(network, backend="onnx")
-    else:
-        from semmap.perception.oracle import OracleSegmenter
-
-        segmenter = OracleSegmenter(dataset.label_set, preset=config.semantics.oracle_preset, seed=scene_seed)
-
-    def ground_truth(res: float):
-        gt = gt_voxels(dataset.scene, res)
-        return gt.keys, gt.class_ids
-
-    result = Pipeline(config, segmenter=segmenter, dataset=dataset, ground_truth=ground_truth,
-                      progress=progress_bar("simulate + map"),
-                      title=f"semmap demo: {dataset.name} ({segmenter.name})").run()
+    with _interruptible():
+        result = _validated(lambda: run_demo(out=out, frames=frames, resolution=resolution, scene_seed=scene_seed,
+                                             rerun=rerun, oracle=semantics == "oracle",
+                                             progress=progress_bar("simulate + map")))
     _print_summary(result.report, result.out_dir)
-
-
-def _demo_network() -> str | None:
-    """The shipped network the demo segments with (weights/manifest.json), or None with a warning."""
-    from semmap.perception.registry import demo_network
-
-    name = demo_network()
-    if name is None:
-        logging.getLogger("semmap").warning("no shipped network weights (weights/manifest.json); the demo uses the "
-                                            "oracle segmenter")
-    return name
 
 
 @app.command()
@@ -497,44 +473,14 @@ def track(
     """Estimate the camera trajectory of a sequence and write it in TUM format; scored against the dataset's
     ground truth when it has one."""
     _setup_logging(False)
-    import time
-
     from semmap.datasets import open_dataset
     from semmap.io.trajectory import write_trajectory
-    from semmap.poses.base import estimate_trajectory
-    from semmap.poses.track import make_tracker
-    from semmap.types import Trajectory
+    from semmap.runner import track_sequence, track_summary
 
     ds = open_dataset(dataset, format, stride=stride, max_frames=max_frames)
-    seen, truth = [0], []  # frames read; their own poses, to score the estimate without reading twice
-
-    def frames():
-        for frame in ds:
-            seen[0] += 1
-            if frame.T_world_cam is not None:
-                truth.append((frame.timestamp, frame.T_world_cam, frame.name))
-            yield frame
-
-    t0 = time.perf_counter()
-    est = estimate_trajectory(make_tracker(method), frames(), total=len(ds),
-                              progress=progress_bar(f"tracking ({method})"))
-    seconds = time.perf_counter() - t0
-    write_trajectory(out, est)
-    summary = {"method": method, "frames": seen[0], "tracked": len(est),
-               "ms_per_frame": round(1e3 * seconds / max(seen[0], 1), 1), "trajectory": str(out)}
-    gt = Trajectory([t for t, _, _ in truth], [T for _, T, _ in truth], tuple(n for _, _, n in truth))
-    if len(gt) >= 3 and len(est) >= 3:
-        from semmap.eval.trajectory import evaluate_trajectory, plot_trajectories
-
-        scores = evaluate_trajectory(gt, est)
-        summary.update({k: scores[k] for k in ("ate_rmse_m", "rpe_trans_m", "sim3_scale", "matched")})
-        if plot is not None:
-            plot_trajectories(plot, gt, {method: est})
-    elif plot is not None:
-        from semmap.eval.trajectory import plot_trajectories
-
-        plot_trajectories(plot, est, {})
-    typer.echo(json.dumps(summary, indent=2))
+    result = track_sequence(ds, method, progress=progress_bar(f"tracking ({method})"))
+    write_trajectory(out, result.estimate)
+    typer.echo(json.dumps(track_summary(result, method, out, plot=plot), indent=2))
 
 
 @app.command()

@@ -1,27 +1,39 @@
-"""One sequence run from a ``RunConfig`` alone: the segmenter, instance source and simulator ground truth it names,
-then the pipeline. ``semmap run`` and every task of ``semmap batch`` go through :func:`run_config`, so a batch's
-outputs are those of separate runs."""
+"""Runs from a configuration alone: the segmenter, instance source and ground truth a ``RunConfig`` names, then the
+pipeline. ``semmap run``, ``semmap demo`` and every task of ``semmap batch`` go through :func:`run_config`, so a
+batch's outputs are those of separate runs and the demo's those of ``semmap run`` on the same frames;
+:func:`track_sequence` is ``semmap track``."""
 
 from __future__ import annotations
 
+import logging
+import time
 from collections.abc import Callable, Iterator
+from dataclasses import dataclass
 from pathlib import Path
 
-from semmap.config import LoopMode, RunConfig, SemanticSource
+from semmap.config import InputConfig, LoopMode, MappingConfig, OutputConfig, RunConfig, SemanticsConfig, SemanticSource
+from semmap.datasets import Dataset
+from semmap.eval.run_report import GroundTruthFn
 from semmap.pipeline import Pipeline, RunResult
+from semmap.run.prepare import open_dataset_of
+from semmap.types import Trajectory
 
+log = logging.getLogger("semmap")
 Progress = Callable[[Iterator, int], Iterator]
 
 
-def simulated_ground_truth(dataset: Path):
-    """3D ground truth for a folder written by ``semmap simulate`` (None for other datasets)."""
-    dataset = Path(dataset)
-    if not (dataset / "scene.json").is_file():
-        return None
-    from semmap.datasets.simulated import scene_of_folder
+def simulated_ground_truth(dataset: Path | Dataset) -> GroundTruthFn | None:
+    """3D ground truth of a simulated sequence: a folder written by ``semmap simulate`` or the simulator's own
+    dataset (None for other datasets)."""
+    from semmap.datasets.simulated import SimulatedDataset, scene_of_folder
     from semmap.sim.ground_truth import gt_voxels
 
-    scene = scene_of_folder(dataset)
+    if isinstance(dataset, SimulatedDataset):
+        scene = dataset.scene
+    elif isinstance(dataset, Path | str) and (Path(dataset) / "scene.json").is_file():
+        scene = scene_of_folder(Path(dataset))
+    else:
+        return None
     if scene is None:
         return None
 
@@ -32,8 +44,9 @@ def simulated_ground_truth(dataset: Path):
     return ground_truth
 
 
-def segmenter_for(config: RunConfig):
-    """The segmenter the configuration names (``--segmenter``, or ``--semantics oracle``), or None."""
+def segmenter_for(config: RunConfig, dataset: Dataset | None = None):
+    """The segmenter the configuration names (``--segmenter``, or ``--semantics oracle``), or None; ``dataset``
+    (when already open) gives the oracle its label set."""
     from semmap.perception.registry import make_segmenter
 
     s = config.semantics
@@ -42,10 +55,7 @@ def segmenter_for(config: RunConfig):
         return None
     label_set = None
     if name == "oracle":
-        from semmap.datasets import open_dataset
-
-        label_set = open_dataset(config.input.dataset, config.input.format, max_frames=1,
-                                 ros=config.input.ros.options()).label_set
+        label_set = (dataset if dataset is not None else open_dataset_of(config.input, max_frames=1)).label_set
     # online, the network has one core to itself beside tracking and mapping (its own threads would fight theirs)
     threads = config.online.segment_threads if config.mode == LoopMode.ONLINE else None
     return make_segmenter(name, weights=s.weights, label_set=label_set, k=s.k, label_confidence=s.label_confidence,
@@ -53,7 +63,7 @@ def segmenter_for(config: RunConfig):
                           input_size=s.input_size, threads=threads)
 
 
-def instance_source_for(config: RunConfig, segmenter):
+def instance_source_for(config: RunConfig, segmenter, dataset: Dataset | None = None):
     """The instance source ``--instances`` names (None without it)."""
     o = config.objects
     if o.instances is None:
@@ -62,20 +72,97 @@ def instance_source_for(config: RunConfig, segmenter):
 
     label_set = None
     if segmenter is None:
-        from semmap.datasets import open_dataset
-
-        c = config.input
-        label_set = open_dataset(c.dataset, c.format, labels=c.labels, max_frames=1, ros=c.ros.options()).label_set
+        label_set = (dataset if dataset is not None else open_dataset_of(config.input, max_frames=1)).label_set
     return make_instance_source(o.instances, label_set=label_set, segmenter=segmenter, weights=o.weights,
                                 preset=o.errors, seed=o.seed)
 
 
-def run_config(config: RunConfig, *, progress: Progress | None = None, track_progress: Progress | None = None,
-               title: str = "semmap run", checkpoint_every: int = 0, resume: bool = False) -> RunResult:
-    """Map ``config.input.dataset`` into ``config.output.out`` exactly as ``semmap run`` does (``checkpoint_every``
-    frames a checkpoint; ``resume`` continues from the last one)."""
-    segmenter = segmenter_for(config)
-    return Pipeline(config, segmenter=segmenter, progress=progress, track_progress=track_progress,
-                    ground_truth=simulated_ground_truth(config.input.dataset), title=title,
-                    instances=instance_source_for(config, segmenter), checkpoint_every=checkpoint_every,
-                    resume=resume).run()
+def run_config(config: RunConfig, *, dataset: Dataset | None = None, progress: Progress | None = None,
+               track_progress: Progress | None = None, title: str = "semmap run", checkpoint_every: int = 0,
+               resume: bool = False) -> RunResult:
+    """Map ``config.input.dataset`` (or an already open ``dataset``, e.g. the simulator's) into
+    ``config.output.out`` exactly as ``semmap run`` does (``checkpoint_every`` frames a checkpoint; ``resume``
+    continues from the last one)."""
+    segmenter = segmenter_for(config, dataset)
+    return Pipeline(config, segmenter=segmenter, dataset=dataset, progress=progress, track_progress=track_progress,
+                    ground_truth=simulated_ground_truth(dataset if dataset is not None else config.input.dataset),
+                    title=title, instances=instance_source_for(config, segmenter, dataset),
+                    checkpoint_every=checkpoint_every, resume=resume).run()
+
+
+def demo_config(*, out: Path, frames: int = 300, resolution: float | None = None, scene_seed: int = 0,
+                rerun: Path | None = None, oracle: bool = False) -> tuple[RunConfig, Dataset]:
+    """The demo's run: the default simulated scene, ground-truth poses, and the shipped network (ONNX Runtime)
+    or, with ``oracle`` or without shipped weights (warned), the cnn-like oracle segmenter."""
+    from semmap.datasets.simulated import SimulatedDataset
+    from semmap.perception.registry import demo_network
+
+    dataset = SimulatedDataset.default(scene_seed=scene_seed, frames=frames)
+    network = None if oracle else demo_network()
+    if network is None and not oracle:
+        log.warning("no shipped network weights (weights/manifest.json); the demo uses the oracle segmenter")
+    semantics = (SemanticsConfig(segmenter=network, backend="onnx") if network is not None
+                 else SemanticsConfig(source=SemanticSource.ORACLE, seed=scene_seed))
+    mapping = MappingConfig() if resolution is None else MappingConfig(resolution=resolution)
+    config = RunConfig(input=InputConfig(dataset=Path(dataset.name)), mapping=mapping, semantics=semantics,
+                       output=OutputConfig(out=out, rerun=rerun))
+    return config, dataset
+
+
+def run_demo(*, out: Path, frames: int = 300, resolution: float | None = None, scene_seed: int = 0,
+             rerun: Path | None = None, oracle: bool = False, progress: Progress | None = None) -> RunResult:
+    """``semmap demo``: simulate the default scene and map it as ``semmap run`` would, scored against the
+    simulator's ground truth."""
+    config, dataset = demo_config(out=out, frames=frames, resolution=resolution, scene_seed=scene_seed,
+                                  rerun=rerun, oracle=oracle)
+    segmenter_name = config.semantics.segmenter or "oracle"
+    return run_config(config, dataset=dataset, progress=progress,
+                      title=f"semmap demo: {dataset.name} ({segmenter_name})")
+
+
+@dataclass
+class TrackResult:
+    """A trajectory estimated by ``semmap track``, the frames read, the seconds taken and the frames' own
+    ground truth (empty when the dataset has none)."""
+
+    estimate: Trajectory
+    ground_truth: Trajectory
+    frames: int
+    seconds: float
+
+
+def track_sequence(dataset: Dataset, method: str, *, progress: Progress | None = None) -> TrackResult:
+    """Estimate the camera trajectory of ``dataset`` with tracker ``method``, keeping the frames' ground truth
+    (read on the way, not in a second pass) to score the estimate."""
+    from semmap.poses.base import estimate_trajectory
+    from semmap.poses.track import make_tracker
+
+    seen, truth = [0], []
+
+    def frames():
+        for frame in dataset:
+            seen[0] += 1
+            if frame.T_world_cam is not None:
+                truth.append((frame.timestamp, frame.name, frame.T_world_cam))
+            yield frame
+
+    t0 = time.perf_counter()
+    est = estimate_trajectory(make_tracker(method), frames(), total=len(dataset), progress=progress)
+    return TrackResult(est, Trajectory.from_rows(truth), seen[0], time.perf_counter() - t0)
+
+
+def track_summary(result: TrackResult, method: str, out: Path, *, plot: Path | None = None) -> dict:
+    """``semmap track``'s summary: frames, tracked, cost and, with ground truth, ATE/RPE (and the plot)."""
+    from semmap.eval.trajectory import evaluate_trajectory, plot_trajectories
+
+    summary = {"method": method, "frames": result.frames, "tracked": len(result.estimate),
+               "ms_per_frame": round(1e3 * result.seconds / max(result.frames, 1), 1), "trajectory": str(out)}
+    gt, est = result.ground_truth, result.estimate
+    if len(gt) >= 3 and len(est) >= 3:
+        scores = evaluate_trajectory(gt, est)
+        summary.update({k: scores[k] for k in ("ate_rmse_m", "rpe_trans_m", "sim3_scale", "matched")})
+        if plot is not None:
+            plot_trajectories(plot, gt, {method: est})
+    elif plot is not None:
+        plot_trajectories(plot, est, {})
+    return summary

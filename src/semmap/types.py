@@ -559,6 +559,13 @@ class Trajectory:
     def __len__(self) -> int:
         return len(self.timestamps)
 
+    @classmethod
+    def from_rows(cls, rows: list[tuple[float, str, np.ndarray]]) -> Trajectory:
+        """A trajectory from ``(timestamp, frame name, T_world_cam)`` rows in any order (sorted by time)."""
+        rows = sorted(rows, key=lambda r: r[0])
+        return cls(np.array([r[0] for r in rows], np.float64), np.array([r[2] for r in rows]).reshape(-1, 4, 4),
+                   tuple(r[1] for r in rows))
+
     @property
     def positions(self) -> np.ndarray:
         """(N, 3) camera centres in the world frame."""

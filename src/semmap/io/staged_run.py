@@ -22,6 +22,16 @@ CHECKPOINT = "checkpoint.npz"
 OWNER = "owner"
 
 
+def check_out_dir(out: Path) -> None:
+    """``--out`` must be a folder or not exist yet (nor lie below a file): checked before any frame is mapped."""
+    for where in (out, *out.parents):
+        if where.exists():
+            if not where.is_dir():
+                what = "is a file" if where == out else f"lies below {where}, which is a file"
+                raise ConfigError(f"--out {out}: {what}; give a folder (nothing was mapped)")
+            return
+
+
 def staging_folder(out: Path) -> Path:
     """Where a run into ``out`` writes before its outputs are complete."""
     return out.parent / f".{out.name}.partial"

@@ -10,6 +10,7 @@ import numpy as np
 
 from semmap.errors import SemmapError
 from semmap.io.atomic import write_bytes_atomic
+from semmap.types import LabelSet, MapCloud, muted_grey
 
 #: Voxels higher than the highest camera by more than this are cut away (ceilings, top cabinets).
 CEILING_MARGIN = 0.6
@@ -150,3 +151,28 @@ def write_png(path: str | Path, rgb: np.ndarray) -> int:
         raise SemmapError(f"{path}: PNG encoding failed")
     write_bytes_atomic(path, buf.tobytes())
     return len(buf)
+
+
+def render_preview(cloud: MapCloud, label_set: LabelSet | None, poses: list[np.ndarray]) -> np.ndarray:
+    """Top-down views of a map's voxels or points: class colours (grey where unclassified) and observed RGB."""
+    up = up_vector(poses)
+    cam_h = max(float(np.asarray(T)[:3, 3] @ up) for T in poses) if poses else None
+    cut = None if cam_h is None else cam_h + CEILING_MARGIN
+    res = cloud.resolution
+    views = [top_down(cloud.centers, cloud.colors, res, up=up, max_height=cut)]
+    titles = ["colour (top-down)"]
+    if label_set is not None:
+        top = cloud.labels
+        ok = (top < len(label_set)) & (top != 0)  # no class, or unknown / background: observed grey
+        class_colors = muted_grey(cloud.colors)
+        class_colors[ok] = label_set.colors[top[ok]]
+        views.insert(0, top_down(cloud.centers, class_colors, res, up=up, max_height=cut))
+        titles.insert(0, "classes (top-down)")
+        views.append(perspective(cloud.centers, class_colors, res, up=up, max_height=cut,
+                                 width=views[0].shape[1], height=views[0].shape[0]))
+        titles.append("classes (perspective)")
+    else:
+        views.append(perspective(cloud.centers, cloud.colors, res, up=up, max_height=cut,
+                                 width=views[0].shape[1], height=views[0].shape[0]))
+        titles.append("colour (perspective)")
+    return side_by_side(views, titles)

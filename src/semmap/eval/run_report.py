@@ -1,0 +1,295 @@
+"""The report of one mapping run, assembled beside the frame loop from one record of the run.
+
+The frame loop (``semmap.pipeline``) keeps a :class:`RunRecord` and nothing else; :class:`RunScorer` holds the
+accuracy against ground truth (the segmenter per pixel, every map per voxel); :func:`build_report` turns both,
+the maps and the pose source into ``report.json``'s dict, and :func:`write_report` writes it with ``report.md``,
+``report.html`` and the plots.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+from collections import defaultdict
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from semmap.errors import ConfigError
+from semmap.eval.report_html import write_report_html
+from semmap.eval.report_md import write_report_md
+from semmap.eval.report_plots import write_report_plots
+from semmap.eval.semantic import confusion, evaluate_2d, evaluate_cloud_3d
+from semmap.io.atomic import write_text_atomic
+from semmap.maps.base import SemanticMap
+from semmap.perception.schedule import Scheduler
+from semmap.poses.base import LiveTracker
+from semmap.poses.frame_poses import GROUND_TRUTH, FramePoses
+from semmap.types import MapKind, TopKProbs, Trajectory, rotation_angle
+
+log = logging.getLogger("semmap")
+#: Ground truth for 3D evaluation: resolution -> (keys (M, 3), class ids (M,)) of the true surface voxels.
+GroundTruthFn = Callable[[float], tuple[np.ndarray, np.ndarray]]
+#: Bytes per point of a dense coloured point cloud stored as binary PLY (xyz float32 + rgb uint8).
+DENSE_CLOUD_BYTES_PER_POINT = 15
+
+
+@dataclass
+class RunRecord:
+    """What the frame loop keeps: the poses frames were mapped with (in order), when each waiting frame was read,
+    each frame's latency from being read to being in the maps, the loop's wall time and per-step milliseconds,
+    frames without a pose, the segmenter's frames and confusion against ground truth, the segmentation schedule's
+    own state and the last frame mapped (a checkpoint saves all of it, so ``--resume`` continues exactly)."""
+
+    poses: list[np.ndarray] = field(default_factory=list)
+    arrival: dict[int, float] = field(default_factory=dict)
+    latency_ms: list[float] = field(default_factory=list)
+    seconds: float = 0.0
+    timings: dict[str, float] = field(default_factory=lambda: defaultdict(float))
+    no_pose: list[str] = field(default_factory=list)
+    segmented: int = 0
+    conf2d: np.ndarray | None = None
+    scheduler: Scheduler | None = None
+    last_index: int | None = None  # dataset index of the last frame mapped
+    last_name: str | None = None
+
+    def __post_init__(self) -> None:
+        self.timings = defaultdict(float, self.timings)
+
+
+class RunScorer:
+    """Accuracy of a run against ground truth: the segmenter's per-pixel confusion (into the record) and each
+    map's voxels at the run's resolution (ground-truth voxels computed once per resolution)."""
+
+    def __init__(self, ground_truth: GroundTruthFn | None, resolution: float) -> None:
+        self.ground_truth, self.resolution = ground_truth, resolution
+        self._gt: dict[float, tuple[np.ndarray, np.ndarray]] = {}
+
+    @staticmethod
+    def add_segmentation(record: RunRecord, sem: TopKProbs, gt_labels: np.ndarray, num_classes: int) -> None:
+        """Accumulate the per-pixel confusion of the segmenter's top class against ground-truth labels."""
+        conf = confusion(sem.labels[..., 0], gt_labels, num_classes)
+        record.conf2d = conf if record.conf2d is None else record.conf2d + conf
+
+    def map_3d(self, m: SemanticMap) -> dict:
+        """3D accuracy of a map at the run's voxel size (a finer point map votes per voxel); empty without ground
+        truth or classes."""
+        if self.ground_truth is None or m.label_set is None:
+            return {}
+        if self.resolution not in self._gt:
+            self._gt[self.resolution] = self.ground_truth(self.resolution)
+        gt_keys, gt_labels = self._gt[self.resolution]
+        cloud = m.cloud()
+        return evaluate_cloud_3d(cloud.centers, cloud.labels, gt_keys, gt_labels, m.label_set, self.resolution)
+
+    def evaluate(self, primary: SemanticMap, record: RunRecord, segmenter_name: str | None) -> dict:
+        """Accuracy against ground truth when there is any: the segmenter per pixel, then the map's voxels."""
+        if primary.label_set is None:
+            return {}
+        out: dict = {}
+        if record.conf2d is not None and segmenter_name is not None:
+            out.update(evaluate_2d(record.conf2d, primary.label_set, segmenter_name))
+        out.update(self.map_3d(primary))
+        return out
+
+
+def files_of(m: SemanticMap) -> set[str]:
+    """Names of the files a map's save writes (the OctoMap's map.*; other maps <kind>.*), and its preview."""
+    stem = "map" if m.kind == MapKind.OCTOMAP else m.kind.value
+    return {f"{stem}.ot", f"{stem}.bt", f"{stem}.semmap", f"{stem}.ply", f"preview_{m.kind.value}.png"}
+
+
+def maps_report(maps: Sequence[SemanticMap], sizes: dict[str, int], crf: dict[MapKind, dict],
+                scorer: RunScorer) -> dict:
+    """Each map side by side: what it holds, its files, its accuracy (and before the CRF)."""
+    out = {}
+    for m in maps:
+        files = {name: size for name, size in sizes.items() if name in files_of(m)}
+        entry = {"resolution": m.resolution, **m.describe(), "files": files, **scorer.map_3d(m)}
+        if m.kind in crf:
+            entry["crf"] = crf[m.kind]
+        out[m.kind.value] = entry
+    return out
+
+
+def semantics_summary(primary: SemanticMap, segmenter_name: str | None, segmented: int) -> dict:
+    """Segmenter, frames segmented and occupied voxels per most probable class (classes with voxels)."""
+    out: dict = {}
+    if segmenter_name is not None:
+        out["segmenter"] = segmenter_name
+        out["frames_segmented"] = segmented
+    if primary.label_set is not None:
+        top = primary.cloud().labels
+        names = primary.label_set.names
+        counts = np.bincount(top[top < len(names)].astype(np.int64), minlength=len(names))
+        order = np.argsort(-counts, kind="stable")
+        out["voxels_per_class"] = {names[i]: int(counts[i]) for i in order if counts[i] > 0}
+        out["voxels_without_class"] = int((top >= len(names)).sum())
+    return out
+
+
+def trajectory_report(pose_of: FramePoses, out_dir: Path, files: dict[str, Path]) -> dict:
+    """Write the poses used into ``trajectory.txt``; score them against ground truth when there is one."""
+    from semmap.io.trajectory import write_trajectory
+
+    out: dict = {"poses": pose_of.source}
+    used = pose_of.used_trajectory()
+    if len(used):
+        files["trajectory"] = write_trajectory(out_dir / "trajectory.txt", used)
+    if pose_of.tracking_s is not None:
+        out["tracking_ms_per_frame"] = round(1e3 * pose_of.tracking_s / max(pose_of.tracked, 1), 2)
+    if pose_of.edge_stats is not None:
+        out["object_pose_edges"] = pose_of.edge_stats
+    gt = pose_of.ground_truth()
+    if pose_of.source != GROUND_TRUTH and len(gt) >= 3 and len(used) >= 3:
+        from semmap.eval.trajectory import evaluate_trajectory
+
+        scores = evaluate_trajectory(gt, used)
+        out["trajectory_vs_ground_truth"] = {k: scores[k] for k in ("ate_rmse_m", "rpe_trans_m", "matched")
+                                             if k in scores}
+    return out
+
+
+def online_report(record: RunRecord, pose_of: FramePoses, resolution: float, out_dir: Path,
+                  files: dict[str, Path]) -> dict:
+    """Frame rate and latency of the online loop, and the drift its map keeps: how far each frame's final,
+    loop-closed pose lies from the pose it was mapped with (``trajectory_final.txt``; mapping it again,
+    offline, is ``--poses trajectory_final.txt``)."""
+    lat = np.asarray(record.latency_ms)
+    out: dict = {"fps": round(len(record.poses) / max(record.seconds, 1e-9), 2), "loop_s": round(record.seconds, 2),
+                 "latency_ms": {"median": round(float(np.median(lat)), 1),
+                                "p95": round(float(np.percentile(lat, 95)), 1), "max": round(float(lat.max()), 1)}}
+    if pose_of.tracker is None:
+        return {**out, "drift_left_in": drift_left_in(pose_of.used_trajectory(), pose_of.used_trajectory(),
+                                                       resolution)}
+    from semmap.io.trajectory import write_trajectory
+
+    final = pose_of.tracker.trajectory()
+    files["trajectory_final"] = write_trajectory(out_dir / "trajectory_final.txt", final)
+    if isinstance(pose_of.tracker, LiveTracker):
+        out["loop_closures"] = pose_of.tracker.loop_closures
+    out["drift_left_in"] = drift_left_in(pose_of.used_trajectory(), final, resolution)
+    gt = pose_of.ground_truth()
+    if len(gt) >= 3 and len(final) >= 3:
+        from semmap.eval.trajectory import evaluate_trajectory
+
+        try:
+            scores = evaluate_trajectory(gt, final)
+        except ConfigError as exc:  # a camera that never moved cannot be aligned: no score, not a failed run
+            log.warning("the final trajectory is not scored: %s", exc)
+        else:
+            out["final_trajectory_vs_ground_truth"] = {k: scores[k] for k in ("ate_rmse_m", "rpe_trans_m", "matched")
+                                                       if k in scores}
+    return out
+
+
+@dataclass
+class RunOutcome:
+    """Everything a finished frame loop hands to the report: the record, the maps (primary first), the pose
+    source, the dataset's name and unreadable frames, what was written, and start-up costs."""
+
+    record: RunRecord
+    maps: Sequence[SemanticMap]
+    pose_of: FramePoses
+    dataset: str
+    skipped: list  # SkippedFrame entries of the dataset
+    points_integrated: int
+    sizes: dict[str, int]
+    files: dict[str, Path]
+    out_dir: Path
+    online: bool
+    segmenter: str | None = None
+    startup_s: float = 0.0
+    segmenter_startup_s: float = 0.0
+    crf: dict[MapKind, dict] = field(default_factory=dict)
+    objects: dict | None = None
+
+
+def _frames_report(o: RunOutcome) -> dict:
+    """What was mapped, what it holds and costs, per frame and on disk."""
+    n = len(o.record.poses)
+    primary = o.maps[0]
+    ms = {k: round(v / n, 3) for k, v in o.record.timings.items()}
+    # online, segmentation runs on its own thread: the loop pays only the time it waits for it
+    beside = {"segment"} if o.online else set()
+    ms["total"] = round(sum(v for k, v in ms.items() if k not in beside), 3)
+    return {
+        "dataset": o.dataset,
+        "resolution": primary.resolution,
+        "frames_used": n,
+        "frames_skipped": len(o.skipped) + len(o.record.no_pose),
+        "skipped": [{"name": s.name, "path": s.path, "reason": s.reason} for s in o.skipped]
+        + [{"name": name, "path": "", "reason": "no pose"} for name in o.record.no_pose],
+        **primary.describe(),
+        "bytes_on_disk": o.sizes,
+        "dense_point_cloud_bytes": o.points_integrated * DENSE_CLOUD_BYTES_PER_POINT,
+        "points_integrated": o.points_integrated,
+        "ms_per_frame": ms,
+        "label_set": None if primary.label_set is None else len(primary.label_set),
+        **semantics_summary(primary, o.segmenter, o.record.segmented),
+    }
+
+
+def build_report(o: RunOutcome, scorer: RunScorer, resolution: float) -> dict:
+    """``report.json``'s dict of a finished run (writes ``trajectory.txt`` / ``trajectory_final.txt`` on the way)."""
+    report = _frames_report(o)
+    report["startup_s"] = round(o.startup_s + o.segmenter_startup_s, 3)
+    if o.segmenter is not None:
+        report["segmenter_startup_s"] = round(o.segmenter_startup_s, 3)
+    report.update(trajectory_report(o.pose_of, o.out_dir, o.files))
+    report["peak_rss_mb"] = round(peak_rss_mb(), 1)
+    # frames per second of the work a frame needs (the tracking pass before, offline, and the frame loop)
+    before = (o.pose_of.tracking_s or 0.0) if o.pose_of.tracker is None else 0.0  # online it is inside the loop
+    report["frames_per_second"] = round(len(o.record.poses) / max(o.record.seconds + before, 1e-9), 2)
+    if o.online:
+        report["online"] = online_report(o.record, o.pose_of, resolution, o.out_dir, o.files)
+    if o.objects is not None:
+        report["objects"] = o.objects
+    primary = o.maps[0]
+    report.update(scorer.evaluate(primary, o.record, o.segmenter))
+    if primary.kind in o.crf and "miou_3d_before" in o.crf[primary.kind]:
+        report["miou_3d_before_crf"] = o.crf[primary.kind]["miou_3d_before"]
+    if len(o.maps) > 1 or o.crf:
+        report["maps"] = maps_report(o.maps, o.sizes, o.crf, scorer)
+    return report
+
+
+def write_report(out_dir: Path, report: dict, *, title: str, plots: bool, used: Trajectory,
+                 ground_truth: Trajectory, primary: SemanticMap) -> dict[str, Path]:
+    """``report.json``, ``report.md``, ``report.html`` and (with ``plots``) the report's figures; their paths."""
+    write_text_atomic(out_dir / "report.json", json.dumps(report, indent=2))
+    figures = (write_report_plots(out_dir, report, used=used, ground_truth=ground_truth, cloud=primary.cloud())
+               if plots else {})
+    write_report_md(out_dir / "report.md", report, title=title, plots=figures)
+    write_report_html(out_dir / "report.html", (out_dir / "report.md").read_text(), title=title)
+    files = {"report": out_dir / "report.json", "report_md": out_dir / "report.md",
+             "report_html": out_dir / "report.html"}
+    files.update({f"plot_{name}": out_dir / file for name, file in figures.items()})
+    return files
+
+
+def drift_left_in(used: Trajectory, final: Trajectory, resolution: float) -> dict:
+    """How far each frame's final pose lies from the pose it was mapped with (frames matched by name):
+    translation (mm) and rotation (degrees), max and 95th percentile, and frames moved more than half a voxel."""
+    where = {name: i for i, name in enumerate(final.names)}
+    pairs = [(i, where[name]) for i, name in enumerate(used.names) if name in where]
+    if not pairs:
+        return {"frames": 0, "max_mm": 0.0, "p95_mm": 0.0, "max_deg": 0.0, "frames_over_half_voxel": 0}
+    a = used.poses[[i for i, _ in pairs]]
+    b = final.poses[[j for _, j in pairs]]
+    dt = np.linalg.norm(a[:, :3, 3] - b[:, :3, 3], axis=1) * 1e3
+    deg = np.array([np.degrees(rotation_angle(x[:3, :3].T @ y[:3, :3])) for x, y in zip(a, b, strict=True)])
+    return {"frames": len(pairs), "max_mm": round(float(dt.max()), 2), "p95_mm": round(float(np.percentile(dt, 95)), 2),
+            "max_deg": round(float(deg.max()), 3), "frames_over_half_voxel": int((dt > 500 * resolution).sum())}
+
+
+def peak_rss_mb() -> float:
+    """Peak resident memory of this process so far (MiB)."""
+    import resource
+    import sys
+
+    peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+    return peak / 2**20 if sys.platform == "darwin" else peak / 1024
+

@@ -1,0 +1,85 @@
+"""What a run writes after its frame loop, into the staging folder: every map's files, the object map, the
+previews and the configuration; the 3D CRF over the finished maps; and why a map came out empty."""
+
+from __future__ import annotations
+
+import logging
+from pathlib import Path
+
+import numpy as np
+
+from semmap.config import RunConfig
+from semmap.eval.run_report import RunScorer
+from semmap.io.atomic import write_text_atomic
+from semmap.keys import TREE_MAX_VAL
+from semmap.maps.base import SemanticMap
+from semmap.object_stage import ObjectStage
+from semmap.types import MapKind
+from semmap.viz.preview import render_preview, side_by_side, up_vector, write_png
+
+log = logging.getLogger("semmap")
+
+
+def write_outputs(out: Path, maps: list[SemanticMap], poses: list[np.ndarray], config: RunConfig,
+                  objects: ObjectStage | None) -> tuple[dict[str, Path], dict[str, int]]:
+    """Every map's files, the object map's, the previews (the primary map's ``preview.png`` with the objects
+    beside it; ``preview_<kind>.png`` of the others) and ``config.json``; (files by name, bytes by file name)."""
+    out.mkdir(parents=True, exist_ok=True)
+    sizes: dict[str, int] = {}
+    for m in maps:
+        sizes.update(m.save(out))
+    files = {name: out / name for name in sizes}
+    if objects is not None:
+        sizes.update(objects.write(out, up_vector(poses)))
+        files.update({name: out / name for name in ("objects.json", "objects.ply")})
+    if config.output.preview:
+        for i, m in enumerate(maps):
+            name = "preview.png" if i == 0 else f"preview_{m.kind.value}.png"
+            files[name] = out / name
+            image = render_preview(m.cloud(), m.label_set, poses)
+            if i == 0 and objects is not None:  # the objects with their ids beside it
+                panel = objects.panel(up_vector(poses), size=image.shape[0] - 28)
+                image = side_by_side([image, panel], ["", "objects (top-down): id class"])
+            sizes[name] = write_png(files[name], image)
+    write_text_atomic(out / "config.json", config.to_json())
+    files["config"] = out / "config.json"
+    return files, sizes
+
+
+def refine_maps(maps: list[SemanticMap], poses: list[np.ndarray], *, iterations: int,
+                scorer: RunScorer) -> dict[MapKind, dict]:
+    """3D dense CRF over every map with class distributions; per map: its accuracy before (when there is ground
+    truth), elements refined and changed, milliseconds."""
+    from semmap.fusion.crf import CrfParams, refine_map
+
+    params = CrfParams(iterations=iterations)
+    viewpoint = np.mean([np.asarray(T)[:3, 3] for T in poses], axis=0) if poses else None
+    out: dict[MapKind, dict] = {}
+    for m in maps:
+        if m.label_set is None:
+            continue
+        before = scorer.map_3d(m)
+        r = refine_map(m, params, viewpoint=viewpoint)
+        out[m.kind] = {**({"miou_3d_before": before["miou_3d"],
+                           "voxel_accuracy_3d_before": before["voxel_accuracy_3d"]} if before else {}),
+                       "refined": r.refined, "changed": r.changed, "ms": round(r.ms, 1)}
+    return out
+
+
+def warn_if_empty(primary: SemanticMap, config: RunConfig, points_integrated: int, poses: list[np.ndarray]) -> None:
+    """A run whose frames added nothing to the map says so, with the likely reason."""
+    if len(primary.cloud()):
+        return
+    m = config.mapping
+    reasons = []
+    reach = TREE_MAX_VAL * m.resolution
+    far = max((float(np.abs(np.asarray(T)[:3, 3]).max()) for T in poses), default=0.0)
+    if far >= reach:
+        reasons.append(f"camera poses lie up to {far:,.0f} m from the origin, beyond the ±{reach:,.0f} m a map of "
+                       f"resolution {m.resolution} m can hold")
+    if points_integrated == 0:
+        reasons.append(f"no depth pixel lies between --min-depth {m.min_depth} and --max-depth {m.max_depth} m")
+    if 0 <= m.max_range < m.resolution:
+        reasons.append(f"--max-range {m.max_range} m leaves every reading beyond range")
+    log.warning("%d frames added nothing to the map: no voxel is occupied (%s)", len(poses),
+                "; ".join(reasons) or "check the poses and depth units")

@@ -1,0 +1,113 @@
+"""Getting a run ready before its first frame: the label set of the maps, where each frame's pose comes from
+(a tracker's pass over the sequence, offline), and warm kernels so that the first frame's latency is honest."""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+from collections.abc import Callable, Iterator
+from pathlib import Path
+
+from semmap.config import InputConfig, LoopMode, RunConfig, SemanticSource
+from semmap.datasets import Dataset, open_dataset
+from semmap.errors import ConfigError
+from semmap.interrupt import checked
+from semmap.perception.base import Preparable, Segmenter
+from semmap.perception.instances.base import InstanceSource
+from semmap.perception.precomputed import FALLBACK_CLASSES
+from semmap.poses.frame_poses import GROUND_TRUTH, FramePoses
+from semmap.types import Frame, LabelSet
+
+Progress = Callable[[Iterator, int], Iterator]
+
+
+class FirstFrame:
+    """A dataset's first frame, read only when something asks for it (a ROS bag pays a pass over its index)."""
+
+    def __init__(self, dataset: Dataset):
+        self._dataset, self._read, self._frame = dataset, False, None
+
+    @property
+    def frame(self) -> Frame | None:
+        if not self._read:
+            self._frame, self._read = next(iter(self._dataset), None), True
+        return self._frame
+
+
+def label_set_for(config: RunConfig, dataset: Dataset, segmenter: Segmenter | None) -> LabelSet | None:
+    """The classes of the maps: the segmenter's, the dataset's, a generic set when label images come without
+    names, or none (geometry and colour only)."""
+    if segmenter is not None:
+        return segmenter.label_set
+    if dataset.label_set is not None:
+        return dataset.label_set
+    s = config.semantics.source
+    if s == SemanticSource.LABELS or (s == SemanticSource.AUTO and config.input.labels is not None):
+        return LabelSet.generic(FALLBACK_CLASSES)
+    return None
+
+
+def prepare_segmenter(segmenter: Segmenter | None, first: FirstFrame) -> float:
+    """Let a segmenter with a start-up cost pay it on the dataset's first frame; returns the seconds."""
+    if not isinstance(segmenter, Preparable) or first.frame is None:
+        return 0.0
+    return segmenter.prepare(first.frame)
+
+
+def warm_tracker(config: RunConfig, first: FirstFrame) -> float:
+    """Online, run a throwaway tracker of the same kind on the first frame twice, so that its kernels are compiled
+    (or loaded) before the first frame's latency is counted; returns the seconds."""
+    if config.mode != LoopMode.ONLINE or config.poses.source == GROUND_TRUTH:
+        return 0.0
+    from semmap.poses.track import METHODS, make_tracker
+
+    source = config.poses.source
+    if source not in METHODS or first.frame is None:  # (object-constrained trackers share the instance
+        return 0.0  # source's state: not warmed)
+    t0 = time.perf_counter()
+    warm = make_tracker(source)
+    for _ in range(2):
+        warm.track(first.frame)
+    return time.perf_counter() - t0
+
+
+def pose_source_for(config: RunConfig, dataset: Dataset, *, instances: InstanceSource | None = None,
+                    track_progress: Progress | None = None) -> FramePoses:
+    """Where each frame's pose comes from: ground truth, a trajectory file, or a tracker run over the sequence
+    first (its final, loop-closed trajectory is then used for mapping; online, frame by frame in the loop)."""
+    source = config.poses.source
+    if source == GROUND_TRUTH:
+        return FramePoses(GROUND_TRUTH)
+    from semmap.object_slam import OBJECT_METHODS, make_pose_tracker
+    from semmap.poses.base import estimate_trajectory
+    from semmap.poses.track import METHODS
+
+    if source in METHODS or source in OBJECT_METHODS:
+        t0 = time.perf_counter()
+        tracker = make_pose_tracker(source, instances=instances)
+        if config.mode == LoopMode.ONLINE:  # tracked in the frame loop, frame by frame
+            return FramePoses(source, tracker=tracker)
+        progress = track_progress or (lambda it, n: it)
+        trajectory = estimate_trajectory(tracker, dataset, total=len(dataset),  # Ctrl-C stops between frames
+                                         progress=lambda it, n: checked(progress(it, n), "tracking"))
+        tracking_s = time.perf_counter() - t0
+        if len(trajectory) == 0:
+            raise ConfigError(f"{config.input.dataset}: the {source} tracker lost every frame")
+        stats = getattr(tracker, "stats", None)
+        return FramePoses(source, by_name=dict(zip(trajectory.names, trajectory.poses, strict=True)),
+                          tracking_s=tracking_s, tracked=len(trajectory),
+                          edge_stats=dataclasses.asdict(stats) if dataclasses.is_dataclass(stats) else None)
+    from semmap.poses.file import TrajectoryPoses
+
+    path = Path(source)
+    if not path.is_file():
+        raise ConfigError(f"--poses must be gt, a tracker ({', '.join(METHODS + OBJECT_METHODS)}) or a "
+                          f"trajectory file; {path} does not exist")
+    return FramePoses(str(path), lookup=TrajectoryPoses.from_file(path, max_time_diff=config.poses.max_time_diff))
+
+
+def open_dataset_of(c: InputConfig, *, max_frames: int | None = None) -> Dataset:
+    """The dataset a run's input section names (``max_frames`` overrides its own, e.g. 1 to read a label set)."""
+    return open_dataset(c.dataset, c.format, labels=c.labels, stride=c.stride,
+                        max_frames=c.max_frames if max_frames is None else max_frames, raw_color=c.raw_color,
+                        ros=c.ros.options(), strict=c.strict)
