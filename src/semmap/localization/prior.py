@@ -117,6 +117,41 @@ def pack_nearest(nearest: np.ndarray, offset: np.ndarray) -> np.ndarray:
     return out
 
 
+def _voxel_classes(occ_ijk: np.ndarray, shape: tuple[int, int, int], *, labels: np.ndarray | None,
+                   probs: np.ndarray | None, dense_probs: np.ndarray | None, label_set: LabelSet | None
+                   ) -> tuple[np.ndarray | None, np.ndarray]:
+    """Each occupied voxel's class distribution (M, C) over the label set (None without classes) and the grid of
+    top classes (0 where there is none), from dense distributions or top-k sets."""
+    class_probs = None
+    top = np.zeros(shape, np.uint16)
+    if dense_probs is not None and label_set is not None:
+        if dense_probs.shape[1] != len(label_set):
+            raise ConfigError(f"class distributions have {dense_probs.shape[1]} classes, the label set "
+                              f"{len(label_set)}")
+        class_probs = np.ascontiguousarray(dense_probs, np.float32)
+        class_probs[:, 0] = 0.0  # "unknown" is no class a point can be matched to
+        class_probs /= np.maximum(class_probs.sum(axis=1, keepdims=True), 1e-12)
+        no_evidence = class_probs.sum(axis=1) < 0.5
+        class_probs[no_evidence, 1:] = 1.0 / (len(label_set) - 1)
+        top[tuple(occ_ijk.T)] = np.where(no_evidence, 0, class_probs.argmax(axis=1))
+    elif labels is not None and probs is not None and label_set is not None:
+        labels = np.asarray(labels, np.uint16).reshape(len(occ_ijk), -1)
+        probs = np.asarray(probs, np.float32).reshape(len(occ_ijk), -1)
+        class_probs = dense_class_probs(labels, probs, len(label_set))
+        first = labels[:, 0]
+        top[tuple(occ_ijk.T)] = np.where((first != EMPTY_LABEL) & (first < len(label_set)), first, 0)
+    return class_probs, top
+
+
+def _quantised_rows(class_probs: np.ndarray) -> np.ndarray:
+    """Class probabilities as bytes (x 255), rows padded to 32 (or a multiple of 64) bytes: one cache line per
+    voxel for the scoring kernel."""
+    width = 32 if class_probs.shape[1] <= 32 else -(-class_probs.shape[1] // 64) * 64
+    class_q = np.zeros((len(class_probs), width), np.uint8)
+    class_q[:, : class_probs.shape[1]] = np.round(class_probs * 255.0)
+    return class_q
+
+
 def build_prior(occupied_centers: np.ndarray, resolution: float, *, free_centers: np.ndarray | None = None,
                 labels: np.ndarray | None = None, probs: np.ndarray | None = None,
                 dense_probs: np.ndarray | None = None, label_set: LabelSet | None = None,
@@ -172,31 +207,11 @@ def build_prior(occupied_centers: np.ndarray, resolution: float, *, free_centers
         free_grid = np.maximum.accumulate(occ_grid, axis=2) & ~occ_grid
     free_clear = free_grid & ~occ_grid & (dist * res >= clearance)
 
-    class_probs = None
-    top = np.zeros(shape, np.uint16)
-    if dense_probs is not None and label_set is not None:
-        if dense_probs.shape[1] != len(label_set):
-            raise ConfigError(f"class distributions have {dense_probs.shape[1]} classes, the label set "
-                              f"{len(label_set)}")
-        class_probs = np.ascontiguousarray(dense_probs, np.float32)
-        class_probs[:, 0] = 0.0  # "unknown" is no class a point can be matched to
-        class_probs /= np.maximum(class_probs.sum(axis=1, keepdims=True), 1e-12)
-        no_evidence = class_probs.sum(axis=1) < 0.5
-        class_probs[no_evidence, 1:] = 1.0 / (len(label_set) - 1)
-        top[tuple(occ_ijk.T)] = np.where(no_evidence, 0, class_probs.argmax(axis=1))
-    elif labels is not None and probs is not None and label_set is not None:
-        labels = np.asarray(labels, np.uint16).reshape(len(occ), -1)
-        probs = np.asarray(probs, np.float32).reshape(len(occ), -1)
-        class_probs = dense_class_probs(labels, probs, len(label_set))
-        first = labels[:, 0]
-        top[tuple(occ_ijk.T)] = np.where((first != EMPTY_LABEL) & (first < len(label_set)), first, 0)
+    class_probs, top = _voxel_classes(occ_ijk, shape, labels=labels, probs=probs, dense_probs=dense_probs,
+                                      label_set=label_set)
     z = occ[:, 2]
     known_z = known[:, 2]  # the ceiling may be unmapped (cameras look down): the known space's top bounds it then
-    class_q = None
-    if class_probs is not None:  # rows padded to 32 (or a multiple of 64) bytes: one cache line per voxel
-        width = 32 if class_probs.shape[1] <= 32 else -(-class_probs.shape[1] // 64) * 64
-        class_q = np.zeros((len(class_probs), width), np.uint8)
-        class_q[:, : class_probs.shape[1]] = np.round(class_probs * 255.0)
+    class_q = None if class_probs is None else _quantised_rows(class_probs)
     return PriorMap(res, origin.astype(np.float64), shape, np.ascontiguousarray(nearest.reshape(-1), np.int32),
                     packed.reshape(-1),
                     np.ascontiguousarray(occ, np.float32), class_probs, class_q, top.reshape(-1),

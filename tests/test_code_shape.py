@@ -1,0 +1,48 @@
+"""The shape of the code a newcomer reads: no function (or method) over 80 lines outside numba kernels, the
+papers' algorithms written as one piece and the CLI's option declarations, and the run's frame loop class
+(``Pipeline``) at most 250 lines."""
+
+from __future__ import annotations
+
+import ast
+from pathlib import Path
+
+SRC = Path(__file__).resolve().parents[1] / "src" / "semmap"
+MAX_FUNCTION_LINES = 80
+MAX_PIPELINE_LINES = 250
+#: Functions allowed to be longer, with the reason: the papers' algorithms kept as one piece, step for step.
+ALGORITHMS = {
+    "fusion/topk_bayes.py:fuse_sets": "Algorithm 1 of the semantic OctoMap paper, line for line",
+}
+
+
+def _decorators(node: ast.FunctionDef) -> list[str]:
+    return [ast.unparse(d) for d in node.decorator_list]
+
+
+def _exempt(path: Path, node: ast.FunctionDef) -> bool:
+    """numba kernels (``@nb.njit``...) and typer commands (their option declarations) may be longer."""
+    decos = " ".join(_decorators(node))
+    where = f"{path.relative_to(SRC).as_posix()}:{node.name}"
+    return "njit" in decos or "app.command" in decos or where in ALGORITHMS
+
+
+def _long_functions() -> list[str]:
+    found = []
+    for path in sorted(SRC.rglob("*.py")):
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, ast.FunctionDef | ast.AsyncFunctionDef):
+                lines = node.end_lineno - node.lineno + 1
+                if lines > MAX_FUNCTION_LINES and not _exempt(path, node):
+                    found.append(f"{path.relative_to(SRC)}:{node.lineno} {node.name} ({lines} lines)")
+    return found
+
+
+def test_no_function_is_over_80_lines_outside_kernels_algorithms_and_cli_options():
+    assert _long_functions() == []
+
+
+def test_the_frame_loop_class_stays_small():
+    tree = ast.parse((SRC / "pipeline.py").read_text())
+    cls = next(n for n in tree.body if isinstance(n, ast.ClassDef) and n.name == "Pipeline")
+    assert cls.end_lineno - cls.lineno + 1 <= MAX_PIPELINE_LINES
