@@ -23,7 +23,7 @@ import numpy as np
 
 from semmap.datasets.base import read_label_image
 from semmap.errors import ConfigError, DatasetError
-from semmap.eval.semantic import SegmentationScores, confusion, scores
+from semmap.eval.semantic import SegmentationScores, confusion, scores, scores_from_counts
 from semmap.types import LabelSet
 
 LOG = logging.getLogger("semmap")
@@ -155,14 +155,4 @@ def _scores_of_pairs(pairs: np.ndarray, num_classes: int, ignore: int | None) ->
     tp = np.bincount(gt[gt == pred], weights=n[gt == pred], minlength=num_classes)
     gt_count = np.bincount(gt, weights=n, minlength=num_classes)
     pred_count = np.bincount(pred, weights=n, minlength=num_classes)
-    present = gt_count > 0
-    if ignore is not None and ignore < num_classes:
-        present[ignore] = False
-    with np.errstate(divide="ignore", invalid="ignore"):
-        iou = np.where(present, tp / (gt_count + pred_count - tp), np.nan)
-        per_class_acc = np.where(present, tp / gt_count, np.nan)
-    total = n.sum()
-    return SegmentationScores(iou, float(np.nanmean(iou)) if present.any() else float("nan"),
-                              float(tp.sum() / total) if total else float("nan"),
-                              float(np.nanmean(per_class_acc)) if present.any() else float("nan"),
-                              gt_count.astype(np.int64), per_class_acc)
+    return scores_from_counts(tp, gt_count, pred_count, ignore=ignore)

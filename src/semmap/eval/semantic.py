@@ -49,16 +49,19 @@ def scores(conf: np.ndarray, *, ignore: int | None = 0) -> SegmentationScores:
     """IoU_c = TP / (TP + FP + FN) per class present in the ground truth (eq. 12), MPA = mean per-class
     accuracy (eq. 11 as usually implemented), accuracy = trace / total."""
     conf = conf.astype(np.float64)
-    tp = np.diag(conf)
-    gt_count = conf.sum(axis=1)
-    pred_count = conf.sum(axis=0)
+    return scores_from_counts(np.diag(conf), conf.sum(axis=1), conf.sum(axis=0), ignore=ignore)
+
+
+def scores_from_counts(tp: np.ndarray, gt_count: np.ndarray, pred_count: np.ndarray, *,
+                       ignore: int | None = 0) -> SegmentationScores:
+    """Eq. 11-12 scores from per-class true positives and ground-truth / predicted counts (K,) each."""
     present = gt_count > 0
     if ignore is not None and ignore < len(present):
         present[ignore] = False
     with np.errstate(divide="ignore", invalid="ignore"):
         iou = np.where(present, tp / (gt_count + pred_count - tp), np.nan)
         per_class_acc = np.where(present, tp / gt_count, np.nan)
-    total = conf.sum()
+    total = gt_count.sum()
     return SegmentationScores(iou, float(np.nanmean(iou)) if present.any() else float("nan"),
                               float(tp.sum() / total) if total else float("nan"),
                               float(np.nanmean(per_class_acc)) if present.any() else float("nan"),
