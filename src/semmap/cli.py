@@ -676,7 +676,7 @@ def eval_seg(
     confusion matrix."""
     _setup_logging(False)
     from semmap.eval.segmentation import evaluate_label_folders
-    from semmap.io.atomic import write_text_atomic
+    from semmap.files.atomic import write_text_atomic
 
     result = evaluate_label_folders(pred_dir, gt_dir, num_classes, ignore=None if ignore < 0 else ignore,
                                     resize=resize)
@@ -727,7 +727,7 @@ def batch(
     from semmap.config import InputConfig, MappingConfig, OutputConfig, PosesConfig, RunConfig, SemanticsConfig
 
     if config is not None:
-        from semmap.io.safe_files import read_text_limited
+        from semmap.files.safe import read_text_limited
 
         text = read_text_limited(config, what="run configuration")
         template = _validated(lambda: RunConfig.model_validate_json(text))

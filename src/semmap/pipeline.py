@@ -28,7 +28,7 @@ from semmap.eval.report_plots import write_report_plots
 from semmap.eval.semantic import confusion, evaluate_2d, evaluate_cloud_3d
 from semmap.geometry import backproject_world, pixel_normals
 from semmap.interrupt import RunInterrupted, checked, deferred_interrupts, stop_requested
-from semmap.io.atomic import write_text_atomic
+from semmap.files.atomic import write_text_atomic
 from semmap.io.staged_run import StagedRun
 from semmap.keys import TREE_MAX_VAL
 from semmap.maps.base import SemanticMap

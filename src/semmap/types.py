@@ -15,6 +15,8 @@ from pathlib import Path
 import numpy as np
 
 from semmap.errors import ConfigError, DatasetError
+from semmap.files.atomic import write_text_atomic
+from semmap.files.safe import read_text_limited
 
 #: Sentinel label id for an unused slot in a top-k semantic set.
 EMPTY_LABEL = np.uint16(65535)
@@ -155,14 +157,10 @@ class LabelSet:
             raise ConfigError(f"malformed label set: {exc}") from exc
 
     def save(self, path: str | Path) -> None:
-        from semmap.io.atomic import write_text_atomic
-
         write_text_atomic(path, json.dumps(self.to_dict(), indent=1))
 
     @classmethod
     def load(cls, path: str | Path) -> LabelSet:
-        from semmap.io.safe_files import read_text_limited
-
         text = read_text_limited(path, what="label set", error=lambda reason: DatasetError(f"{path}: {reason}"))
         try:
             return cls.from_dict(json.loads(text))

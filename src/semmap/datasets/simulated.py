@@ -72,7 +72,7 @@ def scene_of_folder(root) -> Scene | None:
         return None
     log = logging.getLogger("semmap")
     from semmap.errors import SemmapError
-    from semmap.io.safe_files import read_text_limited
+    from semmap.files.safe import read_text_limited
 
     try:
         info = json.loads(read_text_limited(path, what="scene description"))

@@ -24,7 +24,7 @@ from semmap.datasets.base import (
 )
 from semmap.datasets.label_folder import LabelFolder, as_label_folder, choose_label_set
 from semmap.errors import ConfigError, DatasetError
-from semmap.io.safe_files import read_text_limited
+from semmap.files.safe import read_text_limited
 from semmap.types import CameraIntrinsics, Frame, check_pose, interpolate_pose, pose_from_tum
 
 #: Factory calibrations of the three Kinects (fx, fy, cx, cy), picked by the sequence folder name.

@@ -35,7 +35,7 @@ def describe_map_file(path: str | Path) -> dict:
 
 
 def _format_of(path: Path) -> str | None:
-    from semmap.io.safe_files import read_npz_members
+    from semmap.files.safe import read_npz_members
 
     raw = read_npz_members(path, ["header"], what="semmap map")["header"]
     try:

@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 
 from semmap.errors import FormatError
-from semmap.io.atomic import write_text_atomic
+from semmap.files.atomic import write_text_atomic
 from semmap.types import Trajectory, orthonormalize, pose_from_tum, pose_to_tum
 
 #: Largest accepted deviation | ‖q‖ − 1 | of a stored quaternion (it is normalised on reading).
@@ -25,7 +25,7 @@ HEADER = "# timestamp tx ty tz qx qy qz qw"
 
 def read_trajectory(path: str | Path) -> Trajectory:
     """Poses of a TUM trajectory file, validated: :class:`FormatError` names the file and line of a bad row."""
-    from semmap.io.safe_files import read_text_limited
+    from semmap.files.safe import read_text_limited
 
     path = Path(path)
     text = read_text_limited(path, what="trajectory file")

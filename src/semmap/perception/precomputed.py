@@ -118,7 +118,7 @@ def _is_number(text: str) -> bool:
 
 def _load_probabilities(path: Path) -> np.ndarray:
     """A probability array from .npy, or from .npz (key ``probs`` or its only array); FormatError otherwise."""
-    from semmap.io.safe_files import read_npy, read_npz_members, regular_file_size
+    from semmap.files.safe import read_npy, read_npz_members, regular_file_size
 
     if path.suffix.lower() == ".npz":
         arrays = read_npz_members(path, what="probabilities file")

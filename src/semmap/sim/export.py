@@ -22,7 +22,7 @@ import numpy as np
 
 from semmap.datasets.tum_writer import write_tum_sequence
 from semmap.errors import SimulationError
-from semmap.io.atomic import write_text_atomic
+from semmap.files.atomic import write_text_atomic
 from semmap.sim.labels import INDOOR_LABELS
 from semmap.sim.noise import KinectNoise
 from semmap.sim.render import Renderer
