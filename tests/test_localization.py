@@ -339,6 +339,7 @@ def run_cli(*args: str):
 def small_office_map(tmp_path_factory, office):
     """map.semmap of the small office built from the fixture's frames, and a simulated sequence of the same scene."""
     from semmap.geometry import backproject_world
+    from semmap.io.map_files import save_map_files
     from semmap.io.native import save_map
     from semmap.maps.semantic_octomap import SemanticOctoMap
     from semmap.maps.voxel_grid import SemanticVoxelGrid
@@ -359,7 +360,7 @@ def small_office_map(tmp_path_factory, office):
         flat = f.semantics.reshape_flat()
         grid.integrate(Observation(pts, f.T_world_cam[:3, 3], np.zeros((len(pts), 3), np.uint8),
                                    TopKProbs(flat.labels[pix], flat.probs[pix])))
-    grid.save(root)
+    save_map_files(grid, root)
     seq = simulate_sequence(root / "seq", scene_seed=0, kind="office", size="small", frames=24, trajectory_seed=1,
                             intrinsics=CAMERA)
     return root / "map.semmap", seq

@@ -26,9 +26,10 @@ from semmap.eval.report_html import write_report_html
 from semmap.eval.report_md import write_report_md
 from semmap.eval.report_plots import write_report_plots
 from semmap.eval.semantic import confusion, evaluate_2d, evaluate_cloud_3d
+from semmap.files.atomic import write_text_atomic
 from semmap.geometry import backproject_world, pixel_normals
 from semmap.interrupt import RunInterrupted, checked, deferred_interrupts, stop_requested
-from semmap.files.atomic import write_text_atomic
+from semmap.io.map_files import save_map_files
 from semmap.io.staged_run import StagedRun
 from semmap.keys import TREE_MAX_VAL
 from semmap.maps.base import SemanticMap
@@ -692,7 +693,7 @@ class Pipeline:
         out.mkdir(parents=True, exist_ok=True)
         sizes: dict[str, int] = {}
         for m in maps:
-            sizes.update(m.save(out))
+            sizes.update(save_map_files(m, out))
         files = {name: out / name for name in sizes}
         if self._objects is not None:
             sizes.update(self._objects.write(out, up_vector(poses)))

@@ -14,8 +14,8 @@ from pathlib import Path
 import numpy as np
 
 from semmap.errors import FormatError, SemmapError
-from semmap.fusion.rules import FusionParams
 from semmap.files.atomic import write_atomic
+from semmap.fusion.rules import FusionParams
 from semmap.maps.semantic_grid import GridArrays
 from semmap.maps.semantic_octomap import CellArrays, OccupancyParams, SemanticOctoMap
 from semmap.types import LabelSet, MapKind
