@@ -626,7 +626,7 @@ def eval_traj(
     from semmap.io.trajectory import read_trajectory
 
     reference = _reference_trajectory(gt)
-    estimates = _named_trajectories(est, read_trajectory)
+    estimates = _named_trajectories(est, lambda p: read_trajectory(p, strict=True))
     if len(estimates) == 1 and not (pairwise or reference2 or rotation_frames):
         scores = evaluate_trajectory(reference, next(iter(estimates.values())), max_time_diff=max_time_diff)
     else:
@@ -650,7 +650,7 @@ def _reference_trajectory(path: Path):
         return trajectory_of_dataset(open_dataset(path))
     from semmap.io.trajectory import read_trajectory
 
-    return read_trajectory(path)
+    return read_trajectory(path, strict=True)
 
 
 def _named_trajectories(paths: list[Path], read) -> dict:

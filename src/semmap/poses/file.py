@@ -8,9 +8,8 @@ from pathlib import Path
 
 import numpy as np
 
-from semmap.datasets.tum import pose_at
 from semmap.errors import ConfigError
-from semmap.io.trajectory import read_trajectory
+from semmap.io.trajectory import pose_at, read_trajectory
 from semmap.types import Frame, Trajectory, pose_to_tum
 
 
@@ -46,7 +45,7 @@ class TrajectoryPoses:
     @classmethod
     def from_file(cls, path: str | Path, **kwargs) -> TrajectoryPoses:
         """Pose source for a TUM trajectory file (``--poses PATH``)."""
-        return cls(read_trajectory(path), source=str(path), **kwargs)
+        return cls(read_trajectory(path, strict=True), source=str(path), **kwargs)
 
     def lookup(self, timestamp: float) -> PoseLookup:
         """Pose at ``timestamp`` or None with the reason."""
