@@ -11,7 +11,7 @@ from hypothesis import strategies as st
 from scipy.spatial.transform import Rotation
 
 import naive
-from semmap.datasets.simulated import DEFAULT_INTRINSICS, SimulatedDataset
+from semmap.datasets.simulated import SimulatedDataset
 from semmap.errors import ConfigError
 from semmap.keys import keys_to_coords
 from semmap.localization import _kernels as kern
@@ -31,7 +31,7 @@ from semmap.sim.ground_truth import gt_voxels
 from semmap.sim.labels import INDOOR_LABELS
 from semmap.sim.scene import generate_scene
 from semmap.sim.trajectory import make_trajectory
-from semmap.types import EMPTY_LABEL, LabelSet, TopKProbs, invert_pose, make_pose, pose_change
+from semmap.types import DEFAULT_INTRINSICS, EMPTY_LABEL, LabelSet, TopKProbs, invert_pose, make_pose, pose_change
 
 RES = 0.05
 CAMERA = DEFAULT_INTRINSICS.scaled(0.25)  # 160 x 120

@@ -20,7 +20,6 @@ from semmap.eval.trajectory import (
 )
 from semmap.io.trajectory import (
     clean_poses,
-    orthonormalize,
     pose_at,
     read_trajectory,
     read_tum,
@@ -34,6 +33,7 @@ from semmap.types import (
     interpolate_pose,
     invert_pose,
     make_pose,
+    orthonormalize,
     quat_xyzw_to_rot,
     rot_to_quat_xyzw,
 )
@@ -338,8 +338,9 @@ def test_unknown_tracker_is_a_config_error():
 
 
 def test_dense_odometry_tracks_a_short_simulated_sequence():
-    from semmap.datasets.simulated import DEFAULT_INTRINSICS, SimulatedDataset
+    from semmap.datasets.simulated import SimulatedDataset
     from semmap.poses.odometry import DenseOdometry
+    from semmap.types import DEFAULT_INTRINSICS
 
     sim = SimulatedDataset.default(scene_seed=0, trajectory="desk", frames=20)
     small = SimulatedDataset(sim.scene, sim.poses, seed=0, intrinsics=DEFAULT_INTRINSICS.scaled(0.5))  # fast

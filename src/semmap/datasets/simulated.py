@@ -11,9 +11,7 @@ from semmap.sim.export import simulate_frames
 from semmap.sim.labels import INDOOR_LABELS
 from semmap.sim.scene import Scene, generate_scene
 from semmap.sim.trajectory import make_trajectory
-from semmap.types import CameraIntrinsics, Frame, LabelSet
-
-DEFAULT_INTRINSICS = CameraIntrinsics(640, 480, 525.0, 525.0, 319.5, 239.5)
+from semmap.types import DEFAULT_INTRINSICS, CameraIntrinsics, Frame, LabelSet
 
 
 class SimulatedDataset:

@@ -26,7 +26,7 @@ from semmap.datasets.label_folder import LabelFolder, as_label_folder, choose_la
 from semmap.errors import ConfigError, DatasetError, FormatError
 from semmap.files.safe import read_text_limited
 from semmap.io.trajectory import pose_at, read_tum, warn_repeated_stamps
-from semmap.types import CameraIntrinsics, Frame, check_pose
+from semmap.types import DEFAULT_INTRINSICS, CameraIntrinsics, Frame, check_pose
 
 #: Factory calibrations of the three Kinects (fx, fy, cx, cy), picked by the sequence folder name.
 FREIBURG_INTRINSICS = {
@@ -34,8 +34,6 @@ FREIBURG_INTRINSICS = {
     "freiburg2": (520.9, 521.0, 325.1, 249.7),
     "freiburg3": (535.4, 539.2, 320.1, 247.6),
 }
-#: TUM's recommended default for unknown sequences (fx, fy, cx, cy).
-DEFAULT_INTRINSICS = (525.0, 525.0, 319.5, 239.5)
 CAMERA_FILE = "camera.json"
 
 
@@ -210,7 +208,8 @@ def associate(first: list[float], second: list[float], max_diff: float) -> list[
 # Camera
 # --------------------------------------------------------------------------------------------------
 def _find_intrinsics(root: Path, rgb_paths: list[Path]) -> CameraIntrinsics:
-    """``camera.json`` in the root, else the Freiburg calibration named by the folder, else TUM's default."""
+    """``camera.json`` in the root, else the Freiburg calibration named by the folder, else TUM's default
+    (:data:`semmap.types.DEFAULT_INTRINSICS`'s focal lengths and centre)."""
     camera = root / CAMERA_FILE
     if camera.exists():
         text = read_text_limited(camera, what="camera file", error=lambda reason: DatasetError(f"{camera}: {reason}"))
@@ -221,6 +220,7 @@ def _find_intrinsics(root: Path, rgb_paths: list[Path]) -> CameraIntrinsics:
         except ConfigError as exc:
             raise DatasetError(f"{camera}: {exc}") from None
     folder = root.resolve().name
-    fx, fy, cx, cy = next((v for key, v in FREIBURG_INTRINSICS.items() if key in folder), DEFAULT_INTRINSICS)
+    default = (DEFAULT_INTRINSICS.fx, DEFAULT_INTRINSICS.fy, DEFAULT_INTRINSICS.cx, DEFAULT_INTRINSICS.cy)
+    fx, fy, cx, cy = next((v for key, v in FREIBURG_INTRINSICS.items() if key in folder), default)
     width, height = image_size(rgb_paths, root)
     return CameraIntrinsics(width, height, fx, fy, cx, cy)

@@ -18,7 +18,7 @@ from semmap.errors import FormatError
 from semmap.files.atomic import write_text_atomic
 from semmap.files.parse import is_number
 from semmap.files.safe import read_text_limited
-from semmap.types import Trajectory, interpolate_pose, orthonormalize, pose_from_tum, pose_to_tum
+from semmap.types import Trajectory, interpolate_pose, orthonormality_error, pose_from_tum, pose_to_tum, snap_rigid
 
 LOG = logging.getLogger("semmap")
 
@@ -152,12 +152,6 @@ def write_trajectory(path: str | Path, trajectory: Trajectory) -> Path:
 # --------------------------------------------------------------------------------------------------
 # Rotations
 # --------------------------------------------------------------------------------------------------
-def orthonormality_error(R: np.ndarray) -> float:
-    """max |R Rᵀ − I| of a 3x3 matrix (0 for an exact rotation)."""
-    R = np.asarray(R, dtype=np.float64)
-    return float(np.abs(R @ R.T - np.eye(3)).max())
-
-
 def clean_poses(poses: np.ndarray, source: str, tol: float = ORTHO_TOL) -> np.ndarray:
     """Copy of (N, 4, 4) poses with every rotation re-orthonormalised; :class:`FormatError` naming ``source``
     and the pose index when a rotation is further than ``tol`` from orthonormal or a reflection, or a pose is
@@ -172,8 +166,7 @@ def clean_poses(poses: np.ndarray, source: str, tol: float = ORTHO_TOL) -> np.nd
         if err > tol or np.linalg.det(T[:3, :3]) <= 0:
             raise FormatError(f"{source}: pose {i} has a rotation that is not orthonormal "
                               f"(max |R Rᵀ - I| = {err:.2g}, tolerance {tol:g}) or is a reflection")
-        poses[i, :3, :3] = orthonormalize(T[:3, :3])
-        poses[i, 3] = (0.0, 0.0, 0.0, 1.0)
+        poses[i] = snap_rigid(T)
     return poses
 
 
