@@ -14,6 +14,7 @@ import naive
 from semmap.datasets.simulated import SimulatedDataset
 from semmap.errors import ConfigError
 from semmap.keys import keys_to_coords
+from semmap.labels import INDOOR_LABELS
 from semmap.localization import _kernels as kern
 from semmap.localization.filter import FilterSettings, ParticleFilter, tempering
 from semmap.localization.motion import GroundTilt, MotionMode, NoisyGroundTruth, heading
@@ -28,7 +29,6 @@ from semmap.localization.observation import (
 from semmap.localization.prior import build_prior, dense_class_probs
 from semmap.localization.run import InitMode, localize
 from semmap.sim.ground_truth import gt_voxels
-from semmap.sim.labels import INDOOR_LABELS
 from semmap.sim.scene import generate_scene
 from semmap.sim.trajectory import make_trajectory
 from semmap.types import DEFAULT_INTRINSICS, EMPTY_LABEL, LabelSet, TopKProbs, invert_pose, make_pose, pose_change

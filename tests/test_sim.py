@@ -11,9 +11,9 @@ from scipy.spatial import ConvexHull
 
 from semmap.errors import SimulationError
 from semmap.keys import coords_to_keys
+from semmap.labels import INDOOR_LABELS
 from semmap.sim.export import simulate_sequence
 from semmap.sim.ground_truth import gt_objects, gt_voxels
-from semmap.sim.labels import INDOOR_LABELS
 from semmap.sim.noise import KinectNoise
 from semmap.sim.render import Renderer, center_depths, scene_raycaster
 from semmap.sim.scene import KINDS, generate_scene

@@ -25,7 +25,7 @@ from semmap.io.trajectory import (
     read_tum,
     write_trajectory,
 )
-from semmap.poses.file import TrajectoryPoses, trajectory_of_dataset
+from semmap.poses.file import GroundTruthRecorder, TrajectoryPoses, trajectory_of_dataset
 from semmap.poses.track import make_tracker
 from semmap.types import (
     Frame,
@@ -390,3 +390,17 @@ def test_tolerant_reading_keeps_nan_rows_sorts_and_warns_where_strict_stops(tmp_
     path.write_text("\n".join(path.read_text().splitlines()[1:]) + "\n")
     with pytest.raises(FormatError, match=r"gt\.txt:2: pose has non-finite"):
         read_tum(path, strict=True)
+
+
+def test_ground_truth_recorder_reads_frames_once_in_time_order_and_matches_trajectory_of_dataset():
+    from dataclasses import replace
+
+    frames = [replace(_frame(i, None if i == 1 else make_pose(np.eye(3), [i, 0, 0])), timestamp=t)
+              for i, t in enumerate([0.3, 0.1, 0.2, 0.0])]
+    recorder = GroundTruthRecorder()
+    assert all(a is b for a, b in zip(recorder.watch(iter(frames)), frames, strict=True))
+    traj = recorder.trajectory()
+    assert traj.names == ("f3", "f2", "f0") and traj.timestamps.tolist() == [0.0, 0.2, 0.3]
+    assert traj.poses[:, 0, 3].tolist() == [3.0, 2.0, 0.0]
+    same = trajectory_of_dataset(frames)
+    assert same.names == traj.names and np.array_equal(same.poses, traj.poses)

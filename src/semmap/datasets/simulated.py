@@ -7,8 +7,8 @@ from collections.abc import Iterator
 import numpy as np
 
 from semmap.datasets.base import SkippedFrame
+from semmap.labels import INDOOR_LABELS
 from semmap.sim.export import simulate_frames
-from semmap.sim.labels import INDOOR_LABELS
 from semmap.sim.scene import Scene, generate_scene
 from semmap.sim.trajectory import make_trajectory
 from semmap.types import DEFAULT_INTRINSICS, CameraIntrinsics, Frame, LabelSet

@@ -1,7 +1,7 @@
 """TUM RGB-D benchmark sequences (``rgb.txt``, ``depth.txt``, optional ``groundtruth.txt``).
 
 Also reads the per-frame ground truth our simulator writes next to them (``labels/``, ``instances/``,
-``labelset.json``, ``camera.json``; see :mod:`semmap.datasets.tum_writer`).
+``labelset.json``, ``camera.json``; see :mod:`semmap.io.tum_writer`).
 """
 
 from __future__ import annotations

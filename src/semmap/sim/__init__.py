@@ -17,7 +17,7 @@ from __future__ import annotations
 import importlib
 
 _EXPORTS = {
-    "INDOOR_LABELS": "semmap.sim.labels",
+    "INDOOR_LABELS": "semmap.labels",
     "Scene": "semmap.sim.scene",
     "SceneObject": "semmap.sim.scene",
     "Room": "semmap.sim.scene",
