@@ -17,6 +17,7 @@ import numpy as np
 from scipy import ndimage
 
 from semmap.errors import ConfigError, FormatError
+from semmap.io.map_files import load_map_file, native_file
 from semmap.types import EMPTY_LABEL, LabelSet, MapKind
 
 #: Cells beyond this distance (m) from every occupied voxel get no nearest voxel (their points score as clutter).
@@ -236,7 +237,7 @@ def prior_from_grid_map(m, *, cutoff: float = DEFAULT_CUTOFF_M, clearance: float
 
 
 #: Map files of a run folder, in the order ``load_prior`` looks for them.
-MAP_FILES = ("map.semmap", "voxelgrid.semmap", "points.semmap")
+MAP_FILES = tuple(native_file(kind) for kind in MapKind)
 
 
 def load_prior(path: str | Path, **kwargs) -> PriorMap:
@@ -249,8 +250,6 @@ def load_prior(path: str | Path, **kwargs) -> PriorMap:
             raise FormatError(f"{path}: folder has none of {', '.join(MAP_FILES)} (map a sequence first with "
                               f"semmap run)")
         path = found
-    from semmap.io.map_files import load_map_file
-
     m = load_map_file(path)
     if m.kind == MapKind.OCTOMAP:
         return prior_from_octomap(m, **kwargs)
