@@ -31,6 +31,7 @@ from semmap.eval.semantic import evaluate_cloud_3d
 from semmap.fusion.crf import CrfParams, refine_map
 from semmap.fusion.rules import FusionParams, FusionRule
 from semmap.geometry import DEFAULT_MAX_DEPTH, DEFAULT_MIN_DEPTH, backproject_world, pixel_normals
+from semmap.labels import INDOOR_LABELS
 from semmap.maps.point_map import SemanticPointMap
 from semmap.maps.registry import compile_kernels
 from semmap.maps.semantic_octomap import SemanticOctoMap
@@ -38,7 +39,6 @@ from semmap.maps.voxel_grid import SemanticVoxelGrid
 from semmap.perception.oracle import OracleSegmenter
 from semmap.perception.schedule import Scheduler, SegmentationSchedule
 from semmap.sim.ground_truth import gt_voxels
-from semmap.sim.labels import INDOOR_LABELS
 from semmap.sim.scene import generate_scene
 from semmap.sim.trajectory import make_trajectory
 from semmap.types import CameraIntrinsics, LabelSet, MapKind, Observation, TopKProbs, distinct_colors

@@ -32,7 +32,7 @@ from pathlib import Path
 import numpy as np
 
 from semmap.config import InputConfig, MappingConfig, OutputConfig, RunConfig, SemanticsConfig
-from semmap.datasets.simulated import DEFAULT_INTRINSICS, SimulatedDataset
+from semmap.datasets.simulated import SimulatedDataset
 from semmap.localization.filter import FilterSettings
 from semmap.localization.motion import GroundTilt, MotionMode, NoisyGroundTruth
 from semmap.localization.observation import ObservationKind, make_scan
@@ -42,7 +42,7 @@ from semmap.perception.oracle import OracleSegmenter
 from semmap.pipeline import Pipeline
 from semmap.sim.scene import generate_scene
 from semmap.sim.trajectory import make_trajectory
-from semmap.types import Frame
+from semmap.types import DEFAULT_INTRINSICS, Frame
 
 #: Camera of the benchmark: the simulator's 640x480 Kinect at half resolution (mapping and localization).
 CAMERA = DEFAULT_INTRINSICS.scaled(0.5)

@@ -27,10 +27,10 @@ from pathlib import Path
 import numpy as np
 
 from semmap.eval.semantic import confusion, scores
+from semmap.labels import INDOOR_LABELS
 from semmap.perception.networks.registry import count_parameters, load_weights
 from semmap.perception.registry import TRAINED_NETWORKS, make_segmenter, shipped_weights_dir
 from semmap.sim.export import simulate_frames
-from semmap.sim.labels import INDOOR_LABELS
 from semmap.sim.scene import generate_scene
 from semmap.sim.trajectory import make_trajectory
 from semmap.types import Frame

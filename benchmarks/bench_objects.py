@@ -35,12 +35,12 @@ import open3d as o3d
 from semmap.datasets.simulated import SimulatedDataset
 from semmap.eval.objects import IdentitySwitches, ObjectTruth, count_errors, detection_truth
 from semmap.eval.trajectory import evaluate_trajectory
+from semmap.labels import INDOOR_LABELS
 from semmap.maps.objects import ObjectMap
 from semmap.object_slam import make_pose_tracker
 from semmap.perception.instances.oracle import OracleInstances
 from semmap.perception.schedule import Scheduler, SegmentationSchedule
 from semmap.perception.tracking import DeepSort
-from semmap.sim.labels import INDOOR_LABELS
 from semmap.types import Trajectory
 
 #: name -> (scene seed, kind, trajectory, frames)

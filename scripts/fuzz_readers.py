@@ -139,9 +139,13 @@ def target_ply(data: bytes, folder: Path) -> None:
 
 
 def target_trajectory(data: bytes, folder: Path) -> None:
+    from semmap.errors import SemmapError
     from semmap.io.trajectory import read_trajectory
 
-    read_trajectory(_write(folder, "x.txt", data))
+    path = _write(folder, "x.txt", data)
+    with contextlib.suppress(SemmapError):  # tolerant reading: NaN rows, any order
+        read_trajectory(path)
+    read_trajectory(path, strict=True)
 
 
 def target_labelset(data: bytes, folder: Path) -> None:

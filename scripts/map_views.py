@@ -31,7 +31,7 @@ def label_palette(name: str):
         from semmap.perception.voc import PASCAL_VOC
 
         return PASCAL_VOC
-    from semmap.sim.labels import INDOOR_LABELS
+    from semmap.labels import INDOOR_LABELS
 
     return INDOOR_LABELS
 

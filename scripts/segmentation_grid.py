@@ -20,7 +20,7 @@ import cv2
 import numpy as np
 
 from semmap.datasets import open_dataset
-from semmap.io.atomic import write_text_atomic
+from semmap.files.atomic import write_text_atomic
 from semmap.perception.network import parse_input_size
 from semmap.perception.registry import make_segmenter
 from semmap.viz.preview import write_png

@@ -17,7 +17,7 @@ import shutil
 import sys
 from pathlib import Path
 
-from semmap.io.atomic import write_text_atomic
+from semmap.files.atomic import write_text_atomic
 from semmap.perception.networks.registry import load_weights
 from semmap.perception.registry import MANIFEST, TRAINED_NETWORKS, shipped_weights_dir
 

@@ -130,6 +130,7 @@ def _read(reader: str, path: Path) -> None:
     elif reader == "trajectory":
         from semmap.io.trajectory import read_trajectory
 
+        read_trajectory(path, strict=True)
         read_trajectory(path)
     else:
         from semmap.datasets import open_dataset

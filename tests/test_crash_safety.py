@@ -13,9 +13,9 @@ import pytest
 
 from helpers import make_room_frames, room_label_set
 from semmap.config import InputConfig, MappingConfig, OutputConfig, RunConfig, SemanticsConfig
-from semmap.datasets.tum_writer import write_tum_sequence
 from semmap.errors import ConfigError
 from semmap.io.staged_run import staging_folder
+from semmap.io.tum_writer import write_tum_sequence
 from semmap.pipeline import Pipeline
 from semmap.sim.export import simulate_sequence
 from test_pipeline_cli import run_cli

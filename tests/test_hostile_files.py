@@ -18,9 +18,9 @@ from hostile import MAX_RSS_MB
 from semmap import pipeline
 from semmap.config import InputConfig, MappingConfig, OutputConfig, RunConfig
 from semmap.datasets import open_dataset
-from semmap.datasets.tum_writer import write_tum_sequence
 from semmap.errors import ConfigError, DatasetError
 from semmap.eval.segmentation import evaluate_label_folders
+from semmap.io.tum_writer import write_tum_sequence
 from semmap.pipeline import Pipeline
 from test_pipeline_cli import run_cli
 

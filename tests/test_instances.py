@@ -8,10 +8,10 @@ import numpy as np
 import pytest
 
 from semmap.errors import ConfigError, DatasetError
+from semmap.labels import INDOOR_LABELS
 from semmap.perception.instances import make_instance_source, thing_classes
 from semmap.perception.instances.components import components
 from semmap.perception.instances.oracle import OracleInstances
-from semmap.sim.labels import INDOOR_LABELS
 from semmap.types import CameraIntrinsics, Frame, Instances, LabelSet, TopKProbs, mask_boxes
 
 CAM = CameraIntrinsics(160, 120, 130.0, 130.0, 79.5, 59.5)

@@ -11,9 +11,10 @@ from hypothesis import strategies as st
 from scipy.spatial.transform import Rotation
 
 import naive
-from semmap.datasets.simulated import DEFAULT_INTRINSICS, SimulatedDataset
+from semmap.datasets.simulated import SimulatedDataset
 from semmap.errors import ConfigError
 from semmap.keys import keys_to_coords
+from semmap.labels import INDOOR_LABELS
 from semmap.localization import _kernels as kern
 from semmap.localization.filter import FilterSettings, ParticleFilter, tempering
 from semmap.localization.motion import GroundTilt, MotionMode, NoisyGroundTruth, heading
@@ -28,10 +29,9 @@ from semmap.localization.observation import (
 from semmap.localization.prior import build_prior, dense_class_probs
 from semmap.localization.run import InitMode, localize
 from semmap.sim.ground_truth import gt_voxels
-from semmap.sim.labels import INDOOR_LABELS
 from semmap.sim.scene import generate_scene
 from semmap.sim.trajectory import make_trajectory
-from semmap.types import EMPTY_LABEL, LabelSet, TopKProbs, invert_pose, make_pose, pose_change
+from semmap.types import DEFAULT_INTRINSICS, EMPTY_LABEL, LabelSet, TopKProbs, invert_pose, make_pose, pose_change
 
 RES = 0.05
 CAMERA = DEFAULT_INTRINSICS.scaled(0.25)  # 160 x 120
@@ -339,6 +339,7 @@ def run_cli(*args: str):
 def small_office_map(tmp_path_factory, office):
     """map.semmap of the small office built from the fixture's frames, and a simulated sequence of the same scene."""
     from semmap.geometry import backproject_world
+    from semmap.io.map_files import save_map_files
     from semmap.io.native import save_map
     from semmap.maps.semantic_octomap import SemanticOctoMap
     from semmap.maps.voxel_grid import SemanticVoxelGrid
@@ -359,7 +360,7 @@ def small_office_map(tmp_path_factory, office):
         flat = f.semantics.reshape_flat()
         grid.integrate(Observation(pts, f.T_world_cam[:3, 3], np.zeros((len(pts), 3), np.uint8),
                                    TopKProbs(flat.labels[pix], flat.probs[pix])))
-    grid.save(root)
+    save_map_files(grid, root)
     seq = simulate_sequence(root / "seq", scene_seed=0, kind="office", size="small", frames=24, trajectory_seed=1,
                             intrinsics=CAMERA)
     return root / "map.semmap", seq

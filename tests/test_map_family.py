@@ -10,10 +10,10 @@ import numpy as np
 import pytest
 
 from helpers import make_room_frames, room_label_set
-from semmap.datasets.tum_writer import write_tum_sequence
 from semmap.eval.semantic import cloud_keys_and_labels
 from semmap.fusion.crf import CrfParams, refine_map
 from semmap.geometry import backproject_world, pixel_normals
+from semmap.io.tum_writer import write_tum_sequence
 from semmap.maps.voxel_grid import SemanticVoxelGrid
 from semmap.types import EMPTY_LABEL, CameraIntrinsics, LabelSet, Observation, TopKProbs, make_pose
 

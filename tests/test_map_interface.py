@@ -8,6 +8,7 @@ import pytest
 
 from semmap.config import InputConfig, OutputConfig, RunConfig
 from semmap.errors import ConfigError
+from semmap.io.map_files import MAP_FILES, load_map_file, native_file, save_map_files
 from semmap.maps.base import SemanticMap
 from semmap.maps.registry import get_map, map_kind
 from semmap.types import EMPTY_LABEL, LabelSet, MapKind, Observation, TopKProbs
@@ -39,8 +40,11 @@ def test_every_map_kind_integrates_reads_back_saves_and_describes_itself(kind, t
     assert len(cloud) > 0 and cloud.centers.shape == (len(cloud), 3) and cloud.colors.dtype == np.uint8
     assert np.all(np.abs(cloud.centers[:, 0] - 2.0) <= max(cloud.resolution, 0.05))
     assert np.all(cloud.labels == 2) and np.all((cloud.confidence > 0.5) & (cloud.confidence <= 1.0))
-    sizes = m.save(tmp_path / "out")
-    assert sizes and all((tmp_path / "out" / name).stat().st_size == size for name, size in sizes.items())
+    sizes = save_map_files(m, tmp_path / "out")
+    assert list(sizes) == list(MAP_FILES[kind])
+    assert all((tmp_path / "out" / name).stat().st_size == size for name, size in sizes.items())
+    back = load_map_file(tmp_path / "out" / native_file(kind))
+    assert back.kind == kind and np.array_equal(back.cloud().labels, cloud.labels)
     d = m.describe()
     assert d["bytes_in_memory"] > 0 and d["bytes_per_voxel_in_memory"] > 0
 

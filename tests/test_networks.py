@@ -193,7 +193,7 @@ def test_missing_shipped_weights_say_how_to_get_them(tmp_path, monkeypatch) -> N
 def test_a_mapping_run_segments_with_an_rgbd_network(tmp_path) -> None:
     from helpers import room_label_set
     from semmap.config import InputConfig, MappingConfig, OutputConfig, RunConfig, SemanticsConfig
-    from semmap.datasets.tum_writer import write_tum_sequence
+    from semmap.io.tum_writer import write_tum_sequence
     from semmap.pipeline import Pipeline
 
     labels = room_label_set()
@@ -215,8 +215,8 @@ def test_shipped_weights_match_their_manifest() -> None:
     import hashlib
     import json
 
+    from semmap.labels import INDOOR_LABELS
     from semmap.perception.registry import MANIFEST, TRAINED_NETWORKS, demo_network, shipped_weights_dir
-    from semmap.sim.labels import INDOOR_LABELS
 
     manifest_path = shipped_weights_dir() / MANIFEST
     if not manifest_path.is_file():

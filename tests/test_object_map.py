@@ -12,11 +12,11 @@ from hypothesis import strategies as st
 from object_helpers import OBJECT_CAMERA, box_frames
 from semmap.errors import FormatError
 from semmap.io.objects import read_objects_json, read_objects_ply, write_objects_json, write_objects_ply
+from semmap.labels import INDOOR_LABELS
 from semmap.maps._object_kernels import grid_neighbour_distances
 from semmap.maps.objects import ObjectMap, ObjectMapParams, outlier_mask, overlap_iou, pack_cells, upright_box
 from semmap.perception.instances.oracle import OracleInstances
 from semmap.perception.tracking import DeepSort
-from semmap.sim.labels import INDOOR_LABELS
 from semmap.types import Instances
 
 CHAIR, TABLE = INDOOR_LABELS.id_of("chair"), INDOOR_LABELS.id_of("table")

@@ -10,13 +10,13 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from object_helpers import box_frames
-from semmap.datasets.tum_writer import write_tum_sequence
 from semmap.eval.trajectory import evaluate_trajectory
 from semmap.io.objects import read_objects_json, read_objects_ply
+from semmap.io.tum_writer import write_tum_sequence
+from semmap.labels import INDOOR_LABELS
 from semmap.object_slam import ObjectConstrainedTracker, ObjectPoseParams
 from semmap.perception.instances.oracle import OracleInstances
 from semmap.poses.object_graph import ObjectEdge, apply_corrections, fit_rigid, optimise_with_object_edges
-from semmap.sim.labels import INDOOR_LABELS
 from semmap.types import Trajectory, invert_pose, make_pose
 from test_pipeline_cli import run_cli
 

@@ -23,8 +23,8 @@ from semmap.config import (
     RunConfig,
     SemanticsConfig,
 )
-from semmap.datasets.tum_writer import write_tum_sequence
 from semmap.io.trajectory import read_trajectory
+from semmap.io.tum_writer import write_tum_sequence
 from semmap.perception.network import NetworkInput, NetworkSegmenter
 from semmap.perception.schedule import (
     Scheduler,

@@ -6,10 +6,10 @@ import numpy as np
 import pytest
 
 from semmap.errors import ConfigError, DatasetError
+from semmap.labels import INDOOR_LABELS
 from semmap.perception.base import Segmenter
 from semmap.perception.oracle import CONFUSIONS, OracleSegmenter, measured_accuracy
 from semmap.sim.export import simulate_frames
-from semmap.sim.labels import INDOOR_LABELS
 from semmap.sim.scene import generate_scene
 from semmap.sim.trajectory import make_trajectory
 from semmap.types import EMPTY_LABEL

@@ -261,7 +261,7 @@ def test_eval_folders_resize_ignore_and_report_missing(tmp_path):
 # ------------------------------------------------------------------ end to end
 def test_run_with_precomputed_segmentation_every_second_frame(tmp_path):
     from semmap.datasets import open_dataset
-    from semmap.datasets.tum_writer import write_tum_sequence
+    from semmap.io.tum_writer import write_tum_sequence
 
     root = tmp_path / "seq"
     write_tum_sequence(root, make_room_frames(6), label_set=room_label_set())

@@ -13,7 +13,7 @@ import pytest
 
 from helpers import make_room_frames, room_label_set
 from semmap.config import InputConfig, MappingConfig, OutputConfig, RunConfig
-from semmap.datasets.tum_writer import write_tum_sequence
+from semmap.io.tum_writer import write_tum_sequence
 from semmap.pipeline import Pipeline
 
 REPORT_KEYS = {"frames_used", "frames_skipped", "occupied_leaves", "free_leaves", "bytes_in_memory",

@@ -12,9 +12,9 @@ import pytest
 
 from helpers import make_room_frames, room_label_set
 from semmap.config import InputConfig, MappingConfig, OutputConfig, RunConfig
-from semmap.datasets.tum_writer import write_tum_sequence
 from semmap.eval.report_html import render_report_html
 from semmap.eval.report_plots import PLOT_FILES, storage_sizes, write_report_plots
+from semmap.io.tum_writer import write_tum_sequence
 from semmap.pipeline import Pipeline
 from semmap.types import Trajectory
 

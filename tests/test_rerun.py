@@ -10,7 +10,7 @@ import pytest
 
 from helpers import make_room_frames, room_label_set
 from semmap.config import InputConfig, MappingConfig, OutputConfig, RunConfig
-from semmap.datasets.tum_writer import write_tum_sequence
+from semmap.io.tum_writer import write_tum_sequence
 from semmap.pipeline import Pipeline
 from semmap.viz.rerun_log import NoVisualizer, class_colors, get_visualizer
 from test_pipeline_cli import run_cli
@@ -119,8 +119,8 @@ def test_spawning_a_viewer_without_a_display_is_one_clear_line(room, tmp_path):
 def test_objects_are_logged_as_labelled_boxes_when_the_run_builds_them(tmp_path):
     from object_helpers import box_frames
     from semmap.config import ObjectsConfig
+    from semmap.labels import INDOOR_LABELS
     from semmap.runner import run_config
-    from semmap.sim.labels import INDOOR_LABELS
 
     chair, table = INDOOR_LABELS.id_of("chair"), INDOOR_LABELS.id_of("table")
     boxes = [(np.array([-0.2, -0.8, 0.0]), np.array([0.2, -0.4, 0.8])),

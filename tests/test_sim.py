@@ -10,13 +10,15 @@ import pytest
 from scipy.spatial import ConvexHull
 
 from semmap.errors import SimulationError
+from semmap.keys import coords_to_keys
+from semmap.labels import INDOOR_LABELS
 from semmap.sim.export import simulate_sequence
-from semmap.sim.ground_truth import coords_to_keys, gt_objects, gt_voxels
-from semmap.sim.labels import INDOOR_LABELS
+from semmap.sim.ground_truth import gt_objects, gt_voxels
 from semmap.sim.noise import KinectNoise
-from semmap.sim.render import DEFAULT_INTRINSICS, Renderer, center_depths, scene_raycaster
+from semmap.sim.render import Renderer, center_depths, scene_raycaster
 from semmap.sim.scene import KINDS, generate_scene
 from semmap.sim.trajectory import TRAJECTORY_KINDS, look_at, make_trajectory
+from semmap.types import DEFAULT_INTRINSICS
 
 SMALL = DEFAULT_INTRINSICS.scaled(0.5)  # 320 x 240, for tests that do not need full resolution
 #: Interpenetration below this depth (metres) counts as touching.

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import logging
+
 import numpy as np
 import pytest
 from hypothesis import given, settings
@@ -16,8 +18,14 @@ from semmap.eval.trajectory import (
     plot_position_errors,
     plot_trajectories,
 )
-from semmap.io.trajectory import clean_poses, orthonormalize, read_trajectory, write_trajectory
-from semmap.poses.file import TrajectoryPoses, trajectory_of_dataset
+from semmap.io.trajectory import (
+    clean_poses,
+    pose_at,
+    read_trajectory,
+    read_tum,
+    write_trajectory,
+)
+from semmap.poses.file import GroundTruthRecorder, TrajectoryPoses, trajectory_of_dataset
 from semmap.poses.track import make_tracker
 from semmap.types import (
     Frame,
@@ -25,6 +33,7 @@ from semmap.types import (
     interpolate_pose,
     invert_pose,
     make_pose,
+    orthonormalize,
     quat_xyzw_to_rot,
     rot_to_quat_xyzw,
 )
@@ -119,13 +128,14 @@ def test_tum_round_trip(tmp_path):
     ("0.0 1 2 3 0 0 0 1\n0.0 1 2 3 0 0 0 1\n", ":2: timestamp"),
     ("0.0 1 2 3 0 0 0 0\n", ":1: quaternion is zero"),
     ("0.0 1 2 3 0 0 0 2\n", ":1: quaternion norm"),
-    ("0.0 1 2 3 0 0 0 nan\n", ":1: row has non-finite"),
+    ("0.0 1 2 3 0 0 0 nan\n", ":1: pose has non-finite"),
+    ("nan 1 2 3 0 0 0 1\n", ":1: timestamp 'nan' is not finite"),
 ])
 def test_bad_trajectory_files(tmp_path, text, problem):
     path = tmp_path / "bad.txt"
     path.write_text(text)
     with pytest.raises(FormatError, match=r"bad\.txt") as info:
-        read_trajectory(path)
+        read_trajectory(path, strict=True)
     assert problem in str(info.value)
 
 
@@ -328,8 +338,9 @@ def test_unknown_tracker_is_a_config_error():
 
 
 def test_dense_odometry_tracks_a_short_simulated_sequence():
-    from semmap.datasets.simulated import DEFAULT_INTRINSICS, SimulatedDataset
+    from semmap.datasets.simulated import SimulatedDataset
     from semmap.poses.odometry import DenseOdometry
+    from semmap.types import DEFAULT_INTRINSICS
 
     sim = SimulatedDataset.default(scene_seed=0, trajectory="desk", frames=20)
     small = SimulatedDataset(sim.scene, sim.poses, seed=0, intrinsics=DEFAULT_INTRINSICS.scaled(0.5))  # fast
@@ -361,3 +372,35 @@ def test_seven_scenes_ground_truth_evaluates(seven_scenes):
     gt = trajectory_of_dataset(open_dataset(seven_scenes, max_frames=20))
     result = evaluate_trajectory(gt, gt)
     assert result["matched"] == 20 and result["ate_rmse_m"] < 1e-6
+
+
+def test_tolerant_reading_keeps_nan_rows_sorts_and_warns_where_strict_stops(tmp_path, caplog):
+    path = tmp_path / "gt.txt"
+    path.write_text("2.0 2 0 0 0 0 0 1\n0.0 0 0 0 0 0 0 1\n1.0 nan 0 0 0 0 0 1\n2.0 9 9 9 0 0 0 1\n3.0 3 0 0 0 0 0 2\n")
+    with caplog.at_level(logging.WARNING, logger="semmap"):
+        stamps, rows = read_tum(path)
+    assert stamps.tolist() == [0.0, 1.0, 2.0, 2.0, 3.0] and np.isnan(rows[1]).all() and rows[2, 0] == 2.0
+    assert "1 poses have non-finite entries (lines 3)" in caplog.text and "1 rows repeat" in caplog.text
+    assert pose_at(stamps, rows, 0.5, 0.02) is None  # next to the NaN row
+    np.testing.assert_allclose(pose_at(stamps, rows, 3.01, 0.02)[:3, 3], [3, 0, 0])  # clamped to the end row
+    traj = read_trajectory(path)
+    assert traj.timestamps.tolist() == [0.0, 2.0, 3.0] and traj.poses[1, 0, 3] == 2.0
+    with pytest.raises(FormatError, match=r"gt\.txt:2: timestamp 0.0 is not after"):
+        read_tum(path, strict=True)
+    path.write_text("\n".join(path.read_text().splitlines()[1:]) + "\n")
+    with pytest.raises(FormatError, match=r"gt\.txt:2: pose has non-finite"):
+        read_tum(path, strict=True)
+
+
+def test_ground_truth_recorder_reads_frames_once_in_time_order_and_matches_trajectory_of_dataset():
+    from dataclasses import replace
+
+    frames = [replace(_frame(i, None if i == 1 else make_pose(np.eye(3), [i, 0, 0])), timestamp=t)
+              for i, t in enumerate([0.3, 0.1, 0.2, 0.0])]
+    recorder = GroundTruthRecorder()
+    assert all(a is b for a, b in zip(recorder.watch(iter(frames)), frames, strict=True))
+    traj = recorder.trajectory()
+    assert traj.names == ("f3", "f2", "f0") and traj.timestamps.tolist() == [0.0, 0.2, 0.3]
+    assert traj.poses[:, 0, 3].tolist() == [3.0, 2.0, 0.0]
+    same = trajectory_of_dataset(frames)
+    assert same.names == traj.names and np.array_equal(same.poses, traj.poses)

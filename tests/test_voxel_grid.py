@@ -12,6 +12,7 @@ from semmap.fusion.dense import expand_topk
 from semmap.fusion.half import from_half_bits, to_half_bits
 from semmap.fusion.rules import FusionParams, FusionRule
 from semmap.io.grid_files import load_grid
+from semmap.io.map_files import MAP_FILES, save_map_files
 from semmap.io.ply import read_ply
 from semmap.keys import coords_to_keys, pack_keys
 from semmap.maps.point_map import SemanticPointMap
@@ -155,32 +156,34 @@ def test_native_files_round_trip_bit_for_bit_and_ply_opens_in_plyfile(kind, tmp_
         f = random_frame(rng, 400, K)
         m.integrate(Observation(f.points_world, f.origin, f.colors, f.semantics,
                                 normals=rng.normal(size=(400, 3)).astype(np.float32)))
-    sizes = m.save(tmp_path)
-    back = load_grid(tmp_path / m.NATIVE)
+    sizes = save_map_files(m, tmp_path)
+    native, ply_name = MAP_FILES[m.kind]
+    back = load_grid(tmp_path / native)
     a, b = m.grid.arrays(), back.grid.arrays()
     for field in a.__dataclass_fields__:
         assert np.array_equal(getattr(a, field), getattr(b, field)), field
     assert back.fusion == m.fusion and back.label_set == m.label_set and back.kind == m.kind
     cloud = m.cloud()
     assert np.array_equal(back.cloud().labels, cloud.labels)
-    ply = plyfile.PlyData.read(str(tmp_path / m.PLY))
+    ply = plyfile.PlyData.read(str(tmp_path / ply_name))
     v = ply["vertex"]
-    assert len(v) == len(cloud) and sizes[m.PLY] == (tmp_path / m.PLY).stat().st_size
+    assert len(v) == len(cloud) and sizes[ply_name] == (tmp_path / ply_name).stat().st_size
     assert np.allclose(v["x"], cloud.centers[:, 0], atol=1e-6) and np.array_equal(v["label"], cloud.labels)
     assert {"red", "green", "blue", "confidence"} <= set(v.data.dtype.names)
     assert ("nx" in v.data.dtype.names) == (kind == "points")
-    assert np.array_equal(read_ply(tmp_path / m.PLY).labels, cloud.labels)
+    assert np.array_equal(read_ply(tmp_path / ply_name).labels, cloud.labels)
 
 
 def test_damaged_grid_and_ply_files_are_clear_errors(tmp_path):
     m = SemanticVoxelGrid(0.1, label_set=LabelSet.generic(4))
     m.integrate(random_frame(np.random.default_rng(6), 100, 4))
-    m.save(tmp_path)
-    data = (tmp_path / m.NATIVE).read_bytes()
+    save_map_files(m, tmp_path)
+    native, ply_name = MAP_FILES[m.kind]
+    data = (tmp_path / native).read_bytes()
     (tmp_path / "cut.semmap").write_bytes(data[: len(data) // 2])
     with pytest.raises(FormatError, match=r"cut\.semmap"):
         load_grid(tmp_path / "cut.semmap")
-    ply = (tmp_path / m.PLY).read_bytes()
+    ply = (tmp_path / ply_name).read_bytes()
     (tmp_path / "cut.ply").write_bytes(ply[:-7])
     with pytest.raises(FormatError, match="truncated"):
         read_ply(tmp_path / "cut.ply")

@@ -48,7 +48,7 @@ _configure_numba()
 
 def _configure_opencv() -> None:
     """Cap OpenCV's image decoder and silence its own log lines before anything imports ``cv2``."""
-    from semmap.io.safe_files import limit_opencv
+    from semmap.files.safe import limit_opencv
 
     limit_opencv()
 

@@ -18,7 +18,7 @@ from pathlib import Path
 
 from semmap.config import RunConfig
 from semmap.errors import ConfigError, SemmapError
-from semmap.io.atomic import write_text_atomic
+from semmap.files.atomic import write_text_atomic
 
 LOG = logging.getLogger("semmap")
 #: Logical CPUs one run asks of a Ray node (a run's numba and torch threads use about two).

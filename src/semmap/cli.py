@@ -572,7 +572,7 @@ def eval_traj(
     from semmap.io.trajectory import read_trajectory
 
     reference = _reference_trajectory(gt)
-    estimates = _named_trajectories(est, read_trajectory)
+    estimates = _named_trajectories(est, lambda p: read_trajectory(p, strict=True))
     if len(estimates) == 1 and not (pairwise or reference2 or rotation_frames):
         scores = evaluate_trajectory(reference, next(iter(estimates.values())), max_time_diff=max_time_diff)
     else:
@@ -596,7 +596,7 @@ def _reference_trajectory(path: Path):
         return trajectory_of_dataset(open_dataset(path))
     from semmap.io.trajectory import read_trajectory
 
-    return read_trajectory(path)
+    return read_trajectory(path, strict=True)
 
 
 def _named_trajectories(paths: list[Path], read) -> dict:
@@ -622,7 +622,7 @@ def eval_seg(
     confusion matrix."""
     _setup_logging(False)
     from semmap.eval.segmentation import evaluate_label_folders
-    from semmap.io.atomic import write_text_atomic
+    from semmap.files.atomic import write_text_atomic
 
     result = evaluate_label_folders(pred_dir, gt_dir, num_classes, ignore=None if ignore < 0 else ignore,
                                     resize=resize)
@@ -673,7 +673,7 @@ def batch(
     from semmap.config import InputConfig, MappingConfig, OutputConfig, PosesConfig, RunConfig, SemanticsConfig
 
     if config is not None:
-        from semmap.io.safe_files import read_text_limited
+        from semmap.files.safe import read_text_limited
 
         text = read_text_limited(config, what="run configuration")
         template = _validated(lambda: RunConfig.model_validate_json(text))

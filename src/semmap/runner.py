@@ -135,20 +135,19 @@ def track_sequence(dataset: Dataset, method: str, *, progress: Progress | None =
     """Estimate the camera trajectory of ``dataset`` with tracker ``method``, keeping the frames' ground truth
     (read on the way, not in a second pass) to score the estimate."""
     from semmap.poses.base import estimate_trajectory
+    from semmap.poses.file import GroundTruthRecorder
     from semmap.poses.track import make_tracker
 
-    seen, truth = [0], []
+    seen, truth = [0], GroundTruthRecorder()
 
     def frames():
-        for frame in dataset:
+        for frame in truth.watch(dataset):
             seen[0] += 1
-            if frame.T_world_cam is not None:
-                truth.append((frame.timestamp, frame.name, frame.T_world_cam))
             yield frame
 
     t0 = time.perf_counter()
     est = estimate_trajectory(make_tracker(method), frames(), total=len(dataset), progress=progress)
-    return TrackResult(est, Trajectory.from_rows(truth), seen[0], time.perf_counter() - t0)
+    return TrackResult(est, truth.trajectory(), seen[0], time.perf_counter() - t0)
 
 
 def track_summary(result: TrackResult, method: str, out: Path, *, plot: Path | None = None) -> dict:

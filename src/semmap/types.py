@@ -15,6 +15,8 @@ from pathlib import Path
 import numpy as np
 
 from semmap.errors import ConfigError, DatasetError
+from semmap.files.atomic import write_text_atomic
+from semmap.files.safe import read_text_limited
 
 #: Sentinel label id for an unused slot in a top-k semantic set.
 EMPTY_LABEL = np.uint16(65535)
@@ -72,6 +74,11 @@ class CameraIntrinsics:
                        float(d["cx"]), float(d["cy"]))
         except (KeyError, TypeError, ValueError, OverflowError) as exc:
             raise ConfigError(f"camera intrinsics need width, height, fx, fy, cx, cy: {exc}") from exc
+
+
+#: Default camera: Kinect-like 640x480 with TUM's default calibration (the simulator's camera, and a TUM sequence's
+#: focal lengths and centre when neither ``camera.json`` nor the folder's Freiburg name says otherwise).
+DEFAULT_INTRINSICS = CameraIntrinsics(640, 480, 525.0, 525.0, 319.5, 239.5)
 
 
 # --------------------------------------------------------------------------------------------------
@@ -155,14 +162,10 @@ class LabelSet:
             raise ConfigError(f"malformed label set: {exc}") from exc
 
     def save(self, path: str | Path) -> None:
-        from semmap.io.atomic import write_text_atomic
-
         write_text_atomic(path, json.dumps(self.to_dict(), indent=1))
 
     @classmethod
     def load(cls, path: str | Path) -> LabelSet:
-        from semmap.io.safe_files import read_text_limited
-
         text = read_text_limited(path, what="label set", error=lambda reason: DatasetError(f"{path}: {reason}"))
         try:
             return cls.from_dict(json.loads(text))
@@ -420,9 +423,30 @@ def make_pose(R: np.ndarray, t: Sequence[float] | np.ndarray) -> np.ndarray:
 
 
 def invert_pose(T: np.ndarray) -> np.ndarray:
-    """Inverse of a rigid transform without a general matrix inverse."""
-    R, t = T[:3, :3], T[:3, 3]
-    return make_pose(R.T, -R.T @ t)
+    """Inverse of a rigid 4x4 transform, or of each of a stack (..., 4, 4), without a general matrix inverse."""
+    T = np.asarray(T, dtype=np.float64)
+    out = np.zeros_like(T)
+    Rt = np.swapaxes(T[..., :3, :3], -1, -2)
+    out[..., :3, :3] = Rt
+    out[..., :3, 3] = -(Rt @ T[..., :3, 3:4])[..., 0]
+    out[..., 3, 3] = 1.0
+    return out
+
+
+def rot_z(yaw: np.ndarray | float) -> np.ndarray:
+    """Rotation (3, 3) about z by ``yaw`` radians, or a stack (..., 3, 3) for an array of angles."""
+    yaw = np.asarray(yaw, np.float64)
+    c, s = np.cos(yaw), np.sin(yaw)
+    out = np.zeros((*yaw.shape, 3, 3))
+    out[..., 0, 0], out[..., 0, 1], out[..., 1, 0], out[..., 1, 1] = c, -s, s, c
+    out[..., 2, 2] = 1.0
+    return out
+
+
+def orthonormality_error(R: np.ndarray) -> float:
+    """max |R Rᵀ − I| of a 3x3 matrix (0 for an exact rotation)."""
+    R = np.asarray(R, dtype=np.float64)
+    return float(np.abs(R @ R.T - np.eye(3)).max())
 
 
 def orthonormalize(R: np.ndarray) -> np.ndarray:
@@ -461,7 +485,7 @@ def pose_change(T_a: np.ndarray, T_b: np.ndarray) -> tuple[float, float]:
 def transform_points(T: np.ndarray, points: np.ndarray) -> np.ndarray:
     """Apply a 4x4 transform to (N, 3) points; keeps float32 input as float32 (computed in float64)."""
     pts = np.asarray(points)
-    out = pts.astype(np.float64) @ T[:3, :3].T + T[:3, 3]
+    out = pts.astype(np.float64, copy=False) @ T[:3, :3].T + T[:3, 3]
     return out.astype(pts.dtype if pts.dtype in (np.float32, np.float64) else np.float64)
 
 

@@ -17,8 +17,8 @@ from semmap.datasets.label_folder import LabelFolder
 from semmap.datasets.rosbag import RosbagDataset, is_rosbag
 from semmap.datasets.sevenscenes import SevenScenesDataset
 from semmap.datasets.tum import TumDataset
-from semmap.datasets.tum_writer import write_tum_sequence
 from semmap.errors import DatasetError
+from semmap.io.tum_writer import write_tum_sequence
 
 #: Format name -> reader class; every reader takes ``(root, *, stride, max_frames, labels_dir, ...)``.
 READERS: dict[str, type] = {

@@ -19,7 +19,7 @@ import cv2
 import numpy as np
 
 from semmap.errors import ConfigError, DatasetError
-from semmap.io.safe_files import MAX_IMAGE_BYTES, read_bytes_limited
+from semmap.files.safe import MAX_IMAGE_BYTES, read_bytes_limited
 from semmap.types import CameraIntrinsics, Frame, LabelSet
 
 LOG = logging.getLogger("semmap")

@@ -25,7 +25,7 @@ from semmap.datasets._ros_tf import TransformTree
 from semmap.datasets.base import SkippedFrame, UnreadableFileError, check_image_size, select_frames, skip_frame
 from semmap.datasets.tum import associate
 from semmap.errors import DatasetError
-from semmap.io.safe_files import regular_file_size
+from semmap.files.safe import regular_file_size
 from semmap.types import CameraIntrinsics, Frame, make_pose, quat_xyzw_to_rot
 
 LOG = logging.getLogger("semmap")

@@ -28,8 +28,8 @@ from semmap.datasets.base import (
 )
 from semmap.datasets.label_folder import LabelFolder, as_label_folder, choose_label_set
 from semmap.errors import ConfigError, DatasetError
+from semmap.files.safe import read_text_limited
 from semmap.geometry import register_color
-from semmap.io.safe_files import read_text_limited
 from semmap.types import CameraIntrinsics, ColorCamera, Frame, RawColor, check_pose
 
 #: Colour file names; png is preferred when a frame has both.

@@ -7,13 +7,11 @@ from collections.abc import Iterator
 import numpy as np
 
 from semmap.datasets.base import SkippedFrame
+from semmap.labels import INDOOR_LABELS
 from semmap.sim.export import simulate_frames
-from semmap.sim.labels import INDOOR_LABELS
 from semmap.sim.scene import Scene, generate_scene
 from semmap.sim.trajectory import make_trajectory
-from semmap.types import CameraIntrinsics, Frame, LabelSet
-
-DEFAULT_INTRINSICS = CameraIntrinsics(640, 480, 525.0, 525.0, 319.5, 239.5)
+from semmap.types import DEFAULT_INTRINSICS, CameraIntrinsics, Frame, LabelSet
 
 
 class SimulatedDataset:
@@ -72,7 +70,7 @@ def scene_of_folder(root) -> Scene | None:
         return None
     log = logging.getLogger("semmap")
     from semmap.errors import SemmapError
-    from semmap.io.safe_files import read_text_limited
+    from semmap.files.safe import read_text_limited
 
     try:
         info = json.loads(read_text_limited(path, what="scene description"))

@@ -1,7 +1,7 @@
 """TUM RGB-D benchmark sequences (``rgb.txt``, ``depth.txt``, optional ``groundtruth.txt``).
 
 Also reads the per-frame ground truth our simulator writes next to them (``labels/``, ``instances/``,
-``labelset.json``, ``camera.json``; see :mod:`semmap.datasets.tum_writer`).
+``labelset.json``, ``camera.json``; see :mod:`semmap.io.tum_writer`).
 """
 
 from __future__ import annotations
@@ -23,9 +23,10 @@ from semmap.datasets.base import (
     read_depth,
 )
 from semmap.datasets.label_folder import LabelFolder, as_label_folder, choose_label_set
-from semmap.errors import ConfigError, DatasetError
-from semmap.io.safe_files import read_text_limited
-from semmap.types import CameraIntrinsics, Frame, check_pose, interpolate_pose, pose_from_tum
+from semmap.errors import ConfigError, DatasetError, FormatError
+from semmap.files.safe import read_text_limited
+from semmap.io.trajectory import pose_at, read_tum, warn_repeated_stamps
+from semmap.types import DEFAULT_INTRINSICS, CameraIntrinsics, Frame, check_pose
 
 #: Factory calibrations of the three Kinects (fx, fy, cx, cy), picked by the sequence folder name.
 FREIBURG_INTRINSICS = {
@@ -33,8 +34,6 @@ FREIBURG_INTRINSICS = {
     "freiburg2": (520.9, 521.0, 325.1, 249.7),
     "freiburg3": (535.4, 539.2, 320.1, 247.6),
 }
-#: TUM's recommended default for unknown sequences (fx, fy, cx, cy).
-DEFAULT_INTRINSICS = (525.0, 525.0, 319.5, 239.5)
 CAMERA_FILE = "camera.json"
 
 
@@ -79,13 +78,13 @@ class TumDataset(SequenceReader[_TumRef]):
         rgb = read_file_list(root / "rgb.txt")
         depth = read_file_list(root / "depth.txt")
         for name, rows in (("rgb.txt", rgb), ("depth.txt", depth)):
-            _warn_duplicate_stamps(root / name, [t for t, _ in rows])
+            warn_repeated_stamps(root / name, [t for t, _ in rows])
         pairs = associate([t for t, _ in rgb], [t for t, _ in depth], max_time_diff)
         if len(pairs) < len(rgb):
             LOG.info("%s: %d of %d colour frames have no depth frame within %.3f s",
                      root, len(rgb) - len(pairs), len(rgb), max_time_diff)
         gt_path = root / "groundtruth.txt"
-        gt_stamps, gt_rows = (read_groundtruth(gt_path, strict=strict) if gt_path.is_file()
+        gt_stamps, gt_rows = (_read_groundtruth(gt_path, strict) if gt_path.is_file()
                               else (np.empty(0), np.empty((0, 7))))
 
         refs = []
@@ -154,6 +153,15 @@ def _stamp(path: Path, number: int, field: str) -> float:
     return value
 
 
+def _read_groundtruth(path: Path, strict: bool) -> tuple[np.ndarray, np.ndarray]:
+    """``groundtruth.txt`` as :func:`semmap.io.trajectory.read_tum` reads it (``strict``: a non-finite pose
+    stops the run instead of leaving frames near it without a pose); its errors as :class:`DatasetError`."""
+    try:
+        return read_tum(path, strict=strict)
+    except FormatError as exc:
+        raise DatasetError(str(exc)) from None
+
+
 def read_file_list(path: Path) -> list[tuple[float, str]]:
     """Rows ``(timestamp, relative path)`` of ``rgb.txt`` / ``depth.txt`` in file order."""
     rows = []
@@ -162,39 +170,6 @@ def read_file_list(path: Path) -> list[tuple[float, str]]:
             raise DatasetError(f"{path}:{number}: expected 'timestamp filename', got {' '.join(fields)!r}")
         rows.append((_stamp(path, number, fields[0]), fields[1]))
     return rows
-
-
-def read_groundtruth(path: Path, *, strict: bool = False) -> tuple[np.ndarray, np.ndarray]:
-    """Timestamps (N,) and rows ``tx ty tz qx qy qz qw`` (N, 7) of a TUM trajectory, sorted by time.
-
-    A row with non-finite values is kept as NaN (frames near it get no pose and are skipped, with a warning here);
-    ``strict`` makes it an error."""
-    stamps, rows = [], []
-    bad: list[int] = []
-    for number, fields in _data_lines(path):
-        if len(fields) != 8:
-            raise DatasetError(f"{path}:{number}: TUM trajectory rows need 8 values "
-                               f"(timestamp tx ty tz qx qy qz qw), got {len(fields)}")
-        try:
-            values = [float(v) for v in fields[1:]]
-        except ValueError:
-            raise DatasetError(f"{path}:{number}: pose values must be numbers") from None
-        if not np.isfinite(values).all():
-            if strict:
-                raise DatasetError(f"{path}:{number}: pose has non-finite entries")
-            bad.append(number)
-            values = [np.nan] * 7
-        elif np.linalg.norm(values[3:]) < 1e-9:
-            raise DatasetError(f"{path}:{number}: quaternion is zero")
-        stamps.append(_stamp(path, number, fields[0]))
-        rows.append(values)
-    if bad:
-        LOG.warning("%s: %d poses have non-finite entries (lines %s); frames at their times are skipped", path,
-                    len(bad), ", ".join(map(str, bad[:5])) + (" ..." if len(bad) > 5 else ""))
-    times = np.asarray(stamps, dtype=np.float64)
-    _warn_duplicate_stamps(path, times)
-    order = np.argsort(times, kind="stable")
-    return times[order], np.asarray(rows, dtype=np.float64).reshape(-1, 7)[order]
 
 
 # --------------------------------------------------------------------------------------------------
@@ -229,42 +204,12 @@ def associate(first: list[float], second: list[float], max_diff: float) -> list[
     return sorted(pairs)
 
 
-def pose_at(stamps: np.ndarray, rows: np.ndarray, t: float, max_time_diff: float) -> np.ndarray | None:
-    """``T_world_cam`` at time ``t``: interpolated between the bracketing rows, clamped to an end row within
-    ``max_time_diff`` of the trajectory's time range, None further outside (or with no trajectory)."""
-    if len(stamps) == 0 or t < stamps[0] - max_time_diff or t > stamps[-1] + max_time_diff:
-        return None
-    if t <= stamps[0]:
-        return _finite_pose(rows[0])
-    if t >= stamps[-1]:
-        return _finite_pose(rows[-1])
-    j = int(np.searchsorted(stamps, t, side="right"))  # stamps[j - 1] <= t < stamps[j]
-    i = j - 1
-    if stamps[i] == t:
-        return _finite_pose(rows[i])
-    if not (np.isfinite(rows[i]).all() and np.isfinite(rows[j]).all()):
-        return None
-    alpha = (t - stamps[i]) / (stamps[j] - stamps[i])
-    return interpolate_pose(pose_from_tum(rows[i]), pose_from_tum(rows[j]), alpha)
-
-
-def _finite_pose(row: np.ndarray) -> np.ndarray | None:
-    return pose_from_tum(row) if np.isfinite(row).all() else None
-
-
-def _warn_duplicate_stamps(path: Path, stamps) -> None:
-    """Warn when rows of a TUM file share a timestamp (only one of them can be paired or looked up)."""
-    times = np.asarray(stamps, dtype=np.float64)
-    repeated = len(times) - len(np.unique(times))
-    if repeated:
-        LOG.warning("%s: %d rows repeat an earlier timestamp; at most one row per timestamp is used", path, repeated)
-
-
 # --------------------------------------------------------------------------------------------------
 # Camera
 # --------------------------------------------------------------------------------------------------
 def _find_intrinsics(root: Path, rgb_paths: list[Path]) -> CameraIntrinsics:
-    """``camera.json`` in the root, else the Freiburg calibration named by the folder, else TUM's default."""
+    """``camera.json`` in the root, else the Freiburg calibration named by the folder, else TUM's default
+    (:data:`semmap.types.DEFAULT_INTRINSICS`'s focal lengths and centre)."""
     camera = root / CAMERA_FILE
     if camera.exists():
         text = read_text_limited(camera, what="camera file", error=lambda reason: DatasetError(f"{camera}: {reason}"))
@@ -275,6 +220,7 @@ def _find_intrinsics(root: Path, rgb_paths: list[Path]) -> CameraIntrinsics:
         except ConfigError as exc:
             raise DatasetError(f"{camera}: {exc}") from None
     folder = root.resolve().name
-    fx, fy, cx, cy = next((v for key, v in FREIBURG_INTRINSICS.items() if key in folder), DEFAULT_INTRINSICS)
+    default = (DEFAULT_INTRINSICS.fx, DEFAULT_INTRINSICS.fy, DEFAULT_INTRINSICS.cx, DEFAULT_INTRINSICS.cy)
+    fx, fy, cx, cy = next((v for key, v in FREIBURG_INTRINSICS.items() if key in folder), default)
     width, height = image_size(rgb_paths, root)
     return CameraIntrinsics(width, height, fx, fy, cx, cy)

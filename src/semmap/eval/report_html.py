@@ -8,7 +8,7 @@ import html
 import re
 from pathlib import Path
 
-from semmap.io.atomic import write_text_atomic
+from semmap.files.atomic import write_text_atomic
 
 #: Pictures larger than this are linked instead of embedded (keeps the page small enough to open anywhere).
 MAX_EMBEDDED_BYTES = 20 * 2**20

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from semmap.io.atomic import write_text_atomic
+from semmap.files.atomic import write_text_atomic
 
 
 def _kb(n: float) -> str:

@@ -11,7 +11,7 @@ from pathlib import Path
 
 import numpy as np
 
-from semmap.io.atomic import write_bytes_atomic
+from semmap.files.atomic import write_bytes_atomic
 from semmap.types import MapCloud, Trajectory
 
 #: File names of the plots, by the report section they belong to.

@@ -22,7 +22,7 @@ from semmap.eval.report_html import write_report_html
 from semmap.eval.report_md import write_report_md
 from semmap.eval.report_plots import write_report_plots
 from semmap.eval.semantic import confusion, evaluate_2d, evaluate_cloud_3d
-from semmap.io.atomic import write_text_atomic
+from semmap.files.atomic import write_text_atomic
 from semmap.maps.base import SemanticMap
 from semmap.perception.schedule import Scheduler
 from semmap.poses.base import LiveTracker

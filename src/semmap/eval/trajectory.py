@@ -16,7 +16,7 @@ from evo.core.geometry import GeometryException
 from evo.core.trajectory import PoseTrajectory3D
 
 from semmap.errors import ConfigError
-from semmap.io.atomic import write_bytes_atomic
+from semmap.files.atomic import write_bytes_atomic
 from semmap.io.trajectory import clean_poses
 from semmap.types import Trajectory, rotation_angle
 

@@ -14,8 +14,8 @@ from pathlib import Path
 import numpy as np
 
 from semmap.errors import FormatError, SemmapError
+from semmap.files.atomic import write_atomic
 from semmap.fusion.rules import FusionParams
-from semmap.io.atomic import write_atomic
 from semmap.maps.semantic_grid import GridArrays
 from semmap.maps.semantic_octomap import CellArrays, OccupancyParams, SemanticOctoMap
 from semmap.types import LabelSet, MapKind
@@ -53,7 +53,7 @@ def save_grid(path: str | Path, m) -> int:
 
 def read_header(path: str | Path) -> dict:
     """The JSON header of a grid file (what ``semmap info`` shows without loading every array)."""
-    from semmap.io.safe_files import read_npz_members
+    from semmap.files.safe import read_npz_members
 
     path = Path(path)
     raw = read_npz_members(path, ["header"], what="semmap map")["header"]
@@ -76,7 +76,7 @@ def load_grid(path: str | Path):
     from semmap.maps.voxel_grid import SemanticVoxelGrid
 
     path = Path(path)
-    from semmap.io.safe_files import read_npz_members
+    from semmap.files.safe import read_npz_members
 
     header = read_header(path)
     arrays = read_npz_members(path, what="semmap map")

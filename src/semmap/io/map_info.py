@@ -2,13 +2,12 @@
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 import numpy as np
 
 from semmap.errors import FormatError
-from semmap.types import EMPTY_LABEL
+from semmap.types import EMPTY_LABEL, MapKind
 
 
 def describe_map_file(path: str | Path) -> dict:
@@ -34,27 +33,12 @@ def describe_map_file(path: str | Path) -> dict:
     raise FormatError(f"{path}: unknown map file type {path.suffix!r} (expected .ot, .bt, .semmap or .ply)")
 
 
-def _format_of(path: Path) -> str | None:
-    from semmap.io.safe_files import read_npz_members
-
-    raw = read_npz_members(path, ["header"], what="semmap map")["header"]
-    try:
-        header = json.loads(raw.tobytes().decode("utf-8"))
-    except (UnicodeDecodeError, ValueError) as exc:
-        raise FormatError(f"{path}: header is not JSON ({exc})") from None
-    return header.get("format") if isinstance(header, dict) else None
-
-
 def _describe_semmap(path: Path) -> dict:
-    from semmap.io.grid_files import FORMAT as GRID_FORMAT
-    from semmap.io.grid_files import load_grid
+    from semmap.io.map_files import load_map_file
 
-    if _format_of(path) == GRID_FORMAT:
-        m = load_grid(path)
+    m = load_map_file(path)
+    if m.kind != MapKind.OCTOMAP:
         return {"kind": m.kind.value, "resolution": m.resolution, **m.describe(),
                 "classes": None if m.label_set is None else len(m.label_set)}
-    from semmap.io.native import load_map
-
-    m = load_map(path)
     return {"kind": "semmap", "resolution": m.resolution, "voxels": m.num_leaves, "occupied": m.num_occupied,
             "free": m.num_free, "fusion": "topk", "classes": None if m.label_set is None else len(m.label_set)}

@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 
 from semmap.errors import FormatError, SemmapError
-from semmap.io.atomic import write_atomic
+from semmap.files.atomic import write_atomic
 from semmap.maps.semantic_octomap import CellArrays, OccupancyParams, SemanticOctoMap, SemanticParams
 from semmap.types import LabelSet
 
@@ -63,7 +63,7 @@ def load_map(path: str | Path) -> SemanticOctoMap:
     Hostile files are refused before anything large is allocated: the zip's members must be the expected arrays,
     their declared sizes must fit a budget tied to the file's size (no zip bombs), and each array's own header
     (dtype, shape) must match the bytes its member holds and what the map needs."""
-    from semmap.io.safe_files import read_npz_members
+    from semmap.files.safe import read_npz_members
 
     path = Path(path)
     arrays = read_npz_members(path, ["header", *_ARRAYS], what="semmap map", max_expansion=MAX_EXPANSION,

@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from semmap.errors import FormatError
-from semmap.io.atomic import write_atomic, write_text_atomic
+from semmap.files.atomic import write_atomic, write_text_atomic
 from semmap.maps.objects import MapObject, upright_box
 from semmap.types import LabelSet, distinct_colors
 

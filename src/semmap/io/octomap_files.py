@@ -22,7 +22,7 @@ import numba as nb
 import numpy as np
 
 from semmap.errors import FormatError
-from semmap.io.atomic import write_atomic
+from semmap.files.atomic import write_atomic
 from semmap.keys import TREE_DEPTH
 from semmap.maps.octree_tree import OctreeNodes, morton_decode
 
@@ -367,7 +367,7 @@ def read_octomap(path: str | Path) -> OctreeLeaves:
     valid tree costs its header, not its length; devices and FIFOs are refused without being opened."""
     import mmap
 
-    from semmap.io.safe_files import regular_file_size
+    from semmap.files.safe import regular_file_size
 
     size = regular_file_size(path, what="OctoMap file")
     if size == 0:

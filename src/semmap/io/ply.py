@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 
 from semmap.errors import FormatError
-from semmap.io.atomic import write_atomic
+from semmap.files.atomic import write_atomic
 from semmap.types import MapCloud
 
 _BASE = [("x", "<f4"), ("y", "<f4"), ("z", "<f4"), ("red", "u1"), ("green", "u1"), ("blue", "u1"),
@@ -45,7 +45,7 @@ def read_ply(path: str | Path) -> MapCloud:
     """Read a PLY written by :func:`write_ply` back into a :class:`MapCloud`."""
     import mmap
 
-    from semmap.io.safe_files import regular_file_size
+    from semmap.files.safe import regular_file_size
 
     path = Path(path)
     if regular_file_size(path, what="PLY file") == 0:

@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from semmap.errors import FormatError
-from semmap.io.atomic import write_atomic
+from semmap.files.atomic import write_atomic
 
 FORMAT = "semmap-state"
 VERSION = 1
@@ -112,7 +112,7 @@ def save_state(path: str | Path, obj, *, meta: dict | None = None) -> int:
 
 def load_state(path: str | Path) -> tuple[object, dict]:
     """``(obj, meta)`` from a file written by :func:`save_state`; :class:`FormatError` for anything else."""
-    from semmap.io.safe_files import read_npz_members
+    from semmap.files.safe import read_npz_members
 
     path = Path(path)
     arrays = read_npz_members(path, what="checkpoint", max_expansion=2)  # stored uncompressed

@@ -19,10 +19,10 @@ from scipy.spatial.transform import Rotation
 
 from semmap.errors import ConfigError
 from semmap.localization import _kernels as kern
-from semmap.localization.motion import GroundTilt, MotionMode, MotionNoise, heading, rot_z
+from semmap.localization.motion import GroundTilt, MotionMode, MotionNoise, heading
 from semmap.localization.observation import LikelihoodParams, ObservationKind, Scan, fit, score
 from semmap.localization.prior import PriorMap
-from semmap.types import make_pose
+from semmap.types import make_pose, rot_z
 
 #: Coarse bins (metres, radians) in which the strongest mode of the particle set is looked for.
 MODE_BIN_M, MODE_BIN_RAD = 0.25, math.radians(30)

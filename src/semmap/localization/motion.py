@@ -17,7 +17,7 @@ from typing import Protocol
 import numpy as np
 
 from semmap.errors import ConfigError
-from semmap.types import Frame, invert_pose, make_pose, rotation_angle
+from semmap.types import Frame, invert_pose, make_pose, rot_z, rotation_angle
 
 
 class MotionMode(str, Enum):
@@ -56,16 +56,6 @@ def heading(R: np.ndarray) -> np.ndarray:
     """Yaw (radians) of the optical axis (third column) of rotations (..., 3, 3) about world z."""
     R = np.asarray(R)
     return np.arctan2(R[..., 1, 2], R[..., 0, 2])
-
-
-def rot_z(yaw: np.ndarray | float) -> np.ndarray:
-    """Rotations (..., 3, 3) about world z by ``yaw`` radians."""
-    yaw = np.asarray(yaw, np.float64)
-    c, s = np.cos(yaw), np.sin(yaw)
-    out = np.zeros((*yaw.shape, 3, 3))
-    out[..., 0, 0], out[..., 0, 1], out[..., 1, 0], out[..., 1, 1] = c, -s, s, c
-    out[..., 2, 2] = 1.0
-    return out
 
 
 @dataclass(frozen=True)

@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
-from semmap.io.atomic import write_atomic, write_bytes_atomic, write_text_atomic
+from semmap.files.atomic import write_atomic, write_bytes_atomic, write_text_atomic
 from semmap.io.trajectory import write_trajectory
 from semmap.localization.prior import PriorMap
 from semmap.localization.run import LocalizationResult

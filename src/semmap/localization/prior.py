@@ -17,7 +17,8 @@ import numpy as np
 from scipy import ndimage
 
 from semmap.errors import ConfigError, FormatError
-from semmap.types import EMPTY_LABEL, LabelSet
+from semmap.io.map_files import load_map_file, native_file
+from semmap.types import EMPTY_LABEL, LabelSet, MapKind
 
 #: Cells beyond this distance (m) from every occupied voxel get no nearest voxel (their points score as clutter).
 DEFAULT_CUTOFF_M = 0.5
@@ -251,7 +252,7 @@ def prior_from_grid_map(m, *, cutoff: float = DEFAULT_CUTOFF_M, clearance: float
 
 
 #: Map files of a run folder, in the order ``load_prior`` looks for them.
-MAP_FILES = ("map.semmap", "voxelgrid.semmap", "points.semmap")
+MAP_FILES = tuple(native_file(kind) for kind in MapKind)
 
 
 def load_prior(path: str | Path, **kwargs) -> PriorMap:
@@ -264,11 +265,7 @@ def load_prior(path: str | Path, **kwargs) -> PriorMap:
             raise FormatError(f"{path}: folder has none of {', '.join(MAP_FILES)} (map a sequence first with "
                               f"semmap run)")
         path = found
-    from semmap.io.grid_files import load_grid, read_header
-    from semmap.io.native import load_map
-
-    try:
-        read_header(path)
-    except FormatError:  # not a grid map file: the octree's (whose reader says what is wrong, if anything)
-        return prior_from_octomap(load_map(path), **kwargs)
-    return prior_from_grid_map(load_grid(path), **kwargs)
+    m = load_map_file(path)
+    if m.kind == MapKind.OCTOMAP:
+        return prior_from_octomap(m, **kwargs)
+    return prior_from_grid_map(m, **kwargs)

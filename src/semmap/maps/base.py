@@ -1,13 +1,13 @@
 """The one map interface: every semantic map (OctoMap, voxel grid, point map, ...) is fed and read the same way.
 
 The pipeline builds a list of maps (:func:`semmap.maps.registry.get_map`) and, per frame, hands each the same
-:class:`~semmap.types.Observation`; afterwards it reads each as a :class:`~semmap.types.MapCloud`, saves it and
-puts its self-description in the report.  Nothing outside ``maps/`` needs to know which map it holds.
+:class:`~semmap.types.Observation`; afterwards it reads each as a :class:`~semmap.types.MapCloud`, saves it
+(:func:`semmap.io.map_files.save_map_files`, from the map's public arrays) and puts its self-description in the
+report.  Nothing outside ``maps/`` needs to know which map it holds.
 """
 
 from __future__ import annotations
 
-from pathlib import Path
 from typing import Protocol, runtime_checkable
 
 from semmap.types import LabelSet, MapCloud, MapKind, Observation
@@ -32,10 +32,6 @@ class SemanticMap(Protocol):
 
     def cloud(self) -> MapCloud:
         """Occupied voxels (or points) as flat arrays, in a deterministic order."""
-        ...
-
-    def save(self, out_dir: Path) -> dict[str, int]:
-        """Write the map's files into ``out_dir`` atomically; returns ``{file name: bytes}``."""
         ...
 
     def describe(self) -> dict:

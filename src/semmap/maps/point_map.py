@@ -8,8 +8,6 @@ keyframes only: other frames are skipped (:attr:`~semmap.types.Observation.keyfr
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import numpy as np
 
 from semmap.fusion.rules import FusionParams, FusionRule
@@ -26,7 +24,6 @@ class SemanticPointMap:
 
     kind = MapKind.POINTS
     needs_normals = True
-    NATIVE, PLY = "points.semmap", "points.ply"
 
     def __init__(self, resolution: float = DEFAULT_POINT_RESOLUTION, *, label_set: LabelSet | None = None,
                  fusion: FusionParams | None = None, dtype: str = "float16", keyframes_only: bool = True) -> None:
@@ -74,15 +71,6 @@ class SemanticPointMap:
         packed = self.grid.arrays().packed
         sel = np.ones(len(packed), bool) if where is None else np.asarray(where, bool)
         self.grid.set_class_probs(packed[sel], np.asarray(probs)[sel])
-
-    def save(self, out_dir: Path) -> dict[str, int]:
-        """``points.semmap`` (lossless) and ``points.ply`` (with normals)."""
-        from semmap.io.grid_files import save_grid
-        from semmap.io.ply import write_ply
-
-        out_dir = Path(out_dir)
-        return {self.NATIVE: save_grid(out_dir / self.NATIVE, self), self.PLY: write_ply(out_dir / self.PLY,
-                                                                                         self.cloud())}
 
     def describe(self) -> dict:
         mem = self.grid.memory_bytes

@@ -13,7 +13,6 @@ import logging
 import math
 import time
 from dataclasses import dataclass, field
-from pathlib import Path
 
 import numba as nb
 import numpy as np
@@ -166,7 +165,7 @@ class _ScanScratch:
 class SemanticOctoMap:
     """Probabilistic 3D occupancy map with colour and top-k semantics per voxel, OctoMap-compatible keys.
 
-    Implements :class:`semmap.maps.base.SemanticMap` (``integrate``, ``cloud``, ``save``, ``describe``);
+    Implements :class:`semmap.maps.base.SemanticMap` (``integrate``, ``cloud``, ``describe``);
     ``color_mode`` is the voxel colour its ``.ot`` file shows (``class`` or ``rgb``).
     """
 
@@ -622,20 +621,12 @@ class SemanticOctoMap:
         v = self.voxels()
         return MapCloud(v.centers, v.colors, v.labels[:, 0].copy(), v.probs[:, 0].copy(), self.resolution)
 
-    def save(self, out_dir: Path) -> dict[str, int]:
-        """``map.ot`` (ColorOcTree, voxel colour by ``color_mode``), ``map.bt`` and lossless ``map.semmap``."""
-        from semmap.io.native import save_map
-        from semmap.io.octomap_files import write_bt, write_ot
-
-        out_dir = Path(out_dir)
+    def file_tree(self) -> OctreeNodes:
+        """The pruned tree the ``.ot``/``.bt`` files hold (voxel colour by ``color_mode``; ``semmap.io.map_files``
+        writes them); :meth:`describe` then reuses its counts instead of building it again."""
         tree = self.tree(color_mode=self.color_mode)
-        sizes = {
-            "map.ot": write_ot(out_dir / "map.ot", tree, self.resolution, color=True),
-            "map.bt": write_bt(out_dir / "map.bt", tree, self.resolution, float(self._thr)),
-            "map.semmap": save_map(out_dir / "map.semmap", self),
-        }
         self._tree_counts = _tree_counts(tree, self.is_occupied(tree.values))
-        return sizes
+        return tree
 
     def describe(self) -> dict:
         """Pruned-tree leaves and nodes, voxel counts and memory (bytes per known voxel)."""

@@ -10,7 +10,6 @@ removes voxels that later rays pass through (depth noise, moved objects).
 from __future__ import annotations
 
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 
@@ -45,8 +44,6 @@ class SemanticVoxelGrid:
 
     kind = MapKind.VOXELGRID
     needs_normals = False
-    #: Files :meth:`save` writes (lossless native, and a binary PLY of the occupied voxels).
-    NATIVE, PLY = "voxelgrid.semmap", "voxelgrid.ply"
 
     def __init__(self, resolution: float = 0.05, *, label_set: LabelSet | None = None,
                  fusion: FusionParams | None = None, dtype: str = "float32", free_space: bool = False,
@@ -113,15 +110,6 @@ class SemanticVoxelGrid:
         packed = a.packed[self._occupied(a)]
         sel = np.ones(len(packed), bool) if where is None else np.asarray(where, bool)
         self.grid.set_class_probs(packed[sel], np.asarray(probs)[sel])
-
-    def save(self, out_dir: Path) -> dict[str, int]:
-        """``voxelgrid.semmap`` (every voxel, lossless) and ``voxelgrid.ply`` (occupied voxels)."""
-        from semmap.io.grid_files import save_grid
-        from semmap.io.ply import write_ply
-
-        out_dir = Path(out_dir)
-        return {self.NATIVE: save_grid(out_dir / self.NATIVE, self), self.PLY: write_ply(out_dir / self.PLY,
-                                                                                         self.cloud())}
 
     def describe(self) -> dict:
         a = self.grid.arrays()

@@ -15,6 +15,7 @@ import numpy as np
 
 from semmap.datasets.base import read_label_image
 from semmap.errors import ConfigError, FormatError
+from semmap.files.parse import is_number
 from semmap.types import Frame, LabelSet, TopKProbs
 
 log = logging.getLogger("semmap")
@@ -50,7 +51,7 @@ class PrecomputedSegmenter:
         if not files:
             raise ConfigError(f"{self.root}: no predictions (.png label maps or .npy/.npz probabilities)")
         self._by_name = {_frame_key(p): p for p in files}
-        stamps = [(float(key), p) for key, p in self._by_name.items() if _is_number(key)]
+        stamps = [(float(key), p) for key, p in self._by_name.items() if is_number(key)]
         stamps.sort()
         self._stamps = np.array([s for s, _ in stamps], np.float64)
         self._stamp_paths = [p for _, p in stamps]
@@ -108,17 +109,9 @@ class PrecomputedSegmenter:
         return TopKProbs.from_dense(probs, self.k)
 
 
-def _is_number(text: str) -> bool:
-    try:
-        float(text)
-    except ValueError:
-        return False
-    return True
-
-
 def _load_probabilities(path: Path) -> np.ndarray:
     """A probability array from .npy, or from .npz (key ``probs`` or its only array); FormatError otherwise."""
-    from semmap.io.safe_files import read_npy, read_npz_members, regular_file_size
+    from semmap.files.safe import read_npy, read_npz_members, regular_file_size
 
     if path.suffix.lower() == ".npz":
         arrays = read_npz_members(path, what="probabilities file")

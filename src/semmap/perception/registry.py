@@ -67,7 +67,7 @@ def make_segmenter(name: str, *, weights: Path | None = None, label_set: LabelSe
         from semmap.perception.oracle import OracleSegmenter
 
         if label_set is None:
-            from semmap.sim.labels import INDOOR_LABELS
+            from semmap.labels import INDOOR_LABELS
 
             label_set = INDOOR_LABELS
         return OracleSegmenter(label_set, preset=oracle_preset, seed=seed, k=k)

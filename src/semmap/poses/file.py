@@ -2,15 +2,14 @@
 
 from __future__ import annotations
 
-from collections.abc import Iterable
+from collections.abc import Iterable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
-from semmap.datasets.tum import pose_at
 from semmap.errors import ConfigError
-from semmap.io.trajectory import read_trajectory
+from semmap.io.trajectory import pose_at, read_trajectory
 from semmap.types import Frame, Trajectory, pose_to_tum
 
 
@@ -46,7 +45,7 @@ class TrajectoryPoses:
     @classmethod
     def from_file(cls, path: str | Path, **kwargs) -> TrajectoryPoses:
         """Pose source for a TUM trajectory file (``--poses PATH``)."""
-        return cls(read_trajectory(path), source=str(path), **kwargs)
+        return cls(read_trajectory(path, strict=True), source=str(path), **kwargs)
 
     def lookup(self, timestamp: float) -> PoseLookup:
         """Pose at ``timestamp`` or None with the reason."""
@@ -74,16 +73,37 @@ class TrajectoryPoses:
         return [self.pose_of(f) for f in frames]
 
 
+class GroundTruthRecorder:
+    """The frames' own ground-truth poses, recorded as the frames stream past (so a dataset is read once) and
+    given back as one :class:`Trajectory` in time order; frames without a pose are left out."""
+
+    def __init__(self) -> None:
+        self._rows: list[tuple[float, str, np.ndarray]] = []
+
+    def add(self, frame: Frame) -> None:
+        """Record ``frame``'s pose, if it has one (named by the frame's name, else its index)."""
+        if frame.T_world_cam is not None:
+            self._rows.append((frame.timestamp, frame.name or str(frame.index),
+                               np.asarray(frame.T_world_cam, np.float64)))
+
+    def watch(self, frames: Iterable[Frame]) -> Iterator[Frame]:
+        """``frames`` unchanged, each one's pose recorded on the way."""
+        for frame in frames:
+            self.add(frame)
+            yield frame
+
+    def trajectory(self) -> Trajectory:
+        """The poses recorded so far, sorted by timestamp."""
+        return Trajectory.from_rows(self._rows)
+
+
 def trajectory_of_dataset(dataset: Iterable[Frame]) -> Trajectory:
     """Ground truth of a dataset (or any frame iterable) as a Trajectory, skipping frames without a pose.
 
-    Reads every frame of a dataset; pass an in-memory list of frames to avoid decoding images twice.
+    Reads every frame of a dataset; pass an in-memory list of frames to avoid decoding images twice, or record
+    the poses while the frames are used (:class:`GroundTruthRecorder`).
     """
-    stamps, poses, names = [], [], []
+    recorder = GroundTruthRecorder()
     for frame in dataset:
-        if frame.T_world_cam is None:
-            continue
-        stamps.append(frame.timestamp)
-        poses.append(np.asarray(frame.T_world_cam, np.float64))
-        names.append(frame.name or str(frame.index))
-    return Trajectory(np.asarray(stamps, np.float64), np.asarray(poses).reshape(-1, 4, 4), tuple(names))
+        recorder.add(frame)
+    return recorder.trajectory()

@@ -8,6 +8,7 @@ import time
 import numpy as np
 
 from semmap.poses.base import LiveTracker, PoseTracker
+from semmap.poses.file import GroundTruthRecorder
 from semmap.types import Frame, Trajectory
 
 #: ``FramePoses.source`` of a run posed by the dataset's own ground truth.
@@ -26,7 +27,7 @@ class FramePoses:
         self.edge_stats = edge_stats  # what object constraints did to the trajectory (X-objects trackers)
         self.tracker = tracker  # online: tracked frame by frame, as the frames arrive
         self._used: list[tuple[float, str, np.ndarray]] = []
-        self._gt: list[tuple[float, str, np.ndarray]] = []
+        self._gt = GroundTruthRecorder()
 
     def __call__(self, frame: Frame) -> tuple[np.ndarray | None, str]:
         """(pose or None, why not)."""
@@ -40,8 +41,7 @@ class FramePoses:
             T, reason = found.pose, found.reason
         else:
             T, reason = frame.T_world_cam, "no ground-truth pose"
-        if frame.T_world_cam is not None:
-            self._gt.append((frame.timestamp, frame.name, frame.T_world_cam))
+        self._gt.add(frame)
         if T is not None:
             self._used.append((frame.timestamp, frame.name, T))
         return T, reason
@@ -62,9 +62,9 @@ class FramePoses:
 
     def ground_truth(self) -> Trajectory:
         """The frames' own ground-truth poses, in time order."""
-        return Trajectory.from_rows(self._gt)
+        return self._gt.trajectory()
 
     def state(self) -> dict:
         """What a checkpoint keeps of an offline pose source (poses by frame name and what was recorded so far)."""
         return {"source": self.source, "by_name": self.by_name, "tracking_s": self.tracking_s,
-                "tracked": self.tracked, "edge_stats": self.edge_stats, "used": self._used, "gt": self._gt}
+                "tracked": self.tracked, "edge_stats": self.edge_stats, "used": self._used}

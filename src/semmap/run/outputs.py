@@ -10,7 +10,8 @@ import numpy as np
 
 from semmap.config import RunConfig
 from semmap.eval.run_report import RunScorer
-from semmap.io.atomic import write_text_atomic
+from semmap.files.atomic import write_text_atomic
+from semmap.io.map_files import save_map_files
 from semmap.keys import TREE_MAX_VAL
 from semmap.maps.base import SemanticMap
 from semmap.object_stage import ObjectStage
@@ -27,7 +28,7 @@ def write_outputs(out: Path, maps: list[SemanticMap], poses: list[np.ndarray], c
     out.mkdir(parents=True, exist_ok=True)
     sizes: dict[str, int] = {}
     for m in maps:
-        sizes.update(m.save(out))
+        sizes.update(save_map_files(m, out))
     files = {name: out / name for name in sizes}
     if objects is not None:
         sizes.update(objects.write(out, up_vector(poses)))

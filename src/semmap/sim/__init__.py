@@ -17,7 +17,7 @@ from __future__ import annotations
 import importlib
 
 _EXPORTS = {
-    "INDOOR_LABELS": "semmap.sim.labels",
+    "INDOOR_LABELS": "semmap.labels",
     "Scene": "semmap.sim.scene",
     "SceneObject": "semmap.sim.scene",
     "Room": "semmap.sim.scene",
@@ -26,7 +26,7 @@ _EXPORTS = {
     "SIZES": "semmap.sim.scene",
     "Renderer": "semmap.sim.render",
     "RenderedView": "semmap.sim.render",
-    "DEFAULT_INTRINSICS": "semmap.sim.render",
+    "DEFAULT_INTRINSICS": "semmap.types",
     "KinectNoise": "semmap.sim.noise",
     "make_trajectory": "semmap.sim.trajectory",
     "look_at": "semmap.sim.trajectory",
@@ -34,7 +34,7 @@ _EXPORTS = {
     "GroundTruthVoxels": "semmap.sim.ground_truth",
     "gt_voxels": "semmap.sim.ground_truth",
     "gt_objects": "semmap.sim.ground_truth",
-    "coords_to_keys": "semmap.sim.ground_truth",
+    "coords_to_keys": "semmap.keys",
     "simulate_sequence": "semmap.sim.export",
     "simulate_frames": "semmap.sim.export",
 }

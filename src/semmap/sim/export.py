@@ -2,7 +2,7 @@
 
 Layout: ``rgb/``, ``depth/`` (16-bit PNG, metres x 5000, 0 invalid), ``labels/`` and ``instances/`` (uint16
 PNG), ``rgb.txt``, ``depth.txt``, ``groundtruth.txt``, ``camera.json`` (written by
-:func:`semmap.datasets.tum_writer.write_tum_sequence`), plus ``labelset.json``, ``objects.json`` and
+:func:`semmap.io.tum_writer.write_tum_sequence`), plus ``labelset.json``, ``objects.json`` and
 ``scene.json`` (generator parameters, trajectory kind, frame count, seeds). Timestamps start at 0 and advance
 by 1/30 s; frames are rendered and written one at a time, so memory stays bounded.
 
@@ -20,10 +20,10 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from semmap.datasets.tum_writer import write_tum_sequence
 from semmap.errors import SimulationError
-from semmap.io.atomic import write_text_atomic
-from semmap.sim.labels import INDOOR_LABELS
+from semmap.files.atomic import write_text_atomic
+from semmap.io.tum_writer import write_tum_sequence
+from semmap.labels import INDOOR_LABELS
 from semmap.sim.noise import KinectNoise
 from semmap.sim.render import Renderer
 from semmap.sim.scene import Scene, generate_scene

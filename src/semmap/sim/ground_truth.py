@@ -18,8 +18,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from semmap.errors import SimulationError
-from semmap.keys import coords_to_keys as octomap_keys
-from semmap.keys import pack_keys, unpack_keys
+from semmap.keys import coords_to_keys, pack_keys, unpack_keys
 from semmap.sim.scene import Scene, SceneObject
 
 #: Lattice spacing = resolution / SAMPLES_PER_VOXEL.
@@ -58,13 +57,6 @@ class GroundTruthVoxels:
         cls = np.where(hit, self.class_ids[pos] if len(table) else 0, 0).astype(np.uint16)
         inst = np.where(hit, self.instance_ids[pos] if len(table) else 0, 0).astype(np.int32)
         return cls, inst
-
-
-def coords_to_keys(points: np.ndarray, resolution: float) -> np.ndarray:
-    """OctoMap keys (N, 3) int32 of (N, 3) points: ``floor(double(float32(p)) * (1 / res)) + 32768``."""
-    if not resolution > 0:
-        raise SimulationError(f"voxel resolution must be positive, got {resolution}")
-    return octomap_keys(points, resolution).astype(np.int32)
 
 
 def gt_objects(scene: Scene) -> list[SceneObject]:

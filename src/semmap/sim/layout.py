@@ -12,7 +12,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from semmap.sim.meshes import ObjectMesh, Surface
-from semmap.sim.primitives import rot_z
+from semmap.types import rot_z
 
 #: Two boxes closer than this are "touching", not overlapping (metres).
 TOUCH_TOLERANCE = 1e-6

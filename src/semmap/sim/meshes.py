@@ -28,7 +28,8 @@ from semmap.sim.materials import (
     jitter_color,
     pick,
 )
-from semmap.sim.primitives import Part, box, ellipsoid, frustum, limb, oriented_box, rot_x, rot_z
+from semmap.sim.primitives import Part, box, ellipsoid, frustum, limb, oriented_box, rot_x
+from semmap.types import rot_z
 
 #: Default free height above a surface with nothing over it (metres).
 OPEN_CLEARANCE = 1.0

@@ -40,11 +40,6 @@ def rot_y(a: float) -> np.ndarray:
     return np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]])
 
 
-def rot_z(a: float) -> np.ndarray:
-    c, s = np.cos(a), np.sin(a)
-    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
-
-
 def box(lo, hi, material: int, *, fit: bool = False, R: np.ndarray | None = None,
         pivot=None) -> Part:
     """Axis-aligned box [lo, hi] (24 vertices, 12 triangles), optionally rotated by R about ``pivot``.

@@ -27,10 +27,8 @@ from semmap.sim import _render_kernels as shade_k
 from semmap.sim.noise import KinectNoise
 from semmap.sim.scene import Scene
 from semmap.sim.textures import TextureAtlas
-from semmap.types import CameraIntrinsics, check_pose
+from semmap.types import DEFAULT_INTRINSICS, CameraIntrinsics, check_pose
 
-#: Default camera: Kinect-like 640x480 with TUM's default calibration.
-DEFAULT_INTRINSICS = CameraIntrinsics(640, 480, 525.0, 525.0, 319.5, 239.5)
 #: Shading constants (unitless gains on the texture albedo).
 AMBIENT = 0.42
 HEADLIGHT = 0.12

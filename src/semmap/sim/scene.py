@@ -11,9 +11,9 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from semmap.errors import SimulationError
+from semmap.labels import INDOOR_LABELS, STUFF_CLASSES
 from semmap.sim import meshes
 from semmap.sim.furnish import furnish
-from semmap.sim.labels import INDOOR_LABELS, STUFF_CLASSES
 from semmap.sim.layout import WALL_THICKNESS, Layout, RoomSpec, subtract_rects, yaw_facing
 from semmap.sim.materials import PAINTS, Material, jitter_color, pick
 from semmap.sim.primitives import face_uvs

@@ -14,7 +14,7 @@ from dataclasses import replace
 import numpy as np
 
 from semmap.sim.layout import Layout, Placed
-from semmap.sim.primitives import rot_z
+from semmap.types import rot_z
 
 #: Class of an object's turned twin: pairs of classes a segmentation network does not confuse
 #: (see ``perception.oracle.CONFUSIONS``); wall fixtures and classes not listed keep their class.

@@ -28,7 +28,7 @@ import torch.nn.functional as F  # noqa: N812  (the usual PyTorch alias)
 
 from semmap.errors import ConfigError, DatasetError, FormatError
 from semmap.eval.semantic import confusion, scores
-from semmap.io.atomic import write_bytes_atomic, write_text_atomic
+from semmap.files.atomic import write_bytes_atomic, write_text_atomic
 from semmap.perception.network import IMAGENET_MEAN, IMAGENET_STD
 from semmap.perception.networks.pspnet import AUX_WEIGHT
 from semmap.perception.networks.registry import NetworkSpec, build_network, count_parameters, save_weights

@@ -9,7 +9,7 @@ import numba as nb
 import numpy as np
 
 from semmap.errors import SemmapError
-from semmap.io.atomic import write_bytes_atomic
+from semmap.files.atomic import write_bytes_atomic
 from semmap.types import LabelSet, MapCloud, muted_grey
 
 #: Voxels higher than the highest camera by more than this are cut away (ceilings, top cabinets).

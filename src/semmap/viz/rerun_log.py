@@ -231,12 +231,9 @@ def map_file_cloud(path: str | Path) -> tuple[MapCloud, LabelSet | None]:
     grey by height)."""
     path = Path(path)
     if path.suffix == ".semmap":
-        from semmap.io.grid_files import FORMAT as GRID_FORMAT
-        from semmap.io.grid_files import load_grid
-        from semmap.io.map_info import _format_of
-        from semmap.io.native import load_map
+        from semmap.io.map_files import load_map_file
 
-        m = load_grid(path) if _format_of(path) == GRID_FORMAT else load_map(path)
+        m = load_map_file(path)
         return m.cloud(), m.label_set
     if path.suffix == ".ply":
         from semmap.io.ply import read_ply

@@ -25,7 +25,7 @@ def make_instance_source(name: str, *, label_set: LabelSet | None = None, segmen
         from semmap.perception.instances.oracle import OracleInstances
 
         if label_set is None:
-            from semmap.sim.labels import INDOOR_LABELS
+            from semmap.labels import INDOOR_LABELS
 
             label_set = INDOOR_LABELS
         return OracleInstances(label_set, preset=preset, seed=seed)

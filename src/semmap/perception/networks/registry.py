@@ -107,7 +107,7 @@ class NetworkWeights:
 def save_weights(path: str | Path, model: SegmentationNet, spec: NetworkSpec, label_set: LabelSet,
                  input_size: tuple[int, int], meta: dict | None = None) -> Path:
     """Write a weight file atomically (float16 tensors: half the size, no measurable accuracy change)."""
-    from semmap.io.atomic import write_bytes_atomic
+    from semmap.files.atomic import write_bytes_atomic
 
     state = {k: (v.detach().cpu().half() if v.is_floating_point() else v.detach().cpu())
              for k, v in model.state_dict().items()}

@@ -25,13 +25,12 @@ import numpy as np
 from semmap.errors import ConfigError
 from semmap.poses.dense_align import DenseImage, grey
 from semmap.poses.odometry import DenseOdometry, FrameReport, OdometryConfig, Reference
-from semmap.poses.slam import se3
 from semmap.poses.slam.config import SlamConfig
 from semmap.poses.slam.features import VIRTUAL_BASELINE, FrameFeatures, OrbExtractor
 from semmap.poses.slam.matching import match_brute_force, nearest_owner_votes
 from semmap.poses.slam.optimisation import optimise_pose_graph
 from semmap.poses.slam.pose_solver import PinholeModel, pnp_ransac
-from semmap.types import CameraIntrinsics, Frame, Trajectory, interpolate_pose, pose_change
+from semmap.types import CameraIntrinsics, Frame, Trajectory, interpolate_pose, invert_pose, pose_change
 
 log = logging.getLogger("semmap")
 
@@ -207,7 +206,7 @@ class DenseSlam(DenseOdometry):
         feats = self._features(frame)
         if self.keyframes:
             # tied to the previous keyframe by the odometry, or to the keyframe it was relocalised against
-            ref, rel = self._anchor or (len(self.keyframes) - 1, se3.inverse(self.keyframes[-1].raw) @ raw)
+            ref, rel = self._anchor or (len(self.keyframes) - 1, invert_pose(self.keyframes[-1].raw) @ raw)
             T_wc = self.keyframes[ref].T_wc @ rel
             self._edges.append((ref, len(self.keyframes), rel, 1.0))
         else:
@@ -230,7 +229,7 @@ class DenseSlam(DenseOdometry):
         next loop, or when the trajectory is asked for)."""
         kf = self.keyframes[k]
         for j in range(k - 2, max(-1, k - 2 - self.slam_config.covisible_edges), -1):
-            T_j_k = self._refine(self._pyramid(k), self._pyramid(j), se3.inverse(self.keyframes[j].raw) @ kf.raw)
+            T_j_k = self._refine(self._pyramid(k), self._pyramid(j), invert_pose(self.keyframes[j].raw) @ kf.raw)
             if T_j_k is not None:
                 self._edges.append((j, k, T_j_k, 1.0))
                 self._unoptimised = True
@@ -267,14 +266,14 @@ class DenseSlam(DenseOdometry):
         if found is None or int(found[1].sum()) < cfg.min_inliers:
             return None
         kf_image = self._pyramid(k)
-        T_kf_frame = self._refine(image, kf_image, se3.inverse(found[0]))
+        T_kf_frame = self._refine(image, kf_image, invert_pose(found[0]))
         if T_kf_frame is None:
             return None
         # the alignment the other way round must land on the same pose, else one of them did not converge
-        back = self._refine(kf_image, image, se3.inverse(T_kf_frame))
+        back = self._refine(kf_image, image, invert_pose(T_kf_frame))
         if back is None:
             return None
-        dist, angle = pose_change(T_kf_frame, se3.inverse(back))
+        dist, angle = pose_change(T_kf_frame, invert_pose(back))
         return T_kf_frame if dist <= cfg.loop_consistency and angle <= cfg.loop_consistency_deg else None
 
     def _pyramid(self, k: int) -> DenseImage:
@@ -310,7 +309,7 @@ class DenseSlam(DenseOdometry):
             T_j_k = self._register(kf.feats, self._pyramid(k), j)
             if T_j_k is None:
                 continue
-            dist, angle = pose_change(se3.inverse(self.keyframes[j].T_wc) @ kf.T_wc, T_j_k)
+            dist, angle = pose_change(invert_pose(self.keyframes[j].T_wc) @ kf.T_wc, T_j_k)
             if dist > cfg.loop_max_correction or angle > cfg.loop_max_correction_deg:
                 log.debug("slam: loop %d -> %d rejected (%.2f m, %.1f deg from the estimate)", k, j, dist, angle)
                 continue
@@ -340,7 +339,7 @@ class DenseSlam(DenseOdometry):
         if not self._poses:
             return None
         kf = self.keyframes[self._kf_of_frame[-1]]
-        return kf.T_wc @ se3.inverse(kf.raw) @ np.asarray(self._poses[-1])
+        return kf.T_wc @ invert_pose(kf.raw) @ np.asarray(self._poses[-1])
 
     @property
     def loop_closures(self) -> int:
@@ -361,7 +360,7 @@ class DenseSlam(DenseOdometry):
         ref = np.asarray(self._kf_of_frame)
         kf_raw = np.array([kf.raw for kf in self.keyframes])
         kf_opt = np.array([kf.T_wc for kf in self.keyframes])
-        correction = kf_opt @ se3.inverse(kf_raw)
+        correction = kf_opt @ invert_pose(kf_raw)
         poses = correction[ref] @ raw
         start = np.array([kf.frame for kf in self.keyframes])
         for i in np.flatnonzero(ref + 1 < len(self.keyframes)):

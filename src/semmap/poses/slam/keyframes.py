@@ -4,11 +4,11 @@ from __future__ import annotations
 
 import numpy as np
 
-from semmap.poses.slam import se3
 from semmap.poses.slam.config import SlamConfig
 from semmap.poses.slam.features import FrameFeatures
 from semmap.poses.slam.tracking import TrackResult
 from semmap.poses.slam.world_map import Keyframe, SlamMap
+from semmap.types import transform_points
 
 
 def need_keyframe(cfg: SlamConfig, feats: FrameFeatures, res: TrackResult, frames_since: int,
@@ -34,7 +34,7 @@ def create_keyframe(smap: SlamMap, cfg: SlamConfig, feats: FrameFeatures, T_wc: 
     per_kp = np.full(len(feats), -1, np.int64)
     per_kp[kp] = lm
     new = feats.has_depth & (per_kp < 0)
-    ids = smap.landmarks.add(se3.transform(T_wc, feats.xyz[new]), feats.desc[new], kf_id)
+    ids = smap.landmarks.add(transform_points(T_wc, feats.xyz[new]), feats.desc[new], kf_id)
     per_kp[new] = ids
     kf = Keyframe(kf_id, frame, T_wc.copy(), feats, per_kp, feats.desc[feats.strongest(cfg.retrieval_features)])
     smap.add_keyframe(kf)

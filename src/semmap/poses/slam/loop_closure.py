@@ -9,13 +9,13 @@ from dataclasses import dataclass, field
 import numpy as np
 import scipy.sparse as sp
 
-from semmap.poses.slam import se3
 from semmap.poses.slam.config import SlamConfig
 from semmap.poses.slam.matching import count_brute_force
 from semmap.poses.slam.optimisation import optimise_pose_graph
 from semmap.poses.slam.relocalisation import rank_keyframes, register_to_keyframes
 from semmap.poses.slam.tracking import LocalMapTracker, TrackResult
 from semmap.poses.slam.world_map import Keyframe, SlamMap
+from semmap.types import invert_pose, rotation_angle
 
 #: keyframes sharing at least this many landmarks are tied by a pose-graph edge
 COVISIBILITY_EDGE_MIN = 100
@@ -66,12 +66,12 @@ class LoopCloser:
         returns the (K, 4, 4) per-keyframe corrections ``T_new @ T_old^-1``."""
         smap = self.smap
         old_poses = smap.kf_poses()
-        T_wc_loop = se3.inverse(res.T_cw)
-        T_ij = se3.inverse(old_poses[loop_kf]) @ T_wc_loop
+        T_wc_loop = invert_pose(res.T_cw)
+        T_ij = invert_pose(old_poses[loop_kf]) @ T_wc_loop
         self.loop_edges.append((loop_kf, kf.id, T_ij))
         self.last_loop_kf = kf.id
-        jump = se3.inverse(kf.T_wc) @ T_wc_loop
-        if np.linalg.norm(jump[:3, 3]) < MIN_CORRECTION_M and se3.rotation_angle(jump) < np.radians(MIN_CORRECTION_DEG):
+        jump = invert_pose(kf.T_wc) @ T_wc_loop
+        if np.linalg.norm(jump[:3, 3]) < MIN_CORRECTION_M and rotation_angle(jump) < np.radians(MIN_CORRECTION_DEG):
             # drift below what one PnP can measure: link the maps, leave the poses alone
             self._fuse(kf, res)
             return np.repeat(np.eye(4)[None], len(old_poses), 0)
@@ -80,7 +80,7 @@ class LoopCloser:
         except RuntimeError:  # an indeterminate graph: keep the map as it is rather than stop tracking
             self.loop_edges.pop()
             return np.repeat(np.eye(4)[None], len(old_poses), 0)
-        corrections = new_poses @ se3.inverse(old_poses)
+        corrections = new_poses @ invert_pose(old_poses)
         for k, T in zip(smap.keyframes, new_poses, strict=True):
             k.T_wc = T
         lms = smap.landmarks
@@ -97,13 +97,13 @@ class LoopCloser:
         """Pose-graph edges: consecutive keyframes, strongly covisible keyframes and every loop."""
         smap = self.smap
         K = len(poses)
-        edges = [(i, i + 1, se3.inverse(poses[i]) @ poses[i + 1], 1.0) for i in range(K - 1)]
+        edges = [(i, i + 1, invert_pose(poses[i]) @ poses[i + 1], 1.0) for i in range(K - 1)]
         rows = smap.live_obs()
         kf, lm = smap.obs.col("kf")[rows], smap.obs.col("lm")[rows]
         M = sp.csr_matrix((np.ones(len(rows)), (kf, lm)), shape=(K, smap.landmarks.n))
         C = sp.triu(M @ M.T, k=2).tocoo()
         strong = C.data >= COVISIBILITY_EDGE_MIN
-        edges += [(int(i), int(j), se3.inverse(poses[i]) @ poses[j], 1.0)
+        edges += [(int(i), int(j), invert_pose(poses[i]) @ poses[j], 1.0)
                   for i, j in zip(C.row[strong], C.col[strong], strict=True)]
         edges += [(i, j, T, 1.0) for i, j, T in self.loop_edges]
         return edges

@@ -9,10 +9,9 @@ import gtsam
 import numpy as np
 from gtsam.symbol_shorthand import L, X
 
-from semmap.poses.slam import se3
 from semmap.poses.slam.pose_solver import CHI2_MONO, CHI2_STEREO, PinholeModel
 from semmap.poses.slam.world_map import SlamMap
-from semmap.types import snap_rigid
+from semmap.types import invert_pose, snap_rigid, transform_points
 
 
 def _huber(base: gtsam.noiseModel.Base, chi2: float) -> gtsam.noiseModel.Base:
@@ -168,11 +167,11 @@ class BundleAdjuster:
         new_pos = np.array([result.atPoint3(L(int(lm))) for lm in lm_ids]).reshape(-1, 3)
         pos[lm_ids] = new_pos
         # outliers: chi-square of each observation under the optimised estimate
-        T_cw = {int(k): se3.inverse(smap.keyframes[int(k)].T_wc) for k in np.unique(okf)}
+        T_cw = {int(k): invert_pose(smap.keyframes[int(k)].T_wc) for k in np.unique(okf)}
         pc = np.empty((len(rows), 3))
         for k, T in T_cw.items():
             sel = okf == k
-            pc[sel] = se3.transform(T, pos[olm[sel]])
+            pc[sel] = transform_points(T, pos[olm[sel]])
         z = np.where(pc[:, 2] > 1e-3, pc[:, 2], 1e-3)
         puv, _ = self.cam.project(np.column_stack([pc[:, :2], z]))
         disp_err = np.where(stereo, uv[:, 0] - np.nan_to_num(ur) - self.cam.bf / z, 0.0)

@@ -9,7 +9,7 @@ import cv2
 import numpy as np
 
 from semmap.poses.slam import se3
-from semmap.types import snap_rigid
+from semmap.types import snap_rigid, transform_points
 
 #: chi-square 95% thresholds for 2 (pixel) and 3 (pixel + virtual stereo) degrees of freedom
 CHI2_MONO = 5.991
@@ -83,7 +83,7 @@ def refine_pose(T_cw: np.ndarray, pts_w: np.ndarray, uv: np.ndarray, ur: np.ndar
     hub = np.where(stereo, huber_s, huber_m)
     for rnd in range(rounds):
         for _ in range(iterations):
-            pc = se3.transform(T, pts_w)
+            pc = transform_points(T, pts_w)
             z = pc[:, 2]
             ok = inlier & (z > 1e-3)
             if ok.sum() < 6:
@@ -121,7 +121,7 @@ def refine_pose(T_cw: np.ndarray, pts_w: np.ndarray, uv: np.ndarray, ur: np.ndar
             if np.abs(delta).max() < 1e-7:
                 break
         # re-classify every observation (outliers may come back)
-        pc = se3.transform(T, pts_w)
+        pc = transform_points(T, pts_w)
         front = pc[:, 2] > 1e-3
         zsafe = np.where(front, pc[:, 2], 1.0)
         puv, _ = cam.project(np.column_stack([pc[:, :2], zsafe]))

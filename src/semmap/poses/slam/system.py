@@ -12,7 +12,6 @@ import numpy as np
 from semmap.errors import ConfigError, DatasetError
 from semmap.poses.dense_align import DenseAligner
 from semmap.poses.odometry import OdometryConfig
-from semmap.poses.slam import se3
 from semmap.poses.slam.config import SlamConfig
 from semmap.poses.slam.features import VIRTUAL_BASELINE, FrameFeatures, OrbExtractor
 from semmap.poses.slam.keyframes import create_keyframe, cull_landmarks, need_keyframe
@@ -22,7 +21,7 @@ from semmap.poses.slam.pose_solver import PinholeModel
 from semmap.poses.slam.relocalisation import relocalise
 from semmap.poses.slam.tracking import LocalMapTracker, TrackResult
 from semmap.poses.slam.world_map import SlamMap
-from semmap.types import CameraIntrinsics, Frame, Trajectory, pose_change
+from semmap.types import CameraIntrinsics, Frame, Trajectory, invert_pose, pose_change
 
 log = logging.getLogger("semmap")
 
@@ -144,7 +143,7 @@ class RgbdSlam:
             self._lost = True
             self._velocity = None
             return None
-        T_wc = se3.inverse(res.T_cw)
+        T_wc = invert_pose(res.T_cw)
         self._last_image = image
         lms = self.map.landmarks
         lms.col("visible")[res.n_visible_lm] += 1
@@ -159,7 +158,7 @@ class RgbdSlam:
         if image is not None and (refine == "frames" or (refine == "keyframes" and keyframe)):
             T_wc, anchor = self._dense_refine(image, T_wc)
         if self._T_wc_last is not None and not self._lost:
-            self._velocity = se3.inverse(self._T_wc_last) @ T_wc
+            self._velocity = invert_pose(self._T_wc_last) @ T_wc
         self._lost = False
         self._T_wc_last = T_wc
         t1 = time.perf_counter()
@@ -193,9 +192,9 @@ class RgbdSlam:
     def _track_frame(self, feats: FrameFeatures) -> TrackResult | None:
         """Track with the motion model, then without it and a wider search, then relocalise."""
         if not self._lost and self._T_wc_last is not None:
-            last = se3.inverse(self._T_wc_last)
+            last = invert_pose(self._T_wc_last)
             if self._velocity is not None:
-                res = self.tracker.track(feats, se3.inverse(self._T_wc_last @ self._velocity),
+                res = self.tracker.track(feats, invert_pose(self._T_wc_last @ self._velocity),
                                          first_ids=self._last_lm)
                 if res is not None:
                     return res
@@ -265,7 +264,7 @@ class RgbdSlam:
         if ref_image is None:
             return T_wc, None
         T_ref = self.map.keyframes[self._ref_kf].T_wc
-        init = se3.inverse(T_ref) @ T_wc
+        init = invert_pose(T_ref) @ T_wc
         out = self.dense.align(image, ref_image, init)
         if out is None or out.fitness < cfg.dense_min_fitness:
             return T_wc, None
@@ -286,7 +285,7 @@ class RgbdSlam:
         if self._last_image is not None:
             targets.append((self._last_image, self._T_wc_last))
         for target, T_target in targets:
-            out = self.dense.align(image, target, se3.inverse(T_target) @ predicted)
+            out = self.dense.align(image, target, invert_pose(T_target) @ predicted)
             if out is None or out.fitness < cfg.dense_min_fitness:
                 continue
             T_wc = T_target @ out.T
@@ -302,13 +301,13 @@ class RgbdSlam:
         resumes from it."""
         self.stats.dense_fallbacks += 1
         if self._T_wc_last is not None:
-            self._velocity = se3.inverse(self._T_wc_last) @ T_wc
+            self._velocity = invert_pose(self._T_wc_last) @ T_wc
         self._T_wc_last = T_wc
         self._last_image = image
         self._last_lm = np.zeros(0, np.int64)
         t1 = time.perf_counter()
         self.stats.track_s += t1 - t0
-        anchor = (self._ref_kf, se3.inverse(self.map.keyframes[self._ref_kf].T_wc) @ T_wc)
+        anchor = (self._ref_kf, invert_pose(self.map.keyframes[self._ref_kf].T_wc) @ T_wc)
         T_wc = self._insert_keyframe(feats, T_wc, None, image, anchor)
         self.stats.mapping_s += time.perf_counter() - t1
         self._log_frame(frame, T_wc, keyframe=True)
@@ -320,7 +319,7 @@ class RgbdSlam:
         self._names.append(frame.name or str(frame.index))
         self._stamps.append(float(frame.timestamp))
         self._ref.append(ref)
-        self._rel.append(se3.inverse(self.map.keyframes[ref].T_wc) @ T_wc)
+        self._rel.append(invert_pose(self.map.keyframes[ref].T_wc) @ T_wc)
         self.stats.tracked += 1
 
     def trajectory(self) -> Trajectory:

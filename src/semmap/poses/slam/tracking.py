@@ -7,12 +7,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from semmap.poses.slam import se3
 from semmap.poses.slam.config import SlamConfig
 from semmap.poses.slam.features import FrameFeatures
 from semmap.poses.slam.matching import match_projected
 from semmap.poses.slam.pose_solver import PinholeModel, pnp_ransac, refine_pose
 from semmap.poses.slam.world_map import SlamMap
+from semmap.types import transform_points
 
 
 @dataclass
@@ -49,7 +49,7 @@ class LocalMapTracker:
 
     def project(self, T_cw: np.ndarray, lm_ids: np.ndarray, margin: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
         """Landmarks of ``lm_ids`` that fall in the image under ``T_cw``: (ids, pixel positions)."""
-        pc = se3.transform(T_cw, self.map.landmarks.pos[lm_ids])
+        pc = transform_points(T_cw, self.map.landmarks.pos[lm_ids])
         front = pc[:, 2] > self.cfg.min_depth * 0.5
         pc, ids = pc[front], lm_ids[front]
         uv, _ = self.cam.project(pc)

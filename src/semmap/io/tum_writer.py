@@ -16,7 +16,7 @@ import cv2
 import numpy as np
 
 from semmap.errors import ConfigError, DatasetError
-from semmap.io.atomic import write_bytes_atomic, write_text_atomic
+from semmap.files.atomic import write_bytes_atomic, write_text_atomic
 from semmap.types import CameraIntrinsics, Frame, LabelSet, pose_to_tum
 
 _HEADERS = {

@@ -1,4 +1,5 @@
-"""The simulator's class list: NYUv2-40-like indoor classes with fixed, distinct display colours."""
+"""Label sets every layer may use: the simulator's class list (NYUv2-40-like indoor classes with fixed, distinct
+display colours), which the simulator renders and the segmenters and instance sources fall back to."""
 
 from __future__ import annotations
 
