@@ -290,9 +290,9 @@ def headline_rows(results: dict) -> list[str]:
     octree = results.get("octree_vs_octomap")
     for r in (octree or {}).get("results", []):
         rows.append((f"Semantic OctoMap insertion, 640×480 frames, {r['resolution']} m",
-                     f"{r['semmap_ms']} ms/frame (occupancy, colour, top-3 classes)",
-                     f"OctoMap {r['octomap_ms']} ms (occupancy only): **{r['speedup']}×** faster; cell states "
-                     f"{r['agreement']:.4%} equal", "bench_octree_vs_octomap.py"))
+                     f"{r['semmap_ms']} ms/frame (occupancy, colour, top-3)",
+                     f"OctoMap {r['octomap_ms']} ms (occupancy only): **{r['speedup']}×**; cells in the same state "
+                     f"{r['agreement']:.4%}", "bench_octree_vs_octomap.py"))
     if octree and octree.get("results"):
         r = octree["results"][0]
         rows.append((f"Memory per leaf, {r['resolution']} m", f"{r['semmap_bytes_per_leaf']} B",
@@ -341,8 +341,10 @@ def headline_rows(results: dict) -> list[str]:
         if "semantic" in sym and "geometry" in sym:
             s, g = sym["semantic"], sym["geometry"]
             rows.append(("Global localization in rooms symmetric under a 180° turn",
-                         f"semantic model converged in {s['converged_rate']:.0%} of {s['runs']} run(s)",
-                         f"geometry alone {g['converged_rate']:.0%} of {g['runs']}", "bench_localization.py"))
+                         f"semantic model converged in {round(s['converged_rate'] * s['runs'])} of {s['runs']} "
+                         f"run{'s' if s['runs'] > 1 else ''}",
+                         f"geometry alone {round(g['converged_rate'] * g['runs'])} of {g['runs']}",
+                         "bench_localization.py"))
     sim = results.get("sim")
     if sim:
         rows.append((f"Simulator, {sim['width']}×{sim['height']}, every channel", f"{sim['fps']} frames/s",
