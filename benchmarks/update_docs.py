@@ -1,11 +1,16 @@
-"""Run every benchmark and the demo, then write docs/BENCHMARKS.md and the numbers section of README.md.
+"""Run every benchmark and the demo, then write docs/BENCHMARKS.md (every number) and README.md's headline table.
 
     python benchmarks/update_docs.py [--quick] [--only fusion,demo,...|none] [--results FILE]
 
 ``--only`` re-runs the named parts (octree, sim, tracking, segmenters, fusion, demo, end_to_end, localization,
 networks; ``none``: nothing) and takes the others' results from ``--results`` (a JSON object of part results,
 e.g. ``{"fusion": <bench_fusion.py's last line>}``) or else from the JSON block at the end of docs/BENCHMARKS.md.
-Without demo results the docs keep their current demo lines.
+Without demo results the docs keep their current demo lines. ``--only none`` re-renders both files from the saved
+results alone and keeps the date and machine they were measured on.
+
+docs/BENCHMARKS.md also carries, unchanged from one run to the next, the section between ``KEPT_START`` and
+``KEPT_END``: numbers printed by benchmarks this script does not run (bench_objects, bench_batch, bench_memory),
+each naming its command.
 
 Each benchmark runs as its own process and its last stdout line (one JSON object) is parsed, so the numbers in
 the docs are exactly what the scripts printed on this machine.
@@ -23,7 +28,11 @@ import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
-START, END = "<!-- numbers:start (written by benchmarks/update_docs.py) -->", "<!-- numbers:end -->"
+START, END = "<!-- headline:start (written by benchmarks/update_docs.py) -->", "<!-- headline:end -->"
+KEPT_START = "<!-- kept:start (copied from the named scripts' output; update_docs.py keeps it as it is) -->"
+KEPT_END = "<!-- kept:end -->"
+#: the README's headline table holds at most this many rows
+HEADLINE_ROWS = 10
 
 
 def run_json(args: list[str]) -> dict:
@@ -87,10 +96,6 @@ def end_to_end_table(bench: dict) -> list[str]:
                     + f" | {r['peak_rss_mb']:.0f} | " + ("-" if r["ate_m"] is None else f"{100 * r['ate_m']:.2f}")
                     + f" | {f'**{ratio}**' if ratio else ''} |")
     return rows
-
-
-#: methods shown in the README's tracking table (docs/BENCHMARKS.md lists them all)
-README_TRACKERS = ("semmap-slam", "semmap-slam-orb", "semmap-odometry", "open3d-f2f")
 
 
 def tracking_table(bench: dict, methods: tuple[str, ...] | None = None, sim3: bool = False) -> list[str]:
@@ -210,16 +215,6 @@ def localization_section(bench: dict | None) -> list[str]:
         *localization_table(bench), ""]
 
 
-def localization_readme(bench: dict | None) -> list[str]:
-    """The README lines on localization: global initialisation in ground mode."""
-    if bench is None:
-        return []
-    return ["Localization in a prior map (`benchmarks/bench_localization.py`, global initialisation in ground "
-            "mode; all runs in [docs/BENCHMARKS.md](docs/BENCHMARKS.md)):", "",
-            *[r for r in localization_table(bench)
-              if not r.startswith("| ") or "global (ground)" in r or r.startswith("| rooms")], ""]
-
-
 #: The papers' own numbers beside semmap's network table (CBAM paper Table 2, ADE20K; RGB-D paper Table 3, NYUDv2).
 PAPER_NETWORKS = ("CBAM paper, Table 2 (ADE20K, ResNet-50, full size): FCN MPA 69.83 / MIoU 26.23, PSPNet 71.70 / "
                   "30.69, CBAM-PSPNet 74.25 / 32.57. RGB-D paper, Table 3 (NYUDv2): colour only 54.8 / 35.4, "
@@ -255,14 +250,6 @@ def networks_section(bench: dict | None) -> list[str]:
             *networks_table(bench), "", PAPER_NETWORKS, ""]
 
 
-def networks_readme(bench: dict | None) -> list[str]:
-    """The README lines on the trained networks."""
-    if bench is None:
-        return []
-    return ["The papers' networks as semmap trains and ships them, on held-out simulated frames "
-            "(`benchmarks/bench_networks.py`):", "", *networks_table(bench), "", PAPER_NETWORKS, ""]
-
-
 def demo_lines(report: dict) -> list[str]:
     sizes = report["bytes_on_disk"]
     ms = report["ms_per_frame"]
@@ -294,6 +281,99 @@ def end_to_end_section(bench: dict | None, heading: bool = True) -> list[str]:
             "so its latency is mostly the queue of frames waiting; `online@N Hz` replays them as a camera delivers "
             "them (`--rate N`, N the frame-rate target) and its latency is a frame's own:", "",
             *end_to_end_table(bench), ""]
+
+
+def headline_rows(results: dict) -> list[str]:
+    """The README's one table: a row per claim (what, semmap's number, the peer or truth in the same run, the
+    script), from the same results as docs/BENCHMARKS.md; rows whose part has no results are left out."""
+    rows: list[tuple[str, str, str, str]] = []
+    octree = results.get("octree_vs_octomap")
+    for r in (octree or {}).get("results", []):
+        rows.append((f"Semantic OctoMap insertion, 640×480 frames, {r['resolution']} m",
+                     f"{r['semmap_ms']} ms/frame (occupancy, colour, top-3)",
+                     f"OctoMap {r['octomap_ms']} ms (occupancy only): **{r['speedup']}×**; cells in the same state "
+                     f"{r['agreement']:.4%}", "bench_octree_vs_octomap.py"))
+    if octree and octree.get("results"):
+        r = octree["results"][0]
+        rows.append((f"Memory per leaf, {r['resolution']} m", f"{r['semmap_bytes_per_leaf']} B",
+                     f"OctoMap {r['octomap_bytes_per_leaf']} B", "bench_octree_vs_octomap.py"))
+    demo = results.get("demo")
+    if demo:
+        seg, sizes = demo.get("segmenter", "oracle"), demo["bytes_on_disk"]
+        rows.append((f"`make demo`: {demo['frames_used']} simulated frames, shipped {seg} network",
+                     f"3D mIoU of the map {demo['miou_3d']:.3f}; {demo['ms_per_frame']['total']:.0f} ms per frame "
+                     "in all", f"2D mIoU of the single frames {demo[f'{seg}_miou_2d']:.3f}", "update_docs.py"))
+        rows.append(("Storage of the demo map", f"`map.bt` {sizes['map.bt'] / 1024:,.0f} KiB, `map.semmap` "
+                     f"{sizes['map.semmap'] / 1024:,.0f} KiB", "dense coloured point cloud "
+                     f"{demo['dense_point_cloud_bytes'] / 2**20:,.0f} MiB", "update_docs.py"))
+    tracking = results.get("tracking")
+    if tracking:
+        by = {(r["sequence"], r["method"]): r for r in tracking["results"]}
+        seq = next((r["sequence"] for r in tracking["results"] if r["sequence"].startswith("7scenes")), None)
+        if (seq, "semmap-slam") in by and (seq, tracking["peer"]) in by:
+            a, b = by[seq, "semmap-slam"], by[seq, tracking["peer"]]
+            rows.append((f"Camera tracking, {seq} ({a['frames']} frames)",
+                         f"`slam` ATE {100 * a['ate_rmse_m']:.2f} cm, {a['ms_per_frame']:.0f} ms/frame",
+                         f"Open3D odometry ({b['method']}) {100 * b['ate_rmse_m']:.2f} cm, "
+                         f"{b['ms_per_frame']:.0f} ms/frame", "bench_tracking.py"))
+    e2e = results.get("end_to_end")
+    live = [r for r in (e2e or {}).get("results", []) if r.get("rate_hz") and r["sequence"].startswith("7scenes")]
+    if live:
+        r = live[0]
+        rows.append((f"Online mapping, {r['sequence']}, SLAM poses, ESPNetv2 every {e2e['segment_every']}th frame, "
+                     f"{r['resolution']} m", f"{r['fps']} frames/s at {r['rate_hz']:g} Hz input; latency "
+                     f"{r['latency_ms']['median']:.0f} ms median, {r['latency_ms']['p95']:.0f} ms p95",
+                     f"a {r['rate_hz']:g} Hz camera", "bench_end_to_end.py"))
+    fusion = results.get("fusion")
+    if fusion:
+        def mean_of(key: str, kind: str, rule: str) -> float:
+            return _mean(r[key] for r in fusion["results"] if (r["preset"], r["map"], r["fusion"], r["crf"]) ==
+                         ("cnn-like", kind, rule, False))
+        rows.append((f"Label fusion, simulated CNN output, {fusion['classes']} classes",
+                     f"top-3 OctoMap mIoU {mean_of('miou', 'octomap', 'topk'):.3f} at "
+                     f"{mean_of('bytes_per_voxel', 'octomap', 'topk'):.0f} B/voxel",
+                     f"full Bayes voxel grid {mean_of('miou', 'voxelgrid', 'bayes'):.3f} at "
+                     f"{mean_of('bytes_per_voxel', 'voxelgrid', 'bayes'):.0f} B/voxel", "bench_fusion.py"))
+    loc = results.get("localization")
+    if loc:
+        sym = {g["model"]: g for g in loc["summary"] if g["rooms"] == "symmetric" and g["particles"] == 2000
+               and g["init"] == "global"}
+        if "semantic" in sym and "geometry" in sym:
+            s, g = sym["semantic"], sym["geometry"]
+            rows.append(("Global localization in rooms symmetric under a 180° turn",
+                         f"semantic model converged in {round(s['converged_rate'] * s['runs'])} of {s['runs']} "
+                         f"run{'s' if s['runs'] > 1 else ''}",
+                         f"geometry alone {round(g['converged_rate'] * g['runs'])} of {g['runs']}",
+                         "bench_localization.py"))
+    sim = results.get("sim")
+    if sim:
+        rows.append((f"Simulator, {sim['width']}×{sim['height']}, every channel", f"{sim['fps']} frames/s",
+                     f"Open3D ray casting {sim.get('fps_raycast', '?')} frames/s", "bench_sim.py"))
+    return ["| measured | semmap | against | script |", "|---|---|---|---|",
+            *(f"| {a} | {b} | {c} | `{d}` |" for a, b, c, d in rows[:HEADLINE_ROWS])]
+
+
+def kept_section() -> list[str]:
+    """The hand-carried section of the current docs/BENCHMARKS.md, markers included (empty if it has none)."""
+    try:
+        text = (ROOT / "docs" / "BENCHMARKS.md").read_text()
+    except OSError:
+        return []
+    if KEPT_START not in text or KEPT_END not in text:
+        return []
+    return [KEPT_START, *text.split(KEPT_START, 1)[1].split(KEPT_END, 1)[0].strip("\n").splitlines(), KEPT_END, ""]
+
+
+def previous_stamp() -> tuple[str, str] | None:
+    """(date, machine) of the current docs/BENCHMARKS.md's header line, or None."""
+    try:
+        line = (ROOT / "docs" / "BENCHMARKS.md").read_text().splitlines()[2]
+    except (OSError, IndexError):
+        return None
+    if " on " not in line or "; machine: " not in line:
+        return None
+    date, where = line.split(" on ", 1)[1].split("; machine: ", 1)
+    return date, where.rstrip(".")
 
 
 #: part -> (key in the JSON block, script); the demo is run through the CLI.
@@ -361,29 +441,14 @@ def current_demo_lines() -> list[str]:
     return [line for line in section.splitlines() if line.startswith("- ")]
 
 
-def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--quick", action="store_true", help="quick variants of the benchmarks")
-    ap.add_argument("--only", default="", help=f"comma-separated parts to re-run: {', '.join(PARTS)}, or none")
-    ap.add_argument("--results", type=Path, help="JSON object of part results to use instead of running them")
-    args = ap.parse_args()
-    only = {p.strip() for p in args.only.split(",") if p.strip()} or None
-    if only == {"none"}:
-        only = set()
-    unknown = (only or set()) - set(PARTS)
-    if unknown:
-        raise SystemExit(f"update_docs: unknown part(s) {', '.join(sorted(unknown))}; choose from {', '.join(PARTS)}")
-    given = json.loads(args.results.read_text()) if args.results else {}
-    results = collect(only, args.quick, given)
+def benchmarks_lines(results: dict, quick: bool, stamp: str, where: str) -> list[str]:
+    """docs/BENCHMARKS.md: every part's tables and lines, the kept section and the JSON block of all results."""
     octree, sim, tracking = results["octree_vs_octomap"], results["sim"], results["tracking"]
     segmenters, fusion = results["segmenters"], results["fusion"]
-    demo = demo_lines(results["demo"]) if "demo" in results else current_demo_lines()
-    localization = results.get("localization")
-    networks = results.get("networks")
-    stamp = time.strftime("%Y-%m-%d")
-    lines = [
+    demo_text = demo_lines(results["demo"]) if "demo" in results else current_demo_lines()
+    return [
         "# Benchmarks", "",
-        f"Written by `benchmarks/update_docs.py{' --quick' if args.quick else ''}` on {stamp}; machine: {machine()}.",
+        f"Written by `benchmarks/update_docs.py{' --quick' if quick else ''}` on {stamp}; machine: {where}.",
         "Ratios compare semmap and its peer measured in the same run.", "",
         "## Semantic OctoMap insertion vs the OctoMap library", "",
         f"`benchmarks/bench_octree_vs_octomap.py`: {octree['frames']} frames from {octree['source']}, "
@@ -422,28 +487,45 @@ def main() -> None:
         "stored voxel or point; ms/frame is integration only, on a machine shared with other jobs.", "",
         *fusion_table(fusion), "", *fusion_targets(fusion), "",
         *end_to_end_section(results.get("end_to_end")),
-        *localization_section(localization),
-        *networks_section(networks),
-        "## Demo (`semmap demo`)", "", *demo, "",
+        *localization_section(results.get("localization")),
+        *networks_section(results.get("networks")),
+        *kept_section(),
+        "## Demo (`semmap demo`)", "", *demo_text, "",
         "```json", json_block(results), "```", "",
     ]
-    (ROOT / "docs" / "BENCHMARKS.md").write_text("\n".join(lines))
+
+
+def write_readme_headline(results: dict, stamp: str, where: str) -> None:
+    """Replace README.md's headline block (between START and END) with the headline table; no markers, no change."""
     readme = (ROOT / "README.md").read_text()
-    if START in readme and END in readme:
-        block = [START, "", f"Measured on {stamp} ({machine()}) by `benchmarks/update_docs.py`:", "",
-                 *octree_table(octree), "", f"- Simulator: {sim['fps']} frames/s at 640×480, all channels.",
-                 *demo, "", "Camera tracking (`benchmarks/bench_tracking.py`; all trackers in "
-                 "[docs/BENCHMARKS.md](docs/BENCHMARKS.md)):", "", *tracking_table(tracking, README_TRACKERS), "",
-                 "ESPNetv2 segmentation on the CPU (`benchmarks/bench_segmenters.py`):", "",
-                 *segmenter_table(segmenters), "",
-                 *end_to_end_section(results.get("end_to_end"), heading=False),
-                 "Label fusion and maps (`benchmarks/bench_fusion.py`; the full table in "
-                 "[docs/BENCHMARKS.md](docs/BENCHMARKS.md)):", "", *fusion_targets(fusion), "",
-                 *localization_readme(localization),
-                 *networks_readme(networks), END]
-        head, rest = readme.split(START, 1)
-        readme = head + "\n".join(block) + rest.split(END, 1)[1]
-        (ROOT / "README.md").write_text(readme)
+    if START not in readme or END not in readme:
+        return
+    block = [START, "", *headline_rows(results), "",
+             f"Measured on {stamp} ({where}) by `benchmarks/update_docs.py`; every other number, with how it "
+             "was measured, is in [docs/BENCHMARKS.md](docs/BENCHMARKS.md).", END]
+    head, rest = readme.split(START, 1)
+    (ROOT / "README.md").write_text(head + "\n".join(block) + rest.split(END, 1)[1])
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--quick", action="store_true", help="quick variants of the benchmarks")
+    ap.add_argument("--only", default="", help=f"comma-separated parts to re-run: {', '.join(PARTS)}, or none")
+    ap.add_argument("--results", type=Path, help="JSON object of part results to use instead of running them")
+    args = ap.parse_args()
+    only = {p.strip() for p in args.only.split(",") if p.strip()} or None
+    if only == {"none"}:
+        only = set()
+    unknown = (only or set()) - set(PARTS)
+    if unknown:
+        raise SystemExit(f"update_docs: unknown part(s) {', '.join(sorted(unknown))}; choose from {', '.join(PARTS)}")
+    given = json.loads(args.results.read_text()) if args.results else {}
+    results = collect(only, args.quick, given)
+    previous = previous_stamp() if only == set() else None
+    stamp, where = previous or (time.strftime("%Y-%m-%d"), machine())
+    (ROOT / "docs" / "BENCHMARKS.md").write_text("\n".join(benchmarks_lines(results, args.quick, stamp, where)))
+    write_readme_headline(results, stamp, where)
+    octree, sim, fusion = results["octree_vs_octomap"], results["sim"], results["fusion"]
     demo_report = results.get("demo", {})
     print(json.dumps({"octree": octree["results"], "sim_fps": sim["fps"], "miou_3d": demo_report.get("miou_3d"),
                       "segmenter": demo_report.get("segmenter", "oracle"),
