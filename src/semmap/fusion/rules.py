@@ -124,10 +124,10 @@ class FusionParams:
 
     def kernel_params(self, num_classes: int) -> np.ndarray:
         """The settings as the rule kernels read them (``P_*`` indices of ``fusion.topk_bayes``), then the K prior
-        log-odds ``h0`` (float64)."""
+        log-odds ``h0`` of the given prior, whichever the rule (float64; zeros without a prior)."""
         head = [self.lam, self.max_confidence, self.logodds_clamp, self.vote_cap]
         return np.concatenate([np.array(head, np.float64),
-                               self.prior_logodds(max(num_classes, 1)).astype(np.float64)])
+                               self._mixed_prior_log(max(num_classes, 1)).astype(np.float64)])
 
     def to_dict(self) -> dict:
         """The settings as a file header stores them (JSON types)."""
@@ -147,9 +147,15 @@ class FusionParams:
     def prior_logodds(self, num_classes: int) -> np.ndarray:
         """(K,) float32 ``h0``: log class priors (``bayes-prior``; zeros = uniform otherwise): the frequencies mixed
         with the uniform distribution by ``prior_smoothing``, floored at :data:`~semmap.fusion.dense.MIN_PROB`."""
+        if self.rule != FusionRule.BAYES_PRIOR:
+            return np.zeros(num_classes, np.float32)
+        return self._mixed_prior_log(num_classes)
+
+    def _mixed_prior_log(self, num_classes: int) -> np.ndarray:
+        """The given prior's ``h0`` whatever the rule (zeros without a prior): what every rule kernel is handed."""
         from semmap.fusion.dense import MIN_PROB
 
-        if self.rule != FusionRule.BAYES_PRIOR or self.prior is None:
+        if self.prior is None:
             return np.zeros(num_classes, np.float32)
         if self.prior.size != num_classes:
             raise ConfigError(f"class prior has {self.prior.size} entries but the label set {num_classes} classes")

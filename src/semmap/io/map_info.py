@@ -57,4 +57,4 @@ def _describe_semmap(path: Path) -> dict:
 
     m = load_map(path)
     return {"kind": "semmap", "resolution": m.resolution, "voxels": m.num_leaves, "occupied": m.num_occupied,
-            "free": m.num_free, "fusion": "topk", "classes": None if m.label_set is None else len(m.label_set)}
+            "free": m.num_free, "fusion": m.fusion.name, "classes": None if m.label_set is None else len(m.label_set)}
