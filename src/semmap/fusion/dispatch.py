@@ -30,8 +30,8 @@ from semmap.fusion.topk_bayes import P_CLAMP, P_LAM, P_MAX_CONFIDENCE, P_PRIOR, 
 GENERIC, MAX_CODE, TOPK_CODE, BAYES_CODE, BAYES_PRIOR_CODE, VOTE_CODE = -1, 0, 1, 2, 3, 4
 #: State layouts (see the module docstring).
 LAYOUT_SET, LAYOUT_LOGODDS, LAYOUT_COUNTS = 0, 1, 2
-__all__ = ["FINISH_SIG", "P_CLAMP", "P_LAM", "P_MAX_CONFIDENCE", "P_PRIOR", "P_VOTE_CAP", "UPDATE_SIG",
-           "fuse_measurement", "finish_voxel", "merge_voxel", "new_scratch"]
+__all__ = ["FINISH_SIG", "P_CLAMP", "P_LAM", "P_MAX_CONFIDENCE", "P_PRIOR", "P_VOTE_CAP", "SCRATCH", "UPDATE_SIG",
+           "finish_voxel", "fuse_measurement", "merge_voxel", "new_scratch"]
 
 _LABELS = types.uint16[::1]
 _VALUES = types.float32[::1]
@@ -57,7 +57,7 @@ def fuse_measurement(code: int, update, labels: np.ndarray, values: np.ndarray, 
         return True
     if code == MAX_CODE:
         return max_fuse(labels, values, meas_labels, meas_probs, params)
-    if code == BAYES_CODE or code == BAYES_PRIOR_CODE:
+    if code in (BAYES_CODE, BAYES_PRIOR_CODE):
         return bayes_add(values, meas_labels, meas_probs)
     if code == VOTE_CODE:
         return vote_add(values, meas_labels)
@@ -67,11 +67,11 @@ def fuse_measurement(code: int, update, labels: np.ndarray, values: np.ndarray, 
 @nb.njit(cache=True, inline="always")
 def finish_voxel(code: int, finish, labels: np.ndarray, values: np.ndarray, n: int, params: np.ndarray) -> None:
     """After a frame's ``n`` counted measurements of a voxel (n > 0): divide by the prior, normalise, clamp."""
-    if n <= 0 or code == TOPK_CODE or code == MAX_CODE:
+    if n <= 0 or code in (TOPK_CODE, MAX_CODE):
         return
     if code == VOTE_CODE:
         normalise_votes(values, params[P_VOTE_CAP])
-    elif code == BAYES_CODE or code == BAYES_PRIOR_CODE:
+    elif code in (BAYES_CODE, BAYES_PRIOR_CODE):
         if code == BAYES_PRIOR_CODE:
             subtract_prior(values, params[P_PRIOR:], np.float64(n))
         normalise_logodds(values, params[P_CLAMP])

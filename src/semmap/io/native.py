@@ -18,8 +18,8 @@ from pathlib import Path
 import numpy as np
 
 from semmap.errors import FormatError, SemmapError
-from semmap.io.atomic import write_atomic
 from semmap.fusion.rules import FusionParams, FusionRule
+from semmap.io.atomic import write_atomic
 from semmap.maps.semantic_octomap import CellArrays, OccupancyParams, SemanticOctoMap
 from semmap.types import LabelSet
 

@@ -245,9 +245,9 @@ def fuse_points(attr: np.ndarray, logodds: np.ndarray, sorted_pts: np.ndarray, o
                         nx += np.float64(normals[p, 0])
                         ny += np.float64(normals[p, 1])
                         nz += np.float64(normals[p, 2])
-                if has_semantics:
-                    if fuse_measurement(code, update, w_lab, w_val, sem_labels[p], sem_probs[p], params, si, sf):
-                        n_sem += 1
+                if has_semantics and fuse_measurement(code, update, w_lab, w_val, sem_labels[p], sem_probs[p], params,
+                                                      si, sf):
+                    n_sem += 1
             if has_colors:  # running mean over every point's colour (a moving average once the count saturates)
                 n_old = np.int64(rgb_count[a])
                 w = np.float64(m) / (n_old + m) if n_old + m <= _COUNT_MAX else np.float64(m) / _COUNT_MAX

@@ -328,10 +328,10 @@ def _attribute_chunk(rows, point_index, lo: int, hi: int, colors, has_colors: bo
             for ch in range(3):
                 mean = np.float64(rgb[a, ch])
                 rgb[a, ch] = np.uint8(np.int64(mean + (np.float64(colors[p, ch]) - mean) / n + 0.5))
-        if has_semantics:  # one measurement per cell and scan (the voxel filter's first point)
-            if fuse_measurement(code, update, map_labels[a], map_probs[a], sem_labels[p], sem_probs[p], params, si,
-                                sf):
-                finish_voxel(code, finish, map_labels[a], map_probs[a], 1, params)
+        # one measurement per cell and scan (the voxel filter's first point)
+        if has_semantics and fuse_measurement(code, update, map_labels[a], map_probs[a], sem_labels[p], sem_probs[p],
+                                              params, si, sf):
+            finish_voxel(code, finish, map_labels[a], map_probs[a], 1, params)
 
 
 @nb.njit(cache=True, parallel=True, nogil=True)

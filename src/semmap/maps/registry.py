@@ -60,7 +60,7 @@ def read_class_prior(path: Path, label_set: LabelSet) -> np.ndarray:
 
 def get_map(kind: MapKind, config: RunConfig, label_set: LabelSet | None) -> SemanticMap:
     """An empty map of ``kind`` with the run's resolution, sensor model, fusion settings and label set."""
-    m, s = config.mapping, config.semantics
+    m = config.mapping
     fusion = get_fusion(kind, config, label_set)
     from semmap.maps.semantic_octomap import OccupancyParams
 
