@@ -30,8 +30,8 @@ from semmap.fusion.topk_bayes import P_CLAMP, P_LAM, P_MAX_CONFIDENCE, P_PRIOR, 
 GENERIC, MAX_CODE, TOPK_CODE, BAYES_CODE, BAYES_PRIOR_CODE, VOTE_CODE = -1, 0, 1, 2, 3, 4
 #: State layouts (see the module docstring).
 LAYOUT_SET, LAYOUT_LOGODDS, LAYOUT_COUNTS = 0, 1, 2
-__all__ = ["FINISH_SIG", "P_CLAMP", "P_LAM", "P_MAX_CONFIDENCE", "P_PRIOR", "P_VOTE_CAP", "SCRATCH", "UPDATE_SIG",
-           "finish_voxel", "fuse_measurement", "merge_voxel", "new_scratch"]
+__all__ = ["FINISH_SIG", "GENERIC", "P_CLAMP", "P_LAM", "P_MAX_CONFIDENCE", "P_PRIOR", "P_VOTE_CAP", "SCRATCH",
+           "UPDATE_SIG", "finish_voxel", "fuse_measurement", "merge_voxel", "new_scratch"]
 
 _LABELS = types.uint16[::1]
 _VALUES = types.float32[::1]
@@ -48,9 +48,16 @@ def new_scratch() -> tuple[np.ndarray, np.ndarray]:
 
 
 @nb.njit(cache=True, inline="always")
-def fuse_measurement(code: int, update, labels: np.ndarray, values: np.ndarray, meas_labels: np.ndarray,
-                     meas_probs: np.ndarray, params: np.ndarray, si: np.ndarray, sf: np.ndarray) -> bool:
-    """Fuse one top-k measurement into one voxel's state in place; True if it counted (``finish_voxel``'s n)."""
+def fuse_measurement(generic: bool, code: int, update, labels: np.ndarray, values: np.ndarray,
+                     meas_labels: np.ndarray, meas_probs: np.ndarray, params: np.ndarray, si: np.ndarray,
+                     sf: np.ndarray) -> bool:
+    """Fuse one top-k measurement into one voxel's state in place; True if it counted (``finish_voxel``'s n).
+
+    ``generic`` is ``code == GENERIC``, which a map kernel tests once, outside its loop, and passes as a constant
+    (``if code == GENERIC: loop(True) else: loop(False)`` with an inlined loop): the built-in rules' loops then
+    hold no call through a function value, which would keep the compiler from optimising them."""
+    if generic:
+        return update(labels, values, meas_labels, meas_probs, params)
     if code == TOPK_CODE:
         fuse_sets(labels, values, meas_labels, meas_probs, params[P_LAM], params[P_MAX_CONFIDENCE], labels, values,
                   si, sf)
@@ -61,13 +68,19 @@ def fuse_measurement(code: int, update, labels: np.ndarray, values: np.ndarray, 
         return bayes_add(values, meas_labels, meas_probs)
     if code == VOTE_CODE:
         return vote_add(values, meas_labels)
-    return update(labels, values, meas_labels, meas_probs, params)
+    return False
 
 
 @nb.njit(cache=True, inline="always")
-def finish_voxel(code: int, finish, labels: np.ndarray, values: np.ndarray, n: int, params: np.ndarray) -> None:
+def finish_voxel(generic: bool, code: int, finish, labels: np.ndarray, values: np.ndarray, n: int,
+                 params: np.ndarray) -> None:
     """After a frame's ``n`` counted measurements of a voxel (n > 0): divide by the prior, normalise, clamp."""
-    if n <= 0 or code in (TOPK_CODE, MAX_CODE):
+    if n <= 0:
+        return
+    if generic:
+        finish(labels, values, n, params)
+        return
+    if code in (TOPK_CODE, MAX_CODE):
         return
     if code == VOTE_CODE:
         normalise_votes(values, params[P_VOTE_CAP])
@@ -75,8 +88,6 @@ def finish_voxel(code: int, finish, labels: np.ndarray, values: np.ndarray, n: i
         if code == BAYES_PRIOR_CODE:
             subtract_prior(values, params[P_PRIOR:], np.float64(n))
         normalise_logodds(values, params[P_CLAMP])
-    else:
-        finish(labels, values, n, params)
 
 
 @nb.njit(cache=True, inline="always")
@@ -85,7 +96,7 @@ def merge_voxel(code: int, layout: int, update, labels: np.ndarray, values: np.n
     """Fold a child's state into its parent's (inner nodes): a set is fused as a measurement (Algorithm 1 for
     ``topk``); log-odds and counts add up, then normalise (the children's evidence multiplied / pooled)."""
     if layout == LAYOUT_SET:
-        fuse_measurement(code, update, labels, values, child_labels, child_values, params, si, sf)
+        fuse_measurement(code == GENERIC, code, update, labels, values, child_labels, child_values, params, si, sf)
         return
     for c in range(values.shape[0]):
         values[c] += child_values[c]

@@ -21,7 +21,7 @@ import numba as nb
 import numpy as np
 
 from semmap.fusion.dense import dense_top
-from semmap.fusion.dispatch import LAYOUT_SET, finish_voxel, fuse_measurement, new_scratch
+from semmap.fusion.dispatch import GENERIC, LAYOUT_SET, finish_voxel, fuse_measurement, new_scratch
 from semmap.fusion.half import float_to_half, half_to_float
 from semmap.maps._hashtable import N_SHARDS, find_or_insert, key_hash, shard_of
 from semmap.maps._keys import KEY_LIMIT, coord_to_key, pack_key
@@ -197,86 +197,104 @@ def fuse_points(attr: np.ndarray, logodds: np.ndarray, sorted_pts: np.ndarray, o
     dense = layout != LAYOUT_SET
     W = K if dense else S
     for sh in nb.prange(N_SHARDS):
-        lo, hi = offsets[sh], offsets[sh + 1]
-        if hi <= lo:
-            continue
-        next_row = first_row[sh]
-        w_lab = np.empty(S, np.uint16)  # the voxel's state in working form
-        w_val = np.empty(W, np.float32)
-        si, sf = new_scratch()
-        j = lo
-        while j < hi:
-            key = sorted_keys[j]
-            e = j + 1
-            while e < hi and sorted_keys[e] == key:
-                e += 1
-            m = e - j
-            s0 = run_slot[j]
-            if attr[s0] == -2:
-                attr[s0] = next_row
-                next_row += 1
-            a = attr[s0]
-            # occupancy and hits: one hit per voxel per frame (OctoMap's discretised insertion)
-            v = logodds[s0] + hit_log
-            logodds[s0] = clamp_max if v > clamp_max else v
-            if hits[a] < _COUNT_MAX:
-                hits[a] += 1
-            if dense and has_semantics:
-                _load(dense_f32, dense_u16, half, a, w_val)
-            elif has_semantics:
-                for c in range(S):
-                    w_lab[c] = set_labels[a, c]
-                    w_val[c] = half_to_float(set_u16[a, c]) if half else set_f32[a, c]
-            cr = cg = cb = 0.0
-            px = py = pz = 0.0
-            nx = ny = nz = 0.0
-            n_sem = 0
-            for t in range(j, e):  # one pass over the voxel's points
-                p = sorted_pts[t]
-                if has_colors:
-                    cr += np.float64(colors[p, 0])
-                    cg += np.float64(colors[p, 1])
-                    cb += np.float64(colors[p, 2])
-                if keep_geometry:
-                    px += np.float64(points[p, 0])
-                    py += np.float64(points[p, 1])
-                    pz += np.float64(points[p, 2])
-                    if has_normals:
-                        nx += np.float64(normals[p, 0])
-                        ny += np.float64(normals[p, 1])
-                        nz += np.float64(normals[p, 2])
-                if has_semantics and fuse_measurement(code, update, w_lab, w_val, sem_labels[p], sem_probs[p], params,
-                                                      si, sf):
-                    n_sem += 1
-            if has_colors:  # running mean over every point's colour (a moving average once the count saturates)
-                n_old = np.int64(rgb_count[a])
-                w = np.float64(m) / (n_old + m) if n_old + m <= _COUNT_MAX else np.float64(m) / _COUNT_MAX
-                _blend(rgb, a, 0, cr / m, w)
-                _blend(rgb, a, 1, cg / m, w)
-                _blend(rgb, a, 2, cb / m, w)
-                rgb_count[a] = min(n_old + m, _COUNT_MAX)
-            if keep_geometry:  # point map: running mean of the frames' mean points, summed normals
-                n_prev = np.float64(min(hits[a], _COUNT_MAX - 1) - 1)
-                positions[a, 0] = np.float32((positions[a, 0] * n_prev + px / m) / (n_prev + 1.0))
-                positions[a, 1] = np.float32((positions[a, 1] * n_prev + py / m) / (n_prev + 1.0))
-                positions[a, 2] = np.float32((positions[a, 2] * n_prev + pz / m) / (n_prev + 1.0))
+        if code == GENERIC:  # the rule's test hoisted out of the loops (see fusion.dispatch.fuse_measurement)
+            _fuse_shard(sh, True, attr, logodds, sorted_pts, offsets, run_slot, sorted_keys, first_row, points,
+                        colors, has_colors, sem_labels, sem_probs, has_semantics, normals, has_normals, rgb,
+                        rgb_count, hits, dense_f32, dense_u16, set_labels, set_f32, set_u16, half, positions,
+                        normal_sums, keep_geometry, code, update, finish, params, hit_log, clamp_max, S, W, dense)
+        else:
+            _fuse_shard(sh, False, attr, logodds, sorted_pts, offsets, run_slot, sorted_keys, first_row, points,
+                        colors, has_colors, sem_labels, sem_probs, has_semantics, normals, has_normals, rgb,
+                        rgb_count, hits, dense_f32, dense_u16, set_labels, set_f32, set_u16, half, positions,
+                        normal_sums, keep_geometry, code, update, finish, params, hit_log, clamp_max, S, W, dense)
+
+
+@nb.njit(cache=True, inline="always")
+def _fuse_shard(sh: int, generic: bool, attr, logodds, sorted_pts, offsets, run_slot, sorted_keys, first_row, points,
+                colors, has_colors, sem_labels, sem_probs, has_semantics, normals, has_normals, rgb, rgb_count, hits,
+                dense_f32, dense_u16, set_labels, set_f32, set_u16, half, positions, normal_sums, keep_geometry, code,
+                update, finish, params, hit_log, clamp_max, S, W, dense) -> None:
+    """One shard of :func:`fuse_points` (``generic``: the rule has no fast path in the dispatcher)."""
+    lo, hi = offsets[sh], offsets[sh + 1]
+    if hi <= lo:
+        return
+    next_row = first_row[sh]
+    w_lab = np.empty(S, np.uint16)  # the voxel's state in working form
+    w_val = np.empty(W, np.float32)
+    si, sf = new_scratch()
+    j = lo
+    while j < hi:
+        key = sorted_keys[j]
+        e = j + 1
+        while e < hi and sorted_keys[e] == key:
+            e += 1
+        m = e - j
+        s0 = run_slot[j]
+        if attr[s0] == -2:
+            attr[s0] = next_row
+            next_row += 1
+        a = attr[s0]
+        # occupancy and hits: one hit per voxel per frame (OctoMap's discretised insertion)
+        v = logodds[s0] + hit_log
+        logodds[s0] = clamp_max if v > clamp_max else v
+        if hits[a] < _COUNT_MAX:
+            hits[a] += 1
+        if dense and has_semantics:
+            _load(dense_f32, dense_u16, half, a, w_val)
+        elif has_semantics:
+            for c in range(S):
+                w_lab[c] = set_labels[a, c]
+                w_val[c] = half_to_float(set_u16[a, c]) if half else set_f32[a, c]
+        cr = cg = cb = 0.0
+        px = py = pz = 0.0
+        nx = ny = nz = 0.0
+        n_sem = 0
+        for t in range(j, e):  # one pass over the voxel's points
+            p = sorted_pts[t]
+            if has_colors:
+                cr += np.float64(colors[p, 0])
+                cg += np.float64(colors[p, 1])
+                cb += np.float64(colors[p, 2])
+            if keep_geometry:
+                px += np.float64(points[p, 0])
+                py += np.float64(points[p, 1])
+                pz += np.float64(points[p, 2])
                 if has_normals:
-                    normal_sums[a, 0] += np.float32(nx)
-                    normal_sums[a, 1] += np.float32(ny)
-                    normal_sums[a, 2] += np.float32(nz)
-            if has_semantics:
-                finish_voxel(code, finish, w_lab, w_val, n_sem, params)
-                if dense:
-                    if n_sem > 0:
-                        _store(dense_f32, dense_u16, half, a, w_val)
-                else:
-                    for c in range(S):
-                        set_labels[a, c] = w_lab[c]
-                        if half:
-                            set_u16[a, c] = float_to_half(w_val[c])
-                        else:
-                            set_f32[a, c] = w_val[c]
-            j = e
+                    nx += np.float64(normals[p, 0])
+                    ny += np.float64(normals[p, 1])
+                    nz += np.float64(normals[p, 2])
+            if has_semantics and fuse_measurement(generic, code, update, w_lab, w_val, sem_labels[p], sem_probs[p],
+                                                  params, si, sf):
+                n_sem += 1
+        if has_colors:  # running mean over every point's colour (a moving average once the count saturates)
+            n_old = np.int64(rgb_count[a])
+            w = np.float64(m) / (n_old + m) if n_old + m <= _COUNT_MAX else np.float64(m) / _COUNT_MAX
+            _blend(rgb, a, 0, cr / m, w)
+            _blend(rgb, a, 1, cg / m, w)
+            _blend(rgb, a, 2, cb / m, w)
+            rgb_count[a] = min(n_old + m, _COUNT_MAX)
+        if keep_geometry:  # point map: running mean of the frames' mean points, summed normals
+            n_prev = np.float64(min(hits[a], _COUNT_MAX - 1) - 1)
+            positions[a, 0] = np.float32((positions[a, 0] * n_prev + px / m) / (n_prev + 1.0))
+            positions[a, 1] = np.float32((positions[a, 1] * n_prev + py / m) / (n_prev + 1.0))
+            positions[a, 2] = np.float32((positions[a, 2] * n_prev + pz / m) / (n_prev + 1.0))
+            if has_normals:
+                normal_sums[a, 0] += np.float32(nx)
+                normal_sums[a, 1] += np.float32(ny)
+                normal_sums[a, 2] += np.float32(nz)
+        if has_semantics:
+            finish_voxel(generic, code, finish, w_lab, w_val, n_sem, params)
+            if dense:
+                if n_sem > 0:
+                    _store(dense_f32, dense_u16, half, a, w_val)
+            else:
+                for c in range(S):
+                    set_labels[a, c] = w_lab[c]
+                    if half:
+                        set_u16[a, c] = float_to_half(w_val[c])
+                    else:
+                        set_f32[a, c] = w_val[c]
+        j = e
 
 
 @nb.njit(cache=True, parallel=True)

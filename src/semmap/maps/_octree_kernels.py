@@ -27,7 +27,7 @@ import math
 import numba as nb
 import numpy as np
 
-from semmap.fusion.dispatch import finish_voxel, fuse_measurement, new_scratch
+from semmap.fusion.dispatch import GENERIC, TOPK_CODE, finish_voxel, fuse_measurement, new_scratch
 from semmap.maps._hashtable import find_or_insert, find_slot, prefetch_home, shard_of
 from semmap.maps._keys import KEY_LIMIT, coord_to_key, key_to_coord, pack_key, trace_ray
 from semmap.maps._prefetch import prefetch
@@ -299,6 +299,21 @@ def assign_rows(attr: np.ndarray, slots: np.ndarray, hit: np.ndarray, n_attr: in
 @nb.njit(cache=True, inline="always")
 def _attribute_chunk(rows, point_index, lo: int, hi: int, colors, has_colors: bool, sem_labels, sem_probs,
                      has_semantics: bool, rgb, rgb_count, map_labels, map_probs, code, update, finish, params) -> None:
+    if code == TOPK_CODE:  # the rule's test hoisted out of the loop (see fusion.dispatch.fuse_measurement)
+        _attribute_rows(rows, point_index, lo, hi, colors, has_colors, sem_labels, sem_probs, has_semantics, rgb,
+                        rgb_count, map_labels, map_probs, False, TOPK_CODE, update, finish, params)
+    elif code == GENERIC:
+        _attribute_rows(rows, point_index, lo, hi, colors, has_colors, sem_labels, sem_probs, has_semantics, rgb,
+                        rgb_count, map_labels, map_probs, True, code, update, finish, params)
+    else:
+        _attribute_rows(rows, point_index, lo, hi, colors, has_colors, sem_labels, sem_probs, has_semantics, rgb,
+                        rgb_count, map_labels, map_probs, False, code, update, finish, params)
+
+
+@nb.njit(cache=True, inline="always")
+def _attribute_rows(rows, point_index, lo: int, hi: int, colors, has_colors: bool, sem_labels, sem_probs,
+                    has_semantics: bool, rgb, rgb_count, map_labels, map_probs, generic: bool, code, update, finish,
+                    params) -> None:
     si, sf = new_scratch()
     s = map_labels.shape[1]
     w = map_probs.shape[1]
@@ -329,9 +344,9 @@ def _attribute_chunk(rows, point_index, lo: int, hi: int, colors, has_colors: bo
                 mean = np.float64(rgb[a, ch])
                 rgb[a, ch] = np.uint8(np.int64(mean + (np.float64(colors[p, ch]) - mean) / n + 0.5))
         # one measurement per cell and scan (the voxel filter's first point)
-        if has_semantics and fuse_measurement(code, update, map_labels[a], map_probs[a], sem_labels[p], sem_probs[p],
-                                              params, si, sf):
-            finish_voxel(code, finish, map_labels[a], map_probs[a], 1, params)
+        if has_semantics and fuse_measurement(generic, code, update, map_labels[a], map_probs[a], sem_labels[p],
+                                              sem_probs[p], params, si, sf):
+            finish_voxel(generic, code, finish, map_labels[a], map_probs[a], 1, params)
 
 
 @nb.njit(cache=True, parallel=True, nogil=True)
