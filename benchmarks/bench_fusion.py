@@ -119,7 +119,7 @@ def build_maps(label_set: LabelSet, prior: np.ndarray, point_resolution: float, 
 
 
 def fusion_of(m) -> str:
-    return "topk" if m.kind == MapKind.OCTOMAP else m.fusion.rule.value
+    return m.fusion.name
 
 
 def bytes_per_voxel(m) -> float:

@@ -161,7 +161,7 @@ def test_a_top_k_measurement_becomes_a_K_vector_with_others_spread_evenly():
 
 
 def test_rule_names_and_settings_are_validated():
-    assert fusion_rule("bayes-prior") == FusionRule.BAYES_PRIOR and FusionRule.VOTE.dense
+    assert fusion_rule("bayes-prior") == FusionRule.BAYES_PRIOR and FusionParams(FusionRule.VOTE).entry.dense
     with pytest.raises(ConfigError, match="bayes"):
         fusion_rule("bayesian")
     with pytest.raises(ConfigError, match=r"1\.\.8"):

@@ -170,7 +170,7 @@ def test_native_round_trip_is_exact(semantic_map, tmp_path):
         assert x.dtype == y.dtype and np.array_equal(x, y), name
     assert loaded.resolution == semantic_map.resolution
     assert loaded.label_set.names == semantic_map.label_set.names
-    assert loaded.semantics == semantic_map.semantics and loaded.occupancy == semantic_map.occupancy
+    assert loaded.fusion == semantic_map.fusion and loaded.occupancy == semantic_map.occupancy
     # the loaded map keeps working
     loaded.insert_points(np.array([[0.0, 0.0, 1.0]]), np.zeros(3))
 

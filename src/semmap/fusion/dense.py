@@ -29,6 +29,7 @@ import numba as nb
 import numpy as np
 
 from semmap.fusion.rules import DEFAULT_LOGODDS_CLAMP, DEFAULT_VOTE_CAP
+from semmap.fusion.topk_bayes import P_CLAMP, P_PRIOR, P_VOTE_CAP
 from semmap.types import EMPTY_LABEL
 
 EMPTY = int(EMPTY_LABEL)
@@ -149,6 +150,41 @@ def dense_top(state: np.ndarray, logodds: bool) -> tuple[int, float, float]:
         if p > 0.0:
             ent -= p * math.log(p)
     return best, state[best] / total, ent
+
+
+# ------------------------------------------------------------------ the rules in the dispatcher's form
+# (``semmap.fusion.dispatch.UPDATE_SIG`` / ``FINISH_SIG``; the dispatcher inlines the same steps for these rules)
+@nb.njit(cache=True)
+def bayes_fuse(labels: np.ndarray, values: np.ndarray, meas_labels: np.ndarray, meas_probs: np.ndarray,
+               params: np.ndarray) -> bool:
+    """``bayes`` / ``bayes-prior`` update: eq. 2's sum over one measurement (:func:`bayes_add`)."""
+    return bayes_add(values, meas_labels, meas_probs)
+
+
+@nb.njit(cache=True)
+def bayes_finish(labels: np.ndarray, values: np.ndarray, n: int, params: np.ndarray) -> None:
+    """``bayes`` after a frame's measurements of a voxel: normalise and clamp."""
+    normalise_logodds(values, params[P_CLAMP])
+
+
+@nb.njit(cache=True)
+def bayes_prior_finish(labels: np.ndarray, values: np.ndarray, n: int, params: np.ndarray) -> None:
+    """``bayes-prior`` after a frame's ``n`` measurements of a voxel: divide by the prior n times, normalise."""
+    subtract_prior(values, params[P_PRIOR:], np.float64(n))
+    normalise_logodds(values, params[P_CLAMP])
+
+
+@nb.njit(cache=True)
+def vote_fuse(labels: np.ndarray, values: np.ndarray, meas_labels: np.ndarray, meas_probs: np.ndarray,
+              params: np.ndarray) -> bool:
+    """``vote`` update: one vote for the measurement's top class."""
+    return vote_add(values, meas_labels)
+
+
+@nb.njit(cache=True)
+def vote_finish(labels: np.ndarray, values: np.ndarray, n: int, params: np.ndarray) -> None:
+    """``vote`` after a frame: halve the counts while the largest is past the cap."""
+    normalise_votes(values, params[P_VOTE_CAP])
 
 
 # ---------------------------------------------------------------------------------------------- wrappers

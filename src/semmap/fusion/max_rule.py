@@ -11,7 +11,7 @@ from __future__ import annotations
 import numba as nb
 import numpy as np
 
-from semmap.fusion.topk_bayes import DEFAULT_MAX_CONFIDENCE
+from semmap.fusion.topk_bayes import DEFAULT_MAX_CONFIDENCE, P_MAX_CONFIDENCE
 from semmap.types import EMPTY_LABEL
 
 EMPTY = int(EMPTY_LABEL)
@@ -29,6 +29,16 @@ def max_update(map_label: int, map_conf: float, meas_label: int, meas_conf: floa
     if meas_label == map_label:
         return map_label, max(map_conf, c)
     return map_label, map_conf
+
+
+@nb.njit(cache=True, inline="always")
+def max_fuse(labels: np.ndarray, values: np.ndarray, meas_labels: np.ndarray, meas_probs: np.ndarray,
+             params: np.ndarray) -> bool:
+    """The ``max`` rule in the dispatcher's form (:data:`semmap.fusion.dispatch.UPDATE_SIG`): one pair in place."""
+    lab, conf = max_update(labels[0], values[0], meas_labels[0], meas_probs[0], params[P_MAX_CONFIDENCE])
+    labels[0] = lab
+    values[0] = conf
+    return True
 
 
 @nb.njit(cache=True)

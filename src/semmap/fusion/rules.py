@@ -45,7 +45,7 @@ DEFAULT_VOTE_CAP = 1024.0
 
 
 class FusionRule(str, Enum):
-    """How a voxel's class distribution absorbs a measurement."""
+    """The built-in rules' names (:mod:`semmap.fusion.registry` holds every rule, these and any registered later)."""
 
     MAX = "max"
     TOPK = "topk"
@@ -53,28 +53,17 @@ class FusionRule(str, Enum):
     BAYES_PRIOR = "bayes-prior"
     VOTE = "vote"
 
-    @property
-    def code(self) -> int:
-        """Small integer the numba kernels branch on."""
-        return _CODES[self]
 
-    @property
-    def dense(self) -> bool:
-        """True for the rules that keep K numbers per voxel (bayes, bayes-prior, vote)."""
-        return self in (FusionRule.BAYES, FusionRule.BAYES_PRIOR, FusionRule.VOTE)
+def fusion_rule(value: str | FusionRule) -> FusionRule | str:
+    """``"bayes"`` -> :attr:`FusionRule.BAYES`; a rule registered later -> its name; else a ConfigError listing
+    the rules."""
+    from semmap.fusion.registry import rule_entry
 
-
-_CODES = {FusionRule.MAX: 0, FusionRule.TOPK: 1, FusionRule.BAYES: 2, FusionRule.BAYES_PRIOR: 3, FusionRule.VOTE: 4}
-MAX_CODE, TOPK_CODE, BAYES_CODE, BAYES_PRIOR_CODE, VOTE_CODE = 0, 1, 2, 3, 4
-
-
-def fusion_rule(value: str | FusionRule) -> FusionRule:
-    """``"bayes"`` -> :attr:`FusionRule.BAYES`, or a ConfigError listing the rules."""
+    name = rule_entry(value).name
     try:
-        return FusionRule(value)
+        return FusionRule(name)
     except ValueError:
-        raise ConfigError(f"unknown fusion rule {value!r}; choose from "
-                          f"{', '.join(r.value for r in FusionRule)}") from None
+        return name
 
 
 @dataclass(frozen=True)
@@ -88,7 +77,7 @@ class FusionParams:
     ``prior_smoothing``.
     """
 
-    rule: FusionRule = FusionRule.TOPK
+    rule: FusionRule | str = FusionRule.TOPK
     k: int = 3
     lam: float = DEFAULT_LAMBDA
     max_confidence: float = DEFAULT_MAX_CONFIDENCE
@@ -117,18 +106,56 @@ class FusionParams:
                 raise ConfigError("class prior must be non-negative frequencies with a positive sum")
             object.__setattr__(self, "prior", p)
 
+    @property
+    def entry(self):
+        """The rule's :class:`~semmap.fusion.registry.RuleEntry` (kernels, state layout)."""
+        from semmap.fusion.registry import rule_entry
+
+        return rule_entry(self.rule)
+
+    @property
+    def name(self) -> str:
+        """The rule's name as ``--fusion`` spells it."""
+        return self.entry.name
+
     def set_width(self) -> int:
         """Pairs kept per voxel by the set rules (0 for the dense ones)."""
-        if self.rule == FusionRule.TOPK:
-            return self.k
-        return 1 if self.rule == FusionRule.MAX else 0
+        return self.entry.widths(self, 0)[0]
+
+    def kernel_params(self, num_classes: int) -> np.ndarray:
+        """The settings as the rule kernels read them (``P_*`` indices of ``fusion.topk_bayes``), then the K prior
+        log-odds ``h0`` of the given prior, whichever the rule (float64; zeros without a prior)."""
+        head = [self.lam, self.max_confidence, self.logodds_clamp, self.vote_cap]
+        return np.concatenate([np.array(head, np.float64),
+                               self._mixed_prior_log(max(num_classes, 1)).astype(np.float64)])
+
+    def to_dict(self) -> dict:
+        """The settings as a file header stores them (JSON types)."""
+        return {"rule": self.name, "k": self.k, "lam": self.lam, "max_confidence": self.max_confidence,
+                "logodds_clamp": self.logodds_clamp, "vote_cap": self.vote_cap,
+                "prior_smoothing": self.prior_smoothing,
+                "prior": None if self.prior is None else [float(v) for v in self.prior]}
+
+    @classmethod
+    def from_dict(cls, d: dict) -> FusionParams:
+        """Inverse of :meth:`to_dict` (missing settings take their defaults); ConfigError/TypeError when malformed."""
+        d = dict(d)
+        if d.get("prior") is not None:
+            d["prior"] = np.asarray(d["prior"], np.float64)
+        return cls(**d)
 
     def prior_logodds(self, num_classes: int) -> np.ndarray:
         """(K,) float32 ``h0``: log class priors (``bayes-prior``; zeros = uniform otherwise): the frequencies mixed
         with the uniform distribution by ``prior_smoothing``, floored at :data:`~semmap.fusion.dense.MIN_PROB`."""
+        if self.rule != FusionRule.BAYES_PRIOR:
+            return np.zeros(num_classes, np.float32)
+        return self._mixed_prior_log(num_classes)
+
+    def _mixed_prior_log(self, num_classes: int) -> np.ndarray:
+        """The given prior's ``h0`` whatever the rule (zeros without a prior): what every rule kernel is handed."""
         from semmap.fusion.dense import MIN_PROB
 
-        if self.rule != FusionRule.BAYES_PRIOR or self.prior is None:
+        if self.prior is None:
             return np.zeros(num_classes, np.float32)
         if self.prior.size != num_classes:
             raise ConfigError(f"class prior has {self.prior.size} entries but the label set {num_classes} classes")

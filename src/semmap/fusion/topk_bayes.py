@@ -22,6 +22,10 @@ import numpy as np
 
 from semmap.types import EMPTY_LABEL
 
+#: Indices of the settings in a rule kernel's ``params`` vector (``FusionParams.kernel_params``); the K prior
+#: log-odds start at ``P_PRIOR``.
+P_LAM, P_MAX_CONFIDENCE, P_CLAMP, P_VOTE_CAP, P_PRIOR = 0, 1, 2, 3, 4
+
 EMPTY = int(EMPTY_LABEL)
 #: Default penalty λ: share of "others" given to a label that one set lacks (paper: "close to 1").
 DEFAULT_LAMBDA = 0.9
@@ -29,7 +33,11 @@ DEFAULT_LAMBDA = 0.9
 DEFAULT_MAX_CONFIDENCE = 0.999
 #: Below this total posterior mass the sets are taken as contradictory and the measurement wins.
 MIN_POSTERIOR_MASS = 1e-30
-_MAX_UNION = 16
+#: Largest set size k a map may keep (a set of ``MAX_SET`` pairs fits the paper's inline storage).
+MAX_SET = 8
+#: Width of :func:`fuse_sets`' scratch rows: the union of two sets of at most :data:`MAX_SET` labels.  The one place
+#: this number is written; :func:`semmap.fusion.dispatch.new_scratch` allocates it.
+SCRATCH = 2 * MAX_SET
 
 
 @nb.njit(cache=True, inline="always")
@@ -38,11 +46,6 @@ def _find(labels: np.ndarray, n: int, lab: int) -> int:
         if labels[i] == lab:
             return i
     return -1
-
-
-def new_scratch() -> tuple[np.ndarray, np.ndarray]:
-    """Work arrays for :func:`fuse_sets` (allocate once per thread, reuse for every call)."""
-    return np.empty((3, _MAX_UNION), np.int64), np.empty((3, _MAX_UNION), np.float64)
 
 
 @nb.njit(cache=True)
@@ -55,7 +58,7 @@ def fuse_sets(map_labels: np.ndarray, map_probs: np.ndarray,
 
     All arrays have length k; empty slots hold :data:`EMPTY_LABEL` with probability 0.  ``out_*`` may
     alias ``map_*``.  An empty map set simply takes the measurement.  ``scratch_*`` come from
-    :func:`new_scratch` (no allocation in the hot loop).
+    :func:`semmap.fusion.dispatch.new_scratch` (no allocation in the hot loop).
     """
     k = map_labels.shape[0]
     lab = scratch_i[0]  # union of labels
@@ -170,8 +173,17 @@ def _count_negative(a: np.ndarray, n: int) -> int:
 
 
 @nb.njit(cache=True)
+def topk_fuse(labels: np.ndarray, values: np.ndarray, meas_labels: np.ndarray, meas_probs: np.ndarray,
+              params: np.ndarray) -> bool:
+    """The ``topk`` rule in the dispatcher's form (:data:`semmap.fusion.dispatch.UPDATE_SIG`): Algorithm 1 in place."""
+    si, sf = np.empty((3, SCRATCH), np.int64), np.empty((3, SCRATCH), np.float64)
+    fuse_sets(labels, values, meas_labels, meas_probs, params[P_LAM], params[P_MAX_CONFIDENCE], labels, values, si, sf)
+    return True
+
+
+@nb.njit(cache=True)
 def _fuse_rows(map_labels, map_probs, meas_labels, meas_probs, lam, max_confidence, out_labels, out_probs):
-    si, sf = np.empty((3, _MAX_UNION), np.int64), np.empty((3, _MAX_UNION), np.float64)
+    si, sf = np.empty((3, SCRATCH), np.int64), np.empty((3, SCRATCH), np.float64)
     for r in range(map_labels.shape[0]):
         fuse_sets(map_labels[r], map_probs[r], meas_labels[r], meas_probs[r], lam, max_confidence,
                   out_labels[r], out_probs[r], si, sf)
@@ -194,8 +206,8 @@ def fuse_topk(map_labels: np.ndarray, map_probs: np.ndarray, meas_labels: np.nda
     zp = np.ascontiguousarray(np.atleast_2d(meas_probs), dtype=np.float32)
     if not (ml.shape == mp.shape == zl.shape == zp.shape):
         raise ValueError(f"semantic set shapes differ: {ml.shape} {mp.shape} {zl.shape} {zp.shape}")
-    if ml.shape[1] > _MAX_UNION // 2:
-        raise ValueError(f"top-k fusion supports k <= {_MAX_UNION // 2}, got {ml.shape[1]}")
+    if ml.shape[1] > MAX_SET:
+        raise ValueError(f"top-k fusion supports k <= {MAX_SET}, got {ml.shape[1]}")
     out_l = np.empty_like(ml)
     out_p = np.empty_like(mp)
     _fuse_rows(ml, mp, zl, zp, float(lam), float(max_confidence), out_l, out_p)

@@ -32,7 +32,7 @@ def save_grid(path: str | Path, m) -> int:
     f = g.fusion
     header = {
         "format": FORMAT, "version": VERSION, "kind": m.kind.value, "resolution": g.resolution, "dtype": g.dtype,
-        "fusion": {"rule": f.rule.value, "k": f.k, "lam": f.lam, "max_confidence": f.max_confidence,
+        "fusion": {"rule": f.name, "k": f.k, "lam": f.lam, "max_confidence": f.max_confidence,
                    "logodds_clamp": f.logodds_clamp, "vote_cap": f.vote_cap, "prior_smoothing": f.prior_smoothing,
                    "prior": None if f.prior is None else [float(v) for v in f.prior]},
         "label_set": None if g.label_set is None else g.label_set.to_dict(),

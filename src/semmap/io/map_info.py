@@ -41,4 +41,4 @@ def _describe_semmap(path: Path) -> dict:
         return {"kind": m.kind.value, "resolution": m.resolution, **m.describe(),
                 "classes": None if m.label_set is None else len(m.label_set)}
     return {"kind": "semmap", "resolution": m.resolution, "voxels": m.num_leaves, "occupied": m.num_occupied,
-            "free": m.num_free, "fusion": "topk", "classes": None if m.label_set is None else len(m.label_set)}
+            "free": m.num_free, "fusion": m.fusion.name, "classes": None if m.label_set is None else len(m.label_set)}

@@ -1,8 +1,13 @@
-"""The lossless native map format (``.semmap``): every cell's log-odds, mean colour and full top-k set.
+"""The lossless native map format (``.semmap``): every cell's log-odds, mean colour and full fusion state.
 
 A zip of numpy arrays (``numpy.savez_compressed``) plus a JSON header: format version, resolution, the
 occupancy and fusion parameters and the label set.  ``save -> load`` gives back a map whose cells are
 bit-identical.  Zip CRCs catch corruption; anything missing or malformed raises :class:`FormatError`.
+
+The header's ``semantics`` names the fusion rule (``rule``, with all of ``FusionParams``' settings); a ``topk``
+map writes only ``k``, ``lam`` and ``max_confidence`` there, as every file did before the OctoMap took other
+rules, and a header without ``rule`` reads as ``topk``.  ``sem_labels`` / ``sem_probs`` hold the rule's state:
+(rows, k) pairs for ``topk``, (rows, 1) for ``max``, (rows, 0) labels and (rows, K) values for the full-K rules.
 """
 
 from __future__ import annotations
@@ -14,20 +19,29 @@ import numpy as np
 
 from semmap.errors import FormatError, SemmapError
 from semmap.files.atomic import write_atomic
-from semmap.maps.semantic_octomap import CellArrays, OccupancyParams, SemanticOctoMap, SemanticParams
+from semmap.fusion.rules import FusionParams, FusionRule
+from semmap.maps.semantic_octomap import CellArrays, OccupancyParams, SemanticOctoMap
 from semmap.types import LabelSet
 
 FORMAT = "semmap-map"
 VERSION = 1
-_ARRAYS = {  # name -> (dtype, trailing shape: "k" = semantic set size)
+_ARRAYS = {  # name -> (dtype, trailing shape: "S" / "W" = the fusion state's labels / values per row)
     "packed": (np.int64, ()),
     "logodds": (np.float32, ()),
     "attr": (np.int32, ()),
     "rgb": (np.uint8, (3,)),
     "rgb_count": (np.uint16, ()),
-    "sem_labels": (np.uint16, ("k",)),
-    "sem_probs": (np.float32, ("k",)),
+    "sem_labels": (np.uint16, ("S",)),
+    "sem_probs": (np.float32, ("W",)),
 }
+_TOPK_KEYS = ("k", "lam", "max_confidence")
+
+
+def _semantics_header(f: FusionParams) -> dict:
+    """The header's fusion settings: the version-1 ``topk`` form, or every setting with the rule's name."""
+    if f.rule == FusionRule.TOPK:
+        return {key: getattr(f, key) for key in _TOPK_KEYS}
+    return f.to_dict()
 
 
 def save_map(path: str | Path, m: SemanticOctoMap) -> int:
@@ -39,7 +53,7 @@ def save_map(path: str | Path, m: SemanticOctoMap) -> int:
         "resolution": m.resolution,
         "max_range": m.max_range,
         "occupancy": vars(m.occupancy),
-        "semantics": vars(m.semantics),
+        "semantics": _semantics_header(m.fusion),
         "label_set": None if m.label_set is None else m.label_set.to_dict(),
     }
     arrays = {name: getattr(c, name) for name in _ARRAYS}
@@ -71,11 +85,18 @@ def load_map(path: str | Path) -> SemanticOctoMap:
     raw = arrays.pop("header")
     if raw.dtype != np.uint8 or raw.ndim != 1 or raw.size > MAX_HEADER_BYTES:
         raise FormatError(f"{path}: header must be a 1-D uint8 array of JSON of at most {MAX_HEADER_BYTES:,} bytes")
-    resolution, max_range, occupancy, semantics, label_set = _parse_header(path, raw.tobytes())
-    _check_arrays(path, arrays, semantics.k)
+    resolution, max_range, occupancy, fusion, label_set = _parse_header(path, raw.tobytes())
+    try:
+        widths = fusion.entry.widths(fusion, 0 if label_set is None else len(label_set))
+    except SemmapError as exc:
+        raise FormatError(f"{path}: malformed header ({exc})") from None
+    _check_arrays(path, arrays, widths, dense=fusion.entry.dense)
     cells = CellArrays(**arrays)
-    return SemanticOctoMap.from_cells(resolution, cells, occupancy=occupancy, semantics=semantics,
-                                      label_set=label_set, max_range=max_range)
+    try:
+        return SemanticOctoMap.from_cells(resolution, cells, occupancy=occupancy, fusion=fusion, label_set=label_set,
+                                          max_range=max_range)
+    except SemmapError as exc:
+        raise FormatError(f"{path}: malformed header ({exc})") from None
 
 
 def _number(header: dict, key: str, path: Path) -> float:
@@ -106,35 +127,48 @@ def _parse_header(path: Path, raw: bytes):
         section = header.get(key)
         if not isinstance(section, dict) or not all(isinstance(k, str) for k in section):
             raise FormatError(f"{path}: header field {key!r} must be a JSON object, got {section!r:.60}")
-        parts[key] = {k: _number(section, k, path) for k in section}
+        parts[key] = {k: _number(section, k, path) for k in section if k not in ("rule", "prior")}
     semantics = dict(parts["semantics"])
     if "k" in semantics:
         if semantics["k"] != int(semantics["k"]):
             raise FormatError(f"{path}: semantic set size k must be a whole number, got {semantics['k']}")
         semantics["k"] = int(semantics["k"])
+    section = header["semantics"]
+    semantics["rule"] = section.get("rule", FusionRule.TOPK.value)
+    if not isinstance(semantics["rule"], str):
+        raise FormatError(f"{path}: header field 'rule' must be a fusion rule's name, got {semantics['rule']!r:.60}")
+    prior = section.get("prior")
+    if prior is not None:
+        if not isinstance(prior, list) or not all(isinstance(v, int | float) and not isinstance(v, bool)
+                                                  for v in prior):
+            raise FormatError(f"{path}: header field 'prior' must be a list of numbers or null")
+        semantics["prior"] = np.array(prior, np.float64)
     label_set = header.get("label_set")
     if label_set is not None and not isinstance(label_set, dict):
         raise FormatError(f"{path}: header field 'label_set' must be a JSON object or null")
     try:
-        return (resolution, max_range, OccupancyParams(**parts["occupancy"]), SemanticParams(**semantics),
+        return (resolution, max_range, OccupancyParams(**parts["occupancy"]), FusionParams(**semantics),
                 None if label_set is None else LabelSet.from_dict(label_set))
     except (TypeError, SemmapError) as exc:
         raise FormatError(f"{path}: malformed header ({exc})") from None
 
 
-def _check_arrays(path: Path, arrays: dict[str, np.ndarray], k: int) -> None:
+def _check_arrays(path: Path, arrays: dict[str, np.ndarray], widths: tuple[int, int], *, dense: bool) -> None:
     n_cells = arrays["packed"].shape[0]
     n_rows = arrays["rgb_count"].shape[0]
+    size = {"S": widths[0], "W": widths[1]}
     for name, (dtype, tail) in _ARRAYS.items():
         a = arrays[name]
         rows = n_cells if name in ("packed", "logodds", "attr") else n_rows
-        shape = (rows, *(k if t == "k" else t for t in tail))
+        shape = (rows, *(size.get(t, t) for t in tail))
         if a.dtype != dtype or a.shape != shape:
             raise FormatError(f"{path}: array {name!r} is {a.dtype}{a.shape}, expected {np.dtype(dtype)}{shape}")
     if not np.isfinite(arrays["logodds"]).all():
         raise FormatError(f"{path}: cells with non-finite (NaN or infinite) log-odds")
     probs = arrays["sem_probs"]
-    if probs.size and not (np.isfinite(probs).all() and probs.min() >= 0 and probs.max() <= 1):
+    if probs.size and not np.isfinite(probs).all():
+        raise FormatError(f"{path}: non-finite class evidence")
+    if probs.size and not dense and not (probs.min() >= 0 and probs.max() <= 1):
         raise FormatError(f"{path}: class probabilities outside [0, 1]")
     attr = arrays["attr"]
     if attr.size and (attr.min() < -1 or attr.max() >= n_rows):

@@ -20,18 +20,9 @@ import math
 import numba as nb
 import numpy as np
 
-from semmap.fusion.dense import (
-    bayes_add,
-    dense_top,
-    normalise_logodds,
-    normalise_votes,
-    subtract_prior,
-    vote_add,
-)
+from semmap.fusion.dense import dense_top
+from semmap.fusion.dispatch import GENERIC, LAYOUT_SET, finish_voxel, fuse_measurement, new_scratch
 from semmap.fusion.half import float_to_half, half_to_float
-from semmap.fusion.max_rule import max_update
-from semmap.fusion.rules import BAYES_CODE, BAYES_PRIOR_CODE, MAX_CODE, TOPK_CODE, VOTE_CODE
-from semmap.fusion.topk_bayes import fuse_sets
 from semmap.maps._hashtable import N_SHARDS, find_or_insert, key_hash, shard_of
 from semmap.maps._keys import KEY_LIMIT, coord_to_key, pack_key
 
@@ -191,117 +182,119 @@ def fuse_points(attr: np.ndarray, logodds: np.ndarray, sorted_pts: np.ndarray, o
                 dense_f32: np.ndarray, dense_u16: np.ndarray, set_labels: np.ndarray,
                 set_f32: np.ndarray, set_u16: np.ndarray, half: bool,
                 positions: np.ndarray, normal_sums: np.ndarray, keep_geometry: bool,
-                rule: int, prior_log: np.ndarray, clamp: float, vote_cap: float, lam: float,
-                max_confidence: float, hit_log: np.float32, clamp_max: np.float32) -> None:
+                code: int, layout: int, update, finish, params: np.ndarray,
+                hit_log: np.float32, clamp_max: np.float32) -> None:
     """Fuse every point into its voxel (see the module docstring); a shard's voxels are one thread's.
 
     New voxels (row -2) get rows ``first_row[s], first_row[s] + 1, ...`` in key order.  The per-voxel state is
-    ``dense_*`` (rows, K) for bayes / bayes-prior / vote, or ``set_labels`` + ``set_*`` (rows, S) for topk / max;
-    ``half`` selects the float16-bits arrays over the float32 ones (the other may be empty).  Log-odds and votes
-    are normalised once per voxel per frame, after all its points.
+    ``dense_*`` (rows, K) for the dense layouts, or ``set_labels`` + ``set_*`` (rows, S) for a set rule;
+    ``half`` selects the float16-bits arrays over the float32 ones (the other may be empty).  Each point's class
+    set goes through the fusion dispatcher (``code``, ``update``, ``finish``, ``params``: the rule's entry and
+    settings), which normalises once per voxel per frame, after all its points.
     """
     K = dense_f32.shape[1] if not half else dense_u16.shape[1]
     S = set_labels.shape[1]
-    dense = rule in (BAYES_CODE, BAYES_PRIOR_CODE, VOTE_CODE)
+    dense = layout != LAYOUT_SET
+    W = K if dense else S
     for sh in nb.prange(N_SHARDS):
-        lo, hi = offsets[sh], offsets[sh + 1]
-        if hi <= lo:
-            continue
-        next_row = first_row[sh]
-        scratch = np.empty(max(K, 1), np.float32)
-        set_l = np.empty(max(S, 1), np.uint16)
-        set_p = np.empty(max(S, 1), np.float32)
-        si = np.empty((3, 16), np.int64)
-        sf = np.empty((3, 16), np.float64)
-        j = lo
-        while j < hi:
-            key = sorted_keys[j]
-            e = j + 1
-            while e < hi and sorted_keys[e] == key:
-                e += 1
-            m = e - j
-            s0 = run_slot[j]
-            if attr[s0] == -2:
-                attr[s0] = next_row
-                next_row += 1
-            a = attr[s0]
-            # occupancy and hits: one hit per voxel per frame (OctoMap's discretised insertion)
-            v = logodds[s0] + hit_log
-            logodds[s0] = clamp_max if v > clamp_max else v
-            if hits[a] < _COUNT_MAX:
-                hits[a] += 1
-            if dense and has_semantics:
-                _load(dense_f32, dense_u16, half, a, scratch)
-            elif has_semantics:
-                for c in range(S):
-                    set_l[c] = set_labels[a, c]
-                    set_p[c] = half_to_float(set_u16[a, c]) if half else set_f32[a, c]
-            cr = cg = cb = 0.0
-            px = py = pz = 0.0
-            nx = ny = nz = 0.0
-            n_sem = 0
-            for t in range(j, e):  # one pass over the voxel's points
-                p = sorted_pts[t]
-                if has_colors:
-                    cr += np.float64(colors[p, 0])
-                    cg += np.float64(colors[p, 1])
-                    cb += np.float64(colors[p, 2])
-                if keep_geometry:
-                    px += np.float64(points[p, 0])
-                    py += np.float64(points[p, 1])
-                    pz += np.float64(points[p, 2])
-                    if has_normals:
-                        nx += np.float64(normals[p, 0])
-                        ny += np.float64(normals[p, 1])
-                        nz += np.float64(normals[p, 2])
-                if has_semantics:
-                    if rule == VOTE_CODE:
-                        if vote_add(scratch, sem_labels[p]):
-                            n_sem += 1
-                    elif dense:
-                        if bayes_add(scratch, sem_labels[p], sem_probs[p]):
-                            n_sem += 1
-                    elif rule == TOPK_CODE:
-                        fuse_sets(set_l, set_p, sem_labels[p], sem_probs[p], lam, max_confidence, set_l, set_p,
-                                  si, sf)
-                    elif rule == MAX_CODE:
-                        lab, conf = max_update(set_l[0], set_p[0], sem_labels[p, 0], sem_probs[p, 0], max_confidence)
-                        set_l[0] = lab
-                        set_p[0] = conf
-            if has_colors:  # running mean over every point's colour (a moving average once the count saturates)
-                n_old = np.int64(rgb_count[a])
-                w = np.float64(m) / (n_old + m) if n_old + m <= _COUNT_MAX else np.float64(m) / _COUNT_MAX
-                _blend(rgb, a, 0, cr / m, w)
-                _blend(rgb, a, 1, cg / m, w)
-                _blend(rgb, a, 2, cb / m, w)
-                rgb_count[a] = min(n_old + m, _COUNT_MAX)
-            if keep_geometry:  # point map: running mean of the frames' mean points, summed normals
-                n_prev = np.float64(min(hits[a], _COUNT_MAX - 1) - 1)
-                positions[a, 0] = np.float32((positions[a, 0] * n_prev + px / m) / (n_prev + 1.0))
-                positions[a, 1] = np.float32((positions[a, 1] * n_prev + py / m) / (n_prev + 1.0))
-                positions[a, 2] = np.float32((positions[a, 2] * n_prev + pz / m) / (n_prev + 1.0))
+        if code == GENERIC:  # the rule's test hoisted out of the loops (see fusion.dispatch.fuse_measurement)
+            _fuse_shard(sh, True, attr, logodds, sorted_pts, offsets, run_slot, sorted_keys, first_row, points,
+                        colors, has_colors, sem_labels, sem_probs, has_semantics, normals, has_normals, rgb,
+                        rgb_count, hits, dense_f32, dense_u16, set_labels, set_f32, set_u16, half, positions,
+                        normal_sums, keep_geometry, code, update, finish, params, hit_log, clamp_max, S, W, dense)
+        else:
+            _fuse_shard(sh, False, attr, logodds, sorted_pts, offsets, run_slot, sorted_keys, first_row, points,
+                        colors, has_colors, sem_labels, sem_probs, has_semantics, normals, has_normals, rgb,
+                        rgb_count, hits, dense_f32, dense_u16, set_labels, set_f32, set_u16, half, positions,
+                        normal_sums, keep_geometry, code, update, finish, params, hit_log, clamp_max, S, W, dense)
+
+
+@nb.njit(cache=True, inline="always")
+def _fuse_shard(sh: int, generic: bool, attr, logodds, sorted_pts, offsets, run_slot, sorted_keys, first_row, points,
+                colors, has_colors, sem_labels, sem_probs, has_semantics, normals, has_normals, rgb, rgb_count, hits,
+                dense_f32, dense_u16, set_labels, set_f32, set_u16, half, positions, normal_sums, keep_geometry, code,
+                update, finish, params, hit_log, clamp_max, S, W, dense) -> None:
+    """One shard of :func:`fuse_points` (``generic``: the rule has no fast path in the dispatcher)."""
+    lo, hi = offsets[sh], offsets[sh + 1]
+    if hi <= lo:
+        return
+    next_row = first_row[sh]
+    w_lab = np.empty(S, np.uint16)  # the voxel's state in working form
+    w_val = np.empty(W, np.float32)
+    si, sf = new_scratch()
+    j = lo
+    while j < hi:
+        key = sorted_keys[j]
+        e = j + 1
+        while e < hi and sorted_keys[e] == key:
+            e += 1
+        m = e - j
+        s0 = run_slot[j]
+        if attr[s0] == -2:
+            attr[s0] = next_row
+            next_row += 1
+        a = attr[s0]
+        # occupancy and hits: one hit per voxel per frame (OctoMap's discretised insertion)
+        v = logodds[s0] + hit_log
+        logodds[s0] = clamp_max if v > clamp_max else v
+        if hits[a] < _COUNT_MAX:
+            hits[a] += 1
+        if dense and has_semantics:
+            _load(dense_f32, dense_u16, half, a, w_val)
+        elif has_semantics:
+            for c in range(S):
+                w_lab[c] = set_labels[a, c]
+                w_val[c] = half_to_float(set_u16[a, c]) if half else set_f32[a, c]
+        cr = cg = cb = 0.0
+        px = py = pz = 0.0
+        nx = ny = nz = 0.0
+        n_sem = 0
+        for t in range(j, e):  # one pass over the voxel's points
+            p = sorted_pts[t]
+            if has_colors:
+                cr += np.float64(colors[p, 0])
+                cg += np.float64(colors[p, 1])
+                cb += np.float64(colors[p, 2])
+            if keep_geometry:
+                px += np.float64(points[p, 0])
+                py += np.float64(points[p, 1])
+                pz += np.float64(points[p, 2])
                 if has_normals:
-                    normal_sums[a, 0] += np.float32(nx)
-                    normal_sums[a, 1] += np.float32(ny)
-                    normal_sums[a, 2] += np.float32(nz)
-            if has_semantics:
-                if dense:
-                    if n_sem > 0:
-                        if rule == VOTE_CODE:
-                            normalise_votes(scratch, vote_cap)
-                        else:
-                            if rule == BAYES_PRIOR_CODE:
-                                subtract_prior(scratch, prior_log, np.float64(n_sem))
-                            normalise_logodds(scratch, clamp)
-                        _store(dense_f32, dense_u16, half, a, scratch)
-                else:
-                    for c in range(S):
-                        set_labels[a, c] = set_l[c]
-                        if half:
-                            set_u16[a, c] = float_to_half(set_p[c])
-                        else:
-                            set_f32[a, c] = set_p[c]
-            j = e
+                    nx += np.float64(normals[p, 0])
+                    ny += np.float64(normals[p, 1])
+                    nz += np.float64(normals[p, 2])
+            if has_semantics and fuse_measurement(generic, code, update, w_lab, w_val, sem_labels[p], sem_probs[p],
+                                                  params, si, sf):
+                n_sem += 1
+        if has_colors:  # running mean over every point's colour (a moving average once the count saturates)
+            n_old = np.int64(rgb_count[a])
+            w = np.float64(m) / (n_old + m) if n_old + m <= _COUNT_MAX else np.float64(m) / _COUNT_MAX
+            _blend(rgb, a, 0, cr / m, w)
+            _blend(rgb, a, 1, cg / m, w)
+            _blend(rgb, a, 2, cb / m, w)
+            rgb_count[a] = min(n_old + m, _COUNT_MAX)
+        if keep_geometry:  # point map: running mean of the frames' mean points, summed normals
+            n_prev = np.float64(min(hits[a], _COUNT_MAX - 1) - 1)
+            positions[a, 0] = np.float32((positions[a, 0] * n_prev + px / m) / (n_prev + 1.0))
+            positions[a, 1] = np.float32((positions[a, 1] * n_prev + py / m) / (n_prev + 1.0))
+            positions[a, 2] = np.float32((positions[a, 2] * n_prev + pz / m) / (n_prev + 1.0))
+            if has_normals:
+                normal_sums[a, 0] += np.float32(nx)
+                normal_sums[a, 1] += np.float32(ny)
+                normal_sums[a, 2] += np.float32(nz)
+        if has_semantics:
+            finish_voxel(generic, code, finish, w_lab, w_val, n_sem, params)
+            if dense:
+                if n_sem > 0:
+                    _store(dense_f32, dense_u16, half, a, w_val)
+            else:
+                for c in range(S):
+                    set_labels[a, c] = w_lab[c]
+                    if half:
+                        set_u16[a, c] = float_to_half(w_val[c])
+                    else:
+                        set_f32[a, c] = w_val[c]
+        j = e
 
 
 @nb.njit(cache=True, parallel=True)

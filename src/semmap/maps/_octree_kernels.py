@@ -12,7 +12,7 @@ One scan is inserted as OctoMap's ``insertPointCloud(discretize=True)`` does it,
 4. ``collect_free``: free cells gathered in grid order, 8 bytes of grid at a time; the grid is reset on the way;
 5. ``update_cells`` (misses, then hits), ``assign_rows`` and ``update_attributes``: log-odds updates with the
    cells split by shard between threads (disjoint shards need no atomics), attribute rows of first hits in cell
-   order, then colour running means and top-k Bayesian fusion per row.
+   order, then colour running means and label fusion per row (the fusion dispatcher, ``fusion/dispatch.py``).
 
 Passes with enough work run on every thread, passes with little on one (``*_PARALLEL_MIN``).  The table and
 attribute passes prefetch the cache lines of the item ``PREFETCH_AHEAD`` places ahead: the table is far bigger
@@ -27,7 +27,7 @@ import math
 import numba as nb
 import numpy as np
 
-from semmap.fusion.topk_bayes import fuse_sets
+from semmap.fusion.dispatch import GENERIC, TOPK_CODE, finish_voxel, fuse_measurement, new_scratch
 from semmap.maps._hashtable import find_or_insert, find_slot, prefetch_home, shard_of
 from semmap.maps._keys import KEY_LIMIT, coord_to_key, key_to_coord, pack_key, trace_ray
 from semmap.maps._prefetch import prefetch
@@ -40,8 +40,6 @@ CELLS_PARALLEL_MIN = 8192
 ROWS_PARALLEL_MIN = 2048
 #: Cells ahead whose table lines a table pass prefetches (measured: 9.5 -> 6.0 ms for 340k cells at 2 cm).
 PREFETCH_AHEAD = 32
-#: Scratch width of ``fuse_sets`` (the union of two sets of at most 8 labels).
-_FUSE_SCRATCH = 16
 
 
 @nb.njit(cache=True, parallel=True, nogil=True)
@@ -300,10 +298,26 @@ def assign_rows(attr: np.ndarray, slots: np.ndarray, hit: np.ndarray, n_attr: in
 
 @nb.njit(cache=True, inline="always")
 def _attribute_chunk(rows, point_index, lo: int, hi: int, colors, has_colors: bool, sem_labels, sem_probs,
-                     has_semantics: bool, rgb, rgb_count, map_labels, map_probs, lam, max_confidence) -> None:
-    si = np.empty((3, _FUSE_SCRATCH), np.int64)
-    sf = np.empty((3, _FUSE_SCRATCH), np.float64)
-    k = map_labels.shape[1]
+                     has_semantics: bool, rgb, rgb_count, map_labels, map_probs, code, update, finish, params) -> None:
+    if code == TOPK_CODE:  # the rule's test hoisted out of the loop (see fusion.dispatch.fuse_measurement)
+        _attribute_rows(rows, point_index, lo, hi, colors, has_colors, sem_labels, sem_probs, has_semantics, rgb,
+                        rgb_count, map_labels, map_probs, False, TOPK_CODE, update, finish, params)
+    elif code == GENERIC:
+        _attribute_rows(rows, point_index, lo, hi, colors, has_colors, sem_labels, sem_probs, has_semantics, rgb,
+                        rgb_count, map_labels, map_probs, True, code, update, finish, params)
+    else:
+        _attribute_rows(rows, point_index, lo, hi, colors, has_colors, sem_labels, sem_probs, has_semantics, rgb,
+                        rgb_count, map_labels, map_probs, False, code, update, finish, params)
+
+
+@nb.njit(cache=True, inline="always")
+def _attribute_rows(rows, point_index, lo: int, hi: int, colors, has_colors: bool, sem_labels, sem_probs,
+                    has_semantics: bool, rgb, rgb_count, map_labels, map_probs, generic: bool, code, update, finish,
+                    params) -> None:
+    si, sf = new_scratch()
+    s = map_labels.shape[1]
+    w = map_probs.shape[1]
+    k = sem_labels.shape[1]
     for j in range(lo, hi):
         if j + PREFETCH_AHEAD < hi:  # rows and points are scattered: start their misses early
             ahead = rows[j + PREFETCH_AHEAD]
@@ -313,8 +327,8 @@ def _attribute_chunk(rows, point_index, lo: int, hi: int, colors, has_colors: bo
                     prefetch(rgb, ahead * 3)
                     prefetch(colors, pa * 3)
                 if has_semantics:
-                    prefetch(map_labels, ahead * k)
-                    prefetch(map_probs, ahead * k)
+                    prefetch(map_labels, ahead * s)
+                    prefetch(map_probs, ahead * w)
                     prefetch(sem_labels, pa * k)
                     prefetch(sem_probs, pa * k)
         a = rows[j]
@@ -329,36 +343,38 @@ def _attribute_chunk(rows, point_index, lo: int, hi: int, colors, has_colors: bo
             for ch in range(3):
                 mean = np.float64(rgb[a, ch])
                 rgb[a, ch] = np.uint8(np.int64(mean + (np.float64(colors[p, ch]) - mean) / n + 0.5))
-        if has_semantics:
-            fuse_sets(map_labels[a], map_probs[a], sem_labels[p], sem_probs[p], lam, max_confidence,
-                      map_labels[a], map_probs[a], si, sf)
+        # one measurement per cell and scan (the voxel filter's first point)
+        if has_semantics and fuse_measurement(generic, code, update, map_labels[a], map_probs[a], sem_labels[p],
+                                              sem_probs[p], params, si, sf):
+            finish_voxel(generic, code, finish, map_labels[a], map_probs[a], 1, params)
 
 
 @nb.njit(cache=True, parallel=True, nogil=True)
 def _attributes_parallel(rows, point_index, colors, has_colors, sem_labels, sem_probs, has_semantics,
-                         rgb, rgb_count, map_labels, map_probs, lam, max_confidence, n_chunks) -> None:
+                         rgb, rgb_count, map_labels, map_probs, code, update, finish, params, n_chunks) -> None:
     m = rows.shape[0]
     chunk = (m + n_chunks - 1) // n_chunks
     for c in nb.prange(n_chunks):
         _attribute_chunk(rows, point_index, c * chunk, min(m, (c + 1) * chunk), colors, has_colors, sem_labels,
-                         sem_probs, has_semantics, rgb, rgb_count, map_labels, map_probs, lam, max_confidence)
+                         sem_probs, has_semantics, rgb, rgb_count, map_labels, map_probs, code, update, finish,
+                         params)
 
 
 @nb.njit(cache=True, nogil=True)
 def _attributes_serial(rows, point_index, colors, has_colors, sem_labels, sem_probs, has_semantics,
-                       rgb, rgb_count, map_labels, map_probs, lam, max_confidence) -> None:
+                       rgb, rgb_count, map_labels, map_probs, code, update, finish, params) -> None:
     _attribute_chunk(rows, point_index, 0, rows.shape[0], colors, has_colors, sem_labels, sem_probs,
-                     has_semantics, rgb, rgb_count, map_labels, map_probs, lam, max_confidence)
+                     has_semantics, rgb, rgb_count, map_labels, map_probs, code, update, finish, params)
 
 
 def update_attributes(rows: np.ndarray, point_index: np.ndarray, colors: np.ndarray, has_colors: bool,
                       sem_labels: np.ndarray, sem_probs: np.ndarray, has_semantics: bool,
                       rgb: np.ndarray, rgb_count: np.ndarray, map_labels: np.ndarray, map_probs: np.ndarray,
-                      lam: float, max_confidence: float, n_threads: int) -> None:
-    """Colour running means and top-k Bayesian label fusion of attribute rows ``rows`` (-1 = skip; each row at
-    most once) from the points ``point_index``."""
+                      code: int, update, finish, params: np.ndarray, n_threads: int) -> None:
+    """Colour running means and label fusion (the fusion dispatcher with the rule's ``code``, kernels and
+    ``params``) of attribute rows ``rows`` (-1 = skip; each row at most once) from the points ``point_index``."""
     args = (rows, point_index, colors, has_colors, sem_labels, sem_probs, has_semantics, rgb, rgb_count,
-            map_labels, map_probs, lam, max_confidence)
+            map_labels, map_probs, code, update, finish, params)
     if n_threads > 1 and rows.shape[0] >= ROWS_PARALLEL_MIN:
         _attributes_parallel(*args, n_threads)
     else:
@@ -377,7 +393,7 @@ def max_class_id(labels: np.ndarray, empty: int) -> int:
     return best
 
 
-def compile_parallel_variants() -> None:
+def compile_parallel_variants(code: int, update, finish, params: np.ndarray) -> None:
     """Compile (or load) the many-item variants of the ray and attribute passes on a tiny input, which the
     small warm-up scans of ``compile_kernels`` would not reach."""
     grid = np.zeros(64, np.uint8)
@@ -392,4 +408,5 @@ def compile_parallel_variants() -> None:
     labels = np.zeros((1, 3), np.uint16)
     probs = np.zeros((1, 3), np.float32)
     _attributes_parallel(rows, rows, np.zeros((1, 3), np.uint8), True, labels, probs, True,
-                         np.zeros((1, 3), np.uint8), np.zeros(1, np.uint16), labels.copy(), probs.copy(), 0.9, 0.999, 2)
+                         np.zeros((1, 3), np.uint8), np.zeros(1, np.uint16), labels.copy(), probs.copy(), code, update,
+                         finish, params, 2)

@@ -75,7 +75,7 @@ class SemanticPointMap:
     def describe(self) -> dict:
         mem = self.grid.memory_bytes
         n = self.grid.num_voxels
-        return {"points": n, "keyframes_integrated": self.frames_integrated, "fusion": self.fusion.rule.value,
+        return {"points": n, "keyframes_integrated": self.frames_integrated, "fusion": self.fusion.name,
                 "state_dtype": self.grid.dtype, "bytes_in_memory": mem,
                 "bytes_per_voxel_in_memory": round(mem / max(n, 1), 2)}
 
@@ -84,5 +84,5 @@ class SemanticPointMap:
         return self.grid.memory_bytes
 
     def __repr__(self) -> str:
-        return (f"SemanticPointMap(resolution={self.resolution}, fusion={self.fusion.rule.value}, "
+        return (f"SemanticPointMap(resolution={self.resolution}, fusion={self.fusion.name}, "
                 f"points={self.grid.num_voxels})")

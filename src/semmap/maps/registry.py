@@ -18,8 +18,8 @@ from semmap.types import LabelSet, MapKind
 #: Each map's own rule (its paper's) when ``--fusion`` is not given.
 DEFAULT_FUSION = {MapKind.OCTOMAP: FusionRule.TOPK, MapKind.VOXELGRID: FusionRule.BAYES,
                   MapKind.POINTS: FusionRule.BAYES_PRIOR}
-#: Rules each map can fuse with (the OctoMap's voxels keep top-k sets).
-SUPPORTED_FUSION = {MapKind.OCTOMAP: (FusionRule.TOPK,), MapKind.VOXELGRID: tuple(FusionRule),
+#: Rules each map can fuse with.
+SUPPORTED_FUSION = {MapKind.OCTOMAP: tuple(FusionRule), MapKind.VOXELGRID: tuple(FusionRule),
                     MapKind.POINTS: tuple(FusionRule)}
 
 
@@ -60,17 +60,16 @@ def read_class_prior(path: Path, label_set: LabelSet) -> np.ndarray:
 
 def get_map(kind: MapKind, config: RunConfig, label_set: LabelSet | None) -> SemanticMap:
     """An empty map of ``kind`` with the run's resolution, sensor model, fusion settings and label set."""
-    m, s = config.mapping, config.semantics
+    m = config.mapping
     fusion = get_fusion(kind, config, label_set)
     from semmap.maps.semantic_octomap import OccupancyParams
 
     occupancy = OccupancyParams(m.prob_hit, m.prob_miss, m.clamp_min, m.clamp_max)
     if kind == MapKind.OCTOMAP:
-        from semmap.maps.semantic_octomap import SemanticOctoMap, SemanticParams
+        from semmap.maps.semantic_octomap import SemanticOctoMap
 
         return SemanticOctoMap(m.resolution, label_set=label_set, max_range=m.max_range, occupancy=occupancy,
-                               semantics=SemanticParams(s.k, s.lam, s.max_confidence),
-                               color_mode=config.output.color_mode.value)
+                               fusion=fusion, color_mode=config.output.color_mode.value)
     if kind == MapKind.VOXELGRID:
         from semmap.maps.voxel_grid import SemanticVoxelGrid
 

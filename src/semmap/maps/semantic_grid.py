@@ -16,7 +16,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from semmap.errors import ConfigError
-from semmap.fusion.dense import expand_topk, logodds_to_probs, votes_to_probs
+from semmap.fusion.dense import expand_topk
 from semmap.fusion.half import from_half_bits, to_half_bits
 from semmap.fusion.rules import FusionParams, FusionRule
 from semmap.keys import keys_to_coords, unpack_keys
@@ -71,7 +71,8 @@ class SemanticGrid:
         self.dtype = dtype
         self.keep_geometry = keep_geometry
         self.num_classes = len(label_set) if label_set is not None else 0
-        self._prior_log = self.fusion.prior_logodds(max(self.num_classes, 1))
+        self._entry = self.fusion.entry
+        self._params = self.fusion.kernel_params(self.num_classes)
         self._table = ShardedTable()
         self._rows = 0
         self._alloc_rows(_INITIAL_ROWS)
@@ -86,7 +87,8 @@ class SemanticGrid:
         """(K numbers, S pairs) per voxel for the fusion rule."""
         if self.num_classes == 0:
             return 0, 0
-        return (self.num_classes, 0) if self.fusion.rule.dense else (0, self.fusion.set_width())
+        s, w = self._entry.widths(self.fusion, self.num_classes)
+        return (w, 0) if self._entry.dense else (0, s)
 
     def _alloc_rows(self, n: int) -> None:
         K, S = self._widths()
@@ -141,7 +143,8 @@ class SemanticGrid:
         first_row = self._rows + np.concatenate([[0], np.cumsum(new_rows)[:-1]])
         self._ensure_rows(self._rows + int(new_rows.sum()))
         t2 = time.perf_counter()
-        f = self.fusion
+        e = self._entry
+        update, finish = e.kernels()
         t = self._table
         kern.fuse_points(t.attr, t.logodds, sorted_pts, offsets, run_slot, sorted_keys, first_row, pts,
                          col if col is not None else np.zeros((1, 3), np.uint8), col is not None,
@@ -154,8 +157,7 @@ class SemanticGrid:
                          self._set_probs if not self._half else np.zeros((1, self._set_probs.shape[1]), np.float32),
                          self._set_probs if self._half else np.zeros((1, self._set_probs.shape[1]), np.uint16),
                          self._half, self._positions, self._normal_sums, self.keep_geometry,
-                         f.rule.code, self._prior_log, float(f.logodds_clamp), float(f.vote_cap), float(f.lam),
-                         float(f.max_confidence), HIT_LOGODDS, CLAMP_MAX_LOGODDS)
+                         e.code, e.layout_code, update, finish, self._params, HIT_LOGODDS, CLAMP_MAX_LOGODDS)
         self._rows += int(new_rows.sum())
         t.settle()  # grow after the frame if a shard is past the normal load
         t3 = time.perf_counter()
@@ -193,7 +195,7 @@ class SemanticGrid:
             nrm = np.ascontiguousarray(normals, dtype=np.float32)
             if nrm.shape != (n, 3):
                 raise ConfigError(f"normals must be ({n}, 3), got {nrm.shape}")
-        k = max(self.fusion.k if self.fusion.rule == FusionRule.TOPK else 1, 1)
+        k = max(self.fusion.k if self._entry.sets_of_k else 1, 1)
         sem_l = np.zeros((0, k), np.uint16)
         sem_p = np.zeros((0, k), np.float32)
         if semantics is not None and self.num_classes > 0:
@@ -201,9 +203,11 @@ class SemanticGrid:
             sem_p = np.ascontiguousarray(semantics.probs, dtype=np.float32)
             if sem_l.ndim != 2 or sem_l.shape[0] != n:
                 raise ConfigError(f"class sets must be ({n}, k), got {sem_l.shape}")
-            if self.fusion.rule == FusionRule.TOPK and sem_l.shape[1] != self.fusion.k:
-                raise ConfigError(f"topk fusion with k = {self.fusion.k} needs class sets of {self.fusion.k}, "
-                                  f"got {sem_l.shape[1]}")
+            if self._entry.sets_of_k and sem_l.shape[1] != self.fusion.k:
+                raise ConfigError(f"{self._entry.name} fusion with k = {self.fusion.k} needs class sets of "
+                                  f"{self.fusion.k}, got {sem_l.shape[1]}")
+            if sem_l.shape[1] == 0:
+                raise ConfigError("class sets must hold at least one (label, probability) pair")
             bad = (sem_l != EMPTY_LABEL) & (sem_l >= self.num_classes)
             if bad.any():
                 raise ConfigError(f"class id {int(sem_l[bad].max())} is outside the map's label set "
@@ -243,12 +247,12 @@ class SemanticGrid:
         ent = np.zeros(m, np.float32)
         if self.num_classes == 0 or m == 0:
             return labels, conf, ent
-        if self.fusion.rule.dense:
+        if self._entry.dense:
             rows = np.arange(m, dtype=np.int64)
             dense = np.ascontiguousarray(a.dense)
             f32 = dense if not self._half else np.zeros((1, dense.shape[1]), np.float32)
             u16 = dense if self._half else np.zeros((1, dense.shape[1]), np.uint16)
-            kern.dense_summary(f32, u16, self._half, rows, self.fusion.rule != FusionRule.VOTE, labels, conf, ent)
+            kern.dense_summary(f32, u16, self._half, rows, self._entry.layout == "logodds", labels, conf, ent)
             return labels, conf, ent
         probs = self._set_probs_f32(a)
         has = a.set_labels[:, 0] != EMPTY_LABEL
@@ -263,13 +267,10 @@ class SemanticGrid:
 
     def class_probs(self, a: GridArrays) -> np.ndarray:
         """(M, K) class distribution of every voxel (the set rules' sets read as K-vectors)."""
-        if self.fusion.rule.dense:
-            dense = from_half_bits(a.dense) if self._half else a.dense
-            if self.fusion.rule == FusionRule.VOTE:
-                return votes_to_probs(dense).astype(np.float32)
-            return logodds_to_probs(dense).astype(np.float32)
-        p = expand_topk(a.set_labels, self._set_probs_f32(a), self.num_classes)
-        return (p / p.sum(1, keepdims=True)).astype(np.float32)
+        if self._entry.dense:
+            return self._entry.class_probs(a.set_labels, from_half_bits(a.dense) if self._half else a.dense,
+                                           self.num_classes)
+        return self._entry.class_probs(a.set_labels, self._set_probs_f32(a), self.num_classes)
 
     def set_class_probs(self, packed: np.ndarray, probs: np.ndarray) -> None:
         """Replace the class distributions of the voxels with keys ``packed`` by ``probs`` (M, K) (e.g. a CRF's
@@ -283,21 +284,12 @@ class SemanticGrid:
         if (slots < 0).any():
             raise ConfigError("set_class_probs: some voxels are not in the map")
         rows = t.attr[slots]
-        p = np.clip(np.asarray(probs, np.float64), 1e-12, None)
-        p /= p.sum(1, keepdims=True)
-        rule = self.fusion.rule
-        if rule.dense:
-            if rule == FusionRule.VOTE:
-                new = np.floor(p / p.max(1, keepdims=True) * self.fusion.vote_cap * 0.5)
-            else:
-                h = np.log(p)
-                new = np.maximum(h - h.max(1, keepdims=True), -self.fusion.logodds_clamp)
-            self._dense[rows] = to_half_bits(new) if self._half else new.astype(np.float32)
+        labels, values = self._entry.from_probs(probs, self.fusion)
+        if self._entry.dense:
+            self._dense[rows] = to_half_bits(values) if self._half else values
             return
-        top = TopKProbs.from_dense(p, self.fusion.set_width())
-        probs_top = np.minimum(top.probs, self.fusion.max_confidence)
-        self._set_labels[rows] = top.labels
-        self._set_probs[rows] = to_half_bits(probs_top) if self._half else probs_top
+        self._set_labels[rows] = labels
+        self._set_probs[rows] = to_half_bits(values) if self._half else values
 
     def centers(self, a: GridArrays) -> np.ndarray:
         return keys_to_coords(unpack_keys(a.packed), self.resolution)

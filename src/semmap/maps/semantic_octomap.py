@@ -1,10 +1,13 @@
-"""The semantic OctoMap: occupancy log-odds, free space, colour and fused top-k class probabilities per voxel.
+"""The semantic OctoMap: occupancy log-odds, free space, colour and fused class probabilities per voxel.
 
 Leaves at the finest resolution live in a sharded hash table (see ``_hashtable``); inner nodes, pruning and
 coarser resolutions are derived from them on demand (``coarsen``, ``maps.octree_tree``).  Occupancy follows
 OctoMap exactly (float32 log-odds of hit 0.7 / miss 0.4, clamping 0.1192 / 0.971, occupied iff log-odds >= the
 threshold's), and a scan is inserted like ``insertPointCloud(discretize=True)``, so the occupied / free /
-unknown state of every cell matches the real OctoMap library's.
+unknown state of every cell matches the real OctoMap library's.  Class evidence is fused by any fusion rule
+(:class:`~semmap.fusion.rules.FusionParams`, through ``fusion/dispatch.py``): a voxel keeps the rule's state, k
+(label, confidence) pairs for ``topk`` (the paper's Algorithm 1), one pair for ``max``, K log-odds or counts for
+the full-K rules.
 """
 
 from __future__ import annotations
@@ -18,7 +21,7 @@ import numba as nb
 import numpy as np
 
 from semmap.errors import ConfigError
-from semmap.fusion.topk_bayes import DEFAULT_LAMBDA, DEFAULT_MAX_CONFIDENCE
+from semmap.fusion.rules import FusionParams
 from semmap.keys import KEY_LIMIT, TREE_MAX_VAL, coords_to_keys, keys_to_coords, pack_keys, unpack_keys
 from semmap.maps import _hashtable as ht
 from semmap.maps import _octree_kernels as kern
@@ -81,23 +84,6 @@ class OccupancyParams:
         return logodds(self.occupancy_threshold)
 
 
-@dataclass(frozen=True)
-class SemanticParams:
-    """Top-k label fusion: set size k, penalty λ, cap on the top confidence."""
-
-    k: int = 3
-    lam: float = DEFAULT_LAMBDA
-    max_confidence: float = DEFAULT_MAX_CONFIDENCE
-
-    def __post_init__(self) -> None:
-        if not 1 <= self.k <= 8:
-            raise ConfigError(f"semantic set size k must be in 1..8, got {self.k}")
-        if not 0.0 <= self.lam <= 1.0:
-            raise ConfigError(f"λ must be in [0, 1], got {self.lam}")
-        if not 0.0 < self.max_confidence <= 1.0:
-            raise ConfigError(f"max_confidence must be in (0, 1], got {self.max_confidence}")
-
-
 @dataclass
 class InsertStats:
     """What one scan insertion did and how long each step took (milliseconds)."""
@@ -113,7 +99,8 @@ class InsertStats:
 
 @dataclass(frozen=True)
 class VoxelCloud:
-    """Occupied (or any) voxels as flat arrays: keys, centres, log-odds, mean colour and top-k semantics."""
+    """Occupied (or any) voxels as flat arrays: keys, centres, log-odds, mean colour and top-k semantics (a full-K
+    rule's k most probable classes)."""
 
     keys: np.ndarray  # (M, 3) int64 OctoMap keys
     centers: np.ndarray  # (M, 3) float64 metres
@@ -135,8 +122,8 @@ class CellArrays:
     attr: np.ndarray  # (M,) int32 row into the attribute arrays, -1 = none
     rgb: np.ndarray  # (A, 3) uint8 running mean of the observed colours
     rgb_count: np.ndarray  # (A,) uint16 colour observations (saturates; then a slow moving average)
-    sem_labels: np.ndarray  # (A, k) uint16
-    sem_probs: np.ndarray  # (A, k) float32
+    sem_labels: np.ndarray  # (A, S) uint16 the fusion rule's labels (S = k pairs for topk, 0 for full-K rules)
+    sem_probs: np.ndarray  # (A, W) float32 its values (confidences, or K log-odds / counts)
 
 
 @dataclass
@@ -163,9 +150,10 @@ class _ScanScratch:
 
 
 class SemanticOctoMap:
-    """Probabilistic 3D occupancy map with colour and top-k semantics per voxel, OctoMap-compatible keys.
+    """Probabilistic 3D occupancy map with colour and fused semantics per voxel, OctoMap-compatible keys.
 
     Implements :class:`semmap.maps.base.SemanticMap` (``integrate``, ``cloud``, ``describe``);
+    ``fusion`` is the label-fusion rule and its settings (default ``topk``, k = 3: the paper's map);
     ``color_mode`` is the voxel colour its ``.ot`` file shows (``class`` or ``rgb``).
     """
 
@@ -173,14 +161,20 @@ class SemanticOctoMap:
     needs_normals = False
 
     def __init__(self, resolution: float = 0.05, *, occupancy: OccupancyParams | None = None,
-                 semantics: SemanticParams | None = None, label_set: LabelSet | None = None,
+                 fusion: FusionParams | None = None, label_set: LabelSet | None = None,
                  max_range: float = -1.0, grid_cell_limit: int = GRID_CELL_LIMIT, color_mode: str = "class") -> None:
         if not (math.isfinite(resolution) and 0.001 <= resolution <= 10.0):
             raise ConfigError(f"resolution must be between 0.001 and 10 m, got {resolution}")
         self.resolution = float(resolution)
         self.occupancy = occupancy or OccupancyParams()
-        self.semantics = semantics or SemanticParams()
+        self.fusion = fusion or FusionParams()
         self.label_set = label_set
+        self._entry = self.fusion.entry
+        self._num_classes = len(label_set) if label_set is not None else 0
+        if self._entry.dense and label_set is None:
+            raise ConfigError(f"the {self._entry.name} fusion rule keeps K values per voxel: give the map a label set")
+        self._params = self.fusion.kernel_params(self._num_classes)
+        self._widths = self._entry.widths(self.fusion, self._num_classes)
         self.max_range = float(max_range)
         self.grid_cell_limit = int(grid_cell_limit)
         self.color_mode = color_mode
@@ -205,11 +199,11 @@ class SemanticOctoMap:
         self._counts = np.zeros(ht.N_SHARDS, np.int64)
 
     def _alloc_attributes(self, rows: int) -> None:
-        k = self.semantics.k
+        s, w = self._widths
         self._rgb = np.zeros((rows, 3), np.uint8)
         self._rgb_count = np.zeros(rows, np.uint16)
-        self._sem_labels = np.full((rows, k), EMPTY_LABEL, np.uint16)
-        self._sem_probs = np.zeros((rows, k), np.float32)
+        self._sem_labels = np.full((rows, s), EMPTY_LABEL, np.uint16)
+        self._sem_probs = np.zeros((rows, w), np.float32)
 
     def _grow_table(self, min_cap: int) -> None:
         cap = self._shard_cap
@@ -324,13 +318,14 @@ class SemanticOctoMap:
 
         # 5. colour and semantics of the hit cells
         if col is not None or sem_l is not None:
-            k = self.semantics.k
+            k = self.fusion.k
+            update, finish = self._entry.kernels()
             kern.update_attributes(rows, first,
                                    col if col is not None else np.zeros((1, 3), np.uint8), col is not None,
                                    sem_l if sem_l is not None else np.zeros((1, k), np.uint16),
                                    sem_p if sem_p is not None else np.zeros((1, k), np.float32), sem_l is not None,
                                    self._rgb, self._rgb_count, self._sem_labels, self._sem_probs,
-                                   self.semantics.lam, self.semantics.max_confidence, threads)
+                                   self._entry.code, update, finish, self._params, threads)
         stats.ms["attributes"] = (time.perf_counter() - t5) * 1e3
         return stats
 
@@ -353,8 +348,11 @@ class SemanticOctoMap:
         if semantics is not None:
             sem_l = np.ascontiguousarray(semantics.labels, dtype=np.uint16)
             sem_p = np.ascontiguousarray(semantics.probs, dtype=np.float32)
-            if sem_l.shape != (n, self.semantics.k):
-                raise ConfigError(f"semantics must be ({n}, {self.semantics.k}), got {sem_l.shape}")
+            if self._entry.sets_of_k and sem_l.shape != (n, self.fusion.k):
+                raise ConfigError(f"semantics must be ({n}, {self.fusion.k}), got {sem_l.shape}")
+            if sem_l.ndim != 2 or sem_l.shape[0] != n or sem_l.shape[1] == 0 or sem_p.shape != sem_l.shape:
+                raise ConfigError(f"semantics must be ({n}, k) labels and probabilities, got {sem_l.shape} and "
+                                  f"{sem_p.shape}")
             if self.label_set is not None:
                 top = kern.max_class_id(sem_l, int(EMPTY_LABEL))
                 if top >= len(self.label_set):
@@ -484,16 +482,21 @@ class SemanticOctoMap:
     def semantics_at(self, points: np.ndarray) -> TopKProbs:
         """Fused top-k class distribution at each (N, 3) point (empty sets where nothing was observed)."""
         slots = self._slots_of(points)
-        k = self.semantics.k
-        labels = np.full((slots.shape[0], k), EMPTY_LABEL, np.uint16)
-        probs = np.zeros((slots.shape[0], k), np.float32)
         known = slots >= 0
         rows = np.full(slots.shape[0], -1, np.int64)
         rows[known] = self._attr[slots[known]]
+        labels, values = self._states(rows, self._sem_labels, self._sem_probs)
+        return self._entry.sets(labels, values, self._num_classes, self.fusion.k)
+
+    def _states(self, rows: np.ndarray, sem_labels: np.ndarray, sem_probs: np.ndarray
+                ) -> tuple[np.ndarray, np.ndarray]:
+        """The fusion state (labels, values) of attribute rows ``rows``; rows -1 get an empty state."""
+        labels = np.full((rows.shape[0], sem_labels.shape[1]), EMPTY_LABEL, np.uint16)
+        values = np.zeros((rows.shape[0], sem_probs.shape[1]), np.float32)
         has = rows >= 0
-        labels[has] = self._sem_labels[rows[has]]
-        probs[has] = self._sem_probs[rows[has]]
-        return TopKProbs(labels, probs)
+        labels[has] = sem_labels[rows[has]]
+        values[has] = sem_probs[rows[has]]
+        return labels, values
 
     def cells(self) -> CellArrays:
         """All stored cells, compacted, sorted by packed key (deterministic order)."""
@@ -512,17 +515,14 @@ class SemanticOctoMap:
         keys = unpack_keys(c.packed[sel])
         rows = c.attr[sel]
         colors = np.full((keys.shape[0], 3), 128, np.uint8)
-        k = self.semantics.k
-        labels = np.full((keys.shape[0], k), EMPTY_LABEL, np.uint16)
-        probs = np.zeros((keys.shape[0], k), np.float32)
         has = rows >= 0
         cnt = c.rgb_count[rows[has]]
         colored = np.flatnonzero(has)[cnt > 0]
         r = rows[colored]
         colors[colored] = c.rgb[r]
-        labels[has] = c.sem_labels[rows[has]]
-        probs[has] = c.sem_probs[rows[has]]
-        return VoxelCloud(keys, keys_to_coords(keys, self.resolution), c.logodds[sel], colors, labels, probs)
+        sets = self._entry.sets(*self._states(rows, c.sem_labels, c.sem_probs), self._num_classes, self.fusion.k)
+        return VoxelCloud(keys, keys_to_coords(keys, self.resolution), c.logodds[sel], colors, sets.labels,
+                          sets.probs)
 
     def is_occupied(self, logodds_values: np.ndarray) -> np.ndarray:
         return np.asarray(logodds_values) >= self._thr
@@ -546,7 +546,7 @@ class SemanticOctoMap:
         mean[np.all(mean == UNSET_COLOR, axis=1)] = UNSET_COLOR - 1
         out[occ[colored]] = mean
         if color_mode == "class" and self.label_set is not None:
-            top = cells.sem_labels[rows, 0]
+            top = self._entry.top(cells.sem_labels[rows], cells.sem_probs[rows], self._num_classes)[0]
             labelled = (top < len(self.label_set)) & (top != 0)
             out[occ[colored]] = muted_grey(mean)
             out[occ[labelled]] = self.label_set.colors[top[labelled]]
@@ -560,8 +560,8 @@ class SemanticOctoMap:
         labels = np.full(c.packed.shape[0], EMPTY_LABEL, np.uint16)
         confs = np.zeros(c.packed.shape[0], np.float32)
         occ = np.flatnonzero((c.logodds >= self._thr) & (c.attr >= 0))
-        labels[occ] = c.sem_labels[c.attr[occ], 0]
-        confs[occ] = c.sem_probs[c.attr[occ], 0]
+        labels[occ], confs[occ] = self._entry.top(c.sem_labels[c.attr[occ]], c.sem_probs[c.attr[occ]],
+                                                  self._num_classes)
         return build_tree(unpack_keys(c.packed), c.logodds, colors, labels, confs)
 
     # ------------------------------------------------------------------ multi-resolution
@@ -570,7 +570,7 @@ class SemanticOctoMap:
         the children, colour = mean of the children's observations, semantics = fusion of the children's sets."""
         if not 0 <= levels <= 15:
             raise ConfigError(f"levels must be in 0..15, got {levels}")
-        out = SemanticOctoMap(self.resolution * 2**levels, occupancy=self.occupancy, semantics=self.semantics,
+        out = SemanticOctoMap(self.resolution * 2**levels, occupancy=self.occupancy, fusion=self.fusion,
                               label_set=self.label_set, max_range=self.max_range,
                               grid_cell_limit=self.grid_cell_limit)
         c = self.cells()
@@ -582,7 +582,7 @@ class SemanticOctoMap:
         order = np.argsort(coarse, kind="stable")
         packed, lo, attr, rgb, rgb_count, labels, probs = coarsen_cells(
             coarse[order], c.logodds[order], c.attr[order], c.rgb, c.rgb_count, c.sem_labels, c.sem_probs,
-            self.semantics.lam, self.semantics.max_confidence)
+            self._entry.code, self._entry.layout_code, self._entry.kernels()[0], self._params)
         out._load_cells(CellArrays(packed, lo, attr, rgb, rgb_count, labels, probs))
         return out
 
@@ -638,25 +638,29 @@ class SemanticOctoMap:
                 "bytes_per_voxel_in_memory": round(self.memory_bytes / max(self.num_leaves, 1), 2)}
 
     def class_probs(self) -> np.ndarray:
-        """(M, K) class distribution of each occupied voxel (:meth:`cloud` order): its top-k set read as a
-        K-vector with "others" spread over the classes outside the set (``fusion.dense.expand_topk``)."""
-        from semmap.fusion.dense import expand_topk
-
+        """(M, K) class distribution of each occupied voxel (:meth:`cloud` order): a set read as a K-vector with
+        "others" spread over the classes outside it (``fusion.dense.expand_topk``), or the full-K state's."""
         if self.label_set is None:
             raise ConfigError("a map without a label set has no class distributions")
-        v = self.voxels()
-        p = expand_topk(v.labels, v.probs, len(self.label_set))
-        return (p / p.sum(1, keepdims=True)).astype(np.float32)
+        c = self.cells()
+        rows = c.attr[c.logodds >= self._thr]
+        return self._entry.class_probs(*self._states(rows, c.sem_labels, c.sem_probs), self._num_classes)
 
     def set_class_probs(self, probs: np.ndarray, *, where: np.ndarray | None = None) -> None:
-        """Replace the top-k sets of the occupied voxels (:meth:`cloud` order; only rows ``where`` is True) by the
-        top k of (M, K) distributions, e.g. a CRF's posterior (top confidence capped as fusion caps it)."""
+        """Replace the class states of the occupied voxels (:meth:`cloud` order; only rows ``where`` is True) by
+        (M, K) distributions, e.g. a CRF's posterior, as the rule keeps them (a set: the top pairs, top confidence
+        capped as fusion caps it)."""
         c = self.cells()
         rows = c.attr[c.logodds >= self._thr]
         sel = rows >= 0 if where is None else np.asarray(where, bool) & (rows >= 0)
-        top = TopKProbs.from_dense(np.asarray(probs, np.float32)[sel], self.semantics.k)
-        self._sem_labels[rows[sel]] = top.labels
-        self._sem_probs[rows[sel]] = np.minimum(top.probs, self.semantics.max_confidence)
+        p = np.asarray(probs, np.float32)[sel]
+        if self._entry.dense:
+            labels, values = self._entry.from_probs(p, self.fusion)
+        else:  # the top pairs of the distributions as given (no renormalisation: the paper's map as before)
+            top = TopKProbs.from_dense(p, self._widths[0])
+            labels, values = top.labels, np.minimum(top.probs, self.fusion.max_confidence)
+        self._sem_labels[rows[sel]] = labels
+        self._sem_probs[rows[sel]] = values
         self._tree_counts = None
 
     def __repr__(self) -> str:
@@ -709,5 +713,5 @@ def compile_kernels() -> float:
     m.semantics_at(pts[:8])
     m.coarsen(1)
     m.tree()
-    kern.compile_parallel_variants()
+    kern.compile_parallel_variants(m._entry.code, *m._entry.kernels(), m._params)
     return time.perf_counter() - t

@@ -117,7 +117,7 @@ class SemanticVoxelGrid:
         mem = self.memory_bytes
         return {"voxels": int(a.packed.shape[0]), "occupied_voxels": occupied,
                 "free_voxels": None if self.geometry is None else self.geometry.num_free,
-                "fusion": self.fusion.rule.value, "state_dtype": self.grid.dtype, "free_space": self.free_space,
+                "fusion": self.fusion.name, "state_dtype": self.grid.dtype, "free_space": self.free_space,
                 "bytes_in_memory": mem, "bytes_per_voxel_in_memory": round(mem / max(a.packed.shape[0], 1), 2)}
 
     @property
@@ -125,5 +125,5 @@ class SemanticVoxelGrid:
         return self.grid.memory_bytes + (0 if self.geometry is None else self.geometry.memory_bytes)
 
     def __repr__(self) -> str:
-        return (f"SemanticVoxelGrid(resolution={self.resolution}, fusion={self.fusion.rule.value}, "
+        return (f"SemanticVoxelGrid(resolution={self.resolution}, fusion={self.fusion.name}, "
                 f"voxels={self.grid.num_voxels}, bytes={self.memory_bytes})")
