@@ -196,25 +196,28 @@ def fuse_points(attr: np.ndarray, logodds: np.ndarray, sorted_pts: np.ndarray, o
     S = set_labels.shape[1]
     dense = layout != LAYOUT_SET
     W = K if dense else S
+    inputs = (points, colors, sem_labels, sem_probs, normals)  # grouped: a numba call takes at most 30 arguments
+    flags = (has_colors, has_semantics, has_normals, half, keep_geometry)
+    state = (dense_f32, dense_u16, set_labels, set_f32, set_u16)
     for sh in nb.prange(N_SHARDS):
         if code == GENERIC:  # the rule's test hoisted out of the loops (see fusion.dispatch.fuse_measurement)
-            _fuse_shard(sh, True, attr, logodds, sorted_pts, offsets, run_slot, sorted_keys, first_row, points,
-                        colors, has_colors, sem_labels, sem_probs, has_semantics, normals, has_normals, rgb,
-                        rgb_count, hits, dense_f32, dense_u16, set_labels, set_f32, set_u16, half, positions,
-                        normal_sums, keep_geometry, code, update, finish, params, hit_log, clamp_max, S, W, dense)
+            _fuse_shard(sh, True, attr, logodds, sorted_pts, offsets, run_slot, sorted_keys, first_row, inputs, flags,
+                        rgb, rgb_count, hits, state, positions, normal_sums, code, update, finish, params, hit_log,
+                        clamp_max, S, W, dense)
         else:
-            _fuse_shard(sh, False, attr, logodds, sorted_pts, offsets, run_slot, sorted_keys, first_row, points,
-                        colors, has_colors, sem_labels, sem_probs, has_semantics, normals, has_normals, rgb,
-                        rgb_count, hits, dense_f32, dense_u16, set_labels, set_f32, set_u16, half, positions,
-                        normal_sums, keep_geometry, code, update, finish, params, hit_log, clamp_max, S, W, dense)
+            _fuse_shard(sh, False, attr, logodds, sorted_pts, offsets, run_slot, sorted_keys, first_row, inputs,
+                        flags, rgb, rgb_count, hits, state, positions, normal_sums, code, update, finish, params,
+                        hit_log, clamp_max, S, W, dense)
 
 
 @nb.njit(cache=True, inline="always")
-def _fuse_shard(sh: int, generic: bool, attr, logodds, sorted_pts, offsets, run_slot, sorted_keys, first_row, points,
-                colors, has_colors, sem_labels, sem_probs, has_semantics, normals, has_normals, rgb, rgb_count, hits,
-                dense_f32, dense_u16, set_labels, set_f32, set_u16, half, positions, normal_sums, keep_geometry, code,
-                update, finish, params, hit_log, clamp_max, S, W, dense) -> None:
+def _fuse_shard(sh: int, generic: bool, attr, logodds, sorted_pts, offsets, run_slot, sorted_keys, first_row, inputs,
+                flags, rgb, rgb_count, hits, state, positions, normal_sums, code, update, finish, params, hit_log,
+                clamp_max, S, W, dense) -> None:
     """One shard of :func:`fuse_points` (``generic``: the rule has no fast path in the dispatcher)."""
+    points, colors, sem_labels, sem_probs, normals = inputs
+    has_colors, has_semantics, has_normals, half, keep_geometry = flags
+    dense_f32, dense_u16, set_labels, set_f32, set_u16 = state
     lo, hi = offsets[sh], offsets[sh + 1]
     if hi <= lo:
         return
