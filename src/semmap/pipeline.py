@@ -26,13 +26,14 @@ from semmap.eval.report_html import write_report_html
 from semmap.eval.report_md import write_report_md
 from semmap.eval.report_plots import write_report_plots
 from semmap.eval.semantic import confusion, evaluate_2d, evaluate_cloud_3d
+from semmap.factories import get_map
 from semmap.geometry import backproject_world, pixel_normals
 from semmap.interrupt import RunInterrupted, checked, deferred_interrupts, stop_requested
 from semmap.io.atomic import write_text_atomic
 from semmap.io.staged_run import StagedRun
 from semmap.keys import TREE_MAX_VAL
 from semmap.maps.base import SemanticMap
-from semmap.maps.registry import compile_kernels, get_map
+from semmap.maps.registry import MAPS, MapKind, compile_kernels
 from semmap.object_stage import ObjectStage
 from semmap.perception.base import Preparable, Segmenter
 from semmap.perception.instances.base import InstanceSource
@@ -44,11 +45,11 @@ from semmap.perception.schedule import (
     with_semantics_beside,
 )
 from semmap.poses.base import LiveTracker, PoseTracker
+from semmap.poses.track import GROUND_TRUTH
 from semmap.types import (
     Frame,
     LabelSet,
     MapCloud,
-    MapKind,
     Observation,
     TopKProbs,
     Trajectory,
@@ -374,7 +375,7 @@ class Pipeline:
     def _prepare_tracker(self, first: _FirstFrame) -> float:
         """Online, run a throwaway tracker of the same kind on the first frame twice, so that its kernels are
         compiled (or loaded) before the first frame's latency is counted; returns the seconds."""
-        if self.config.mode != LoopMode.ONLINE or self.config.poses.source == "gt":
+        if self.config.mode != LoopMode.ONLINE or self.config.poses.source == GROUND_TRUTH:
             return 0.0
         from semmap.poses.track import METHODS, make_tracker
 
@@ -451,11 +452,11 @@ class Pipeline:
         """Where each frame's pose comes from: ground truth, a trajectory file, or a tracker run over the
         sequence first (its final, loop-closed trajectory is then used for mapping)."""
         source = self.config.poses.source
-        if source == "gt":
-            return FramePoses("gt")
-        from semmap.object_slam import OBJECT_METHODS, make_pose_tracker
+        if source == GROUND_TRUTH:
+            return FramePoses(GROUND_TRUTH)
+        from semmap.object_slam import make_pose_tracker
         from semmap.poses.base import estimate_trajectory
-        from semmap.poses.track import METHODS
+        from semmap.poses.track import METHODS, OBJECT_METHODS
 
         if source in METHODS or source in OBJECT_METHODS:
             t0 = time.perf_counter()
@@ -476,7 +477,7 @@ class Pipeline:
 
         path = Path(source)
         if not path.is_file():
-            raise ConfigError(f"--poses must be gt, a tracker ({', '.join(METHODS + OBJECT_METHODS)}) or a "
+            raise ConfigError(f"--poses must be {GROUND_TRUTH}, a tracker ({', '.join(METHODS + OBJECT_METHODS)}) or a "
                               f"trajectory file; {path} does not exist")
         return FramePoses(str(path), lookup=TrajectoryPoses.from_file(path,
                                                                       max_time_diff=self.config.poses.max_time_diff))
@@ -526,7 +527,7 @@ class Pipeline:
         if pose_of.edge_stats is not None:
             out["object_pose_edges"] = pose_of.edge_stats
         gt = pose_of.ground_truth()
-        if pose_of.source != "gt" and len(gt) >= 3 and len(used) >= 3:
+        if pose_of.source != GROUND_TRUTH and len(gt) >= 3 and len(used) >= 3:
             from semmap.eval.trajectory import evaluate_trajectory
 
             scores = evaluate_trajectory(gt, used)
@@ -752,8 +753,7 @@ class Pipeline:
 
 def _files_of(m: SemanticMap) -> set[str]:
     """Names of the files ``m.save`` writes (the OctoMap's map.*; other maps <kind>.*), and its preview."""
-    stem = "map" if m.kind == MapKind.OCTOMAP else m.kind.value
-    return {f"{stem}.ot", f"{stem}.bt", f"{stem}.semmap", f"{stem}.ply", f"preview_{m.kind.value}.png"}
+    return MAPS[m.kind].files()
 
 
 def drift_left_in(used: Trajectory, final: Trajectory, resolution: float) -> dict:

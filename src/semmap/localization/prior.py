@@ -17,6 +17,7 @@ import numpy as np
 from scipy import ndimage
 
 from semmap.errors import ConfigError, FormatError
+from semmap.maps.registry import MAPS
 from semmap.types import EMPTY_LABEL, LabelSet
 
 #: Cells beyond this distance (m) from every occupied voxel get no nearest voxel (their points score as clutter).
@@ -235,8 +236,8 @@ def prior_from_grid_map(m, *, cutoff: float = DEFAULT_CUTOFF_M, clearance: float
                        cutoff=cutoff, clearance=clearance)
 
 
-#: Map files of a run folder, in the order ``load_prior`` looks for them.
-MAP_FILES = ("map.semmap", "voxelgrid.semmap", "points.semmap")
+#: Map files of a run folder, in the order ``load_prior`` looks for them (each map kind's native file).
+MAP_FILES = tuple(f"{entry.stem}.semmap" for entry in MAPS.values())
 
 
 def load_prior(path: str | Path, **kwargs) -> PriorMap:

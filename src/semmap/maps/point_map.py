@@ -13,9 +13,10 @@ from pathlib import Path
 import numpy as np
 
 from semmap.fusion.rules import FusionParams, FusionRule
+from semmap.maps.registry import MapKind
 from semmap.maps.semantic_grid import SemanticGrid
 from semmap.maps.voxel_grid import UNCOLOURED
-from semmap.types import LabelSet, MapCloud, MapKind, Observation
+from semmap.types import LabelSet, MapCloud, Observation
 
 #: Default filter cell of the point map (metres).
 DEFAULT_POINT_RESOLUTION = 0.01
