@@ -139,7 +139,7 @@ def test_entries_say_what_they_can_do() -> None:
     assert set(TRAINED_NETWORKS) == set(MODELS) == set(SEGMENTERS.where(trained=True))
     assert {n for n in SEGMENTERS if SEGMENTERS[n].uses_depth} == {n for n in MODELS if MODELS[n].uses_depth}
     assert SEGMENTERS.where(needs_weights=True) and INSTANCE_SOURCES.where(needs_weights=True)
-    assert OBJECT_METHODS == tuple(f"{n}-objects" for n in TRACKERS.where(objects=True))
+    assert tuple(f"{n}-objects" for n in TRACKERS.where(objects=True)) == OBJECT_METHODS
     for name in MAPS:
         assert MAPS[name].default_fusion in MAPS[name].fusion_rules
     assert all(entry.help and "\n" not in entry.help for r in (TRACKERS, SEGMENTERS, INSTANCE_SOURCES, MAPS, FORMATS)
