@@ -33,7 +33,7 @@ from semmap.fusion.rules import FusionParams, FusionRule
 from semmap.geometry import DEFAULT_MAX_DEPTH, DEFAULT_MIN_DEPTH, backproject_world, pixel_normals
 from semmap.labels import INDOOR_LABELS
 from semmap.maps.point_map import SemanticPointMap
-from semmap.maps.registry import compile_kernels
+from semmap.maps.registry import MapKind, compile_kernels
 from semmap.maps.semantic_octomap import SemanticOctoMap
 from semmap.maps.voxel_grid import SemanticVoxelGrid
 from semmap.perception.oracle import OracleSegmenter
@@ -41,7 +41,7 @@ from semmap.perception.schedule import Scheduler, SegmentationSchedule
 from semmap.sim.ground_truth import gt_voxels
 from semmap.sim.scene import generate_scene
 from semmap.sim.trajectory import make_trajectory
-from semmap.types import CameraIntrinsics, LabelSet, MapKind, Observation, TopKProbs, distinct_colors
+from semmap.types import CameraIntrinsics, LabelSet, Observation, TopKProbs, distinct_colors
 
 RESOLUTION = 0.05
 SMALL = CameraIntrinsics(320, 240, 262.5, 262.5, 159.5, 119.5)

@@ -63,7 +63,7 @@ def _ot_header(size: int, tree: str = "ColorOcTree") -> bytes:
 
 
 def build_cases(root: Path) -> dict[str, tuple[str, Path]]:
-    """{case: (reader, path)}; readers are keys of :data:`READERS`."""
+    """{case: (reader, path)}; readers name the file kinds read below."""
     root.mkdir(parents=True, exist_ok=True)
     cases: dict[str, tuple[str, Path]] = {}
 

@@ -31,13 +31,13 @@ class _SignalAt:
 
 
 def main() -> None:
-    import semmap.run.prepare as prepare
+    import semmap.datasets as datasets
     from semmap.cli import main as semmap_main
 
     sig = {"INT": signal.SIGINT, "KILL": signal.SIGKILL}[sys.argv[1]]
     at = int(sys.argv[2])
-    open_dataset = prepare.open_dataset
-    prepare.open_dataset = lambda *a, **k: _SignalAt(open_dataset(*a, **k), at, sig)
+    open_dataset = datasets.open_dataset
+    datasets.open_dataset = lambda *a, **k: _SignalAt(open_dataset(*a, **k), at, sig)
     sys.argv = ["semmap", "run", *sys.argv[3:]]
     semmap_main()
 

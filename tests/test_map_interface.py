@@ -8,10 +8,11 @@ import pytest
 
 from semmap.config import InputConfig, OutputConfig, RunConfig
 from semmap.errors import ConfigError
+from semmap.factories import get_map
 from semmap.io.map_files import MAP_FILES, load_map_file, native_file, save_map_files
 from semmap.maps.base import SemanticMap
-from semmap.maps.registry import get_map, map_kind
-from semmap.types import EMPTY_LABEL, LabelSet, MapKind, Observation, TopKProbs
+from semmap.maps.registry import MapKind, map_kind
+from semmap.types import EMPTY_LABEL, LabelSet, Observation, TopKProbs
 
 
 def wall_observation(n: int = 400, *, label: int = 2, seed: int = 0) -> Observation:

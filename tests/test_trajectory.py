@@ -333,7 +333,7 @@ def test_trajectory_of_dataset_skips_frames_without_pose():
 
 
 def test_unknown_tracker_is_a_config_error():
-    with pytest.raises(ConfigError, match="unknown pose method"):
+    with pytest.raises(ConfigError, match=r"unknown tracker 'magic'; choose from slam"):
         make_tracker("magic")
 
 

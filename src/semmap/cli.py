@@ -15,7 +15,23 @@ from typing import Annotated
 
 import typer
 
+from semmap.config import (
+    CrfConfig,
+    InputConfig,
+    MappingConfig,
+    ObjectsConfig,
+    OutputConfig,
+    SemanticsConfig,
+    SemanticSource,
+)
+from semmap.datasets import AUTO, FORMATS
 from semmap.errors import SemmapError
+from semmap.fusion.rules import FusionRule
+from semmap.maps.registry import MAPS, own_rules
+from semmap.perception.instances.registry import INSTANCE_SOURCES
+from semmap.perception.networks.registry import MODELS
+from semmap.perception.registry import SEGMENTERS, SegmenterName
+from semmap.poses.track import GROUND_TRUTH, TRACKERS, pose_sources_help
 
 app = typer.Typer(add_completion=False, no_args_is_help=True, pretty_exceptions_enable=False,
                   help="RGB-D sequences to 3D semantic maps (semantic OctoMap, .ot/.bt/native files, reports).")
@@ -28,6 +44,18 @@ _POSES = "Poses"
 _OBJECTS = "Objects"
 _ROS = "ROS bags"
 _MAPS = "Maps and fusion"
+
+
+def _default(section, field: str):
+    """The run configuration's default of ``section.field``: the CLI repeats none of them."""
+    return section.model_fields[field].default
+
+
+#: ``--format`` help, ``--semantics`` help and the default ``--maps``, from the registries and the configuration.
+_FORMATS = FORMATS.choices((AUTO,))
+_SOURCES = " | ".join(s.value for s in SemanticSource)
+_RULES = " | ".join(r.value for r in FusionRule)
+_DEFAULT_MAPS = ",".join(kind.value for kind in _default(MappingConfig, "maps"))
 
 
 def _console():
@@ -76,11 +104,12 @@ def run(
     dataset: Annotated[Path, typer.Argument(help="RGB-D sequence: TUM RGB-D or 7-Scenes folder, ROS 1 .bag or ROS 2 "
                                                  "bag folder")],
     out: Annotated[Path, typer.Option("--out", "-o", help="output folder", rich_help_panel=_OUTPUT)],
-    format: Annotated[str, typer.Option(help="auto | tum | 7scenes | rosbag", rich_help_panel=_INPUT)] = "auto",
+    format: Annotated[str, typer.Option(help=_FORMATS, rich_help_panel=_INPUT)] = AUTO,
     labels: Annotated[Path | None, typer.Option(help="folder of label PNGs (class ids) matched to frames by name",
                                                  rich_help_panel=_INPUT)] = None,
     max_frames: Annotated[int | None, typer.Option(help="use at most N frames", rich_help_panel=_INPUT)] = None,
-    stride: Annotated[int, typer.Option(help="use every k-th frame", rich_help_panel=_INPUT)] = 1,
+    stride: Annotated[int, typer.Option(help="use every k-th frame",
+                                        rich_help_panel=_INPUT)] = _default(InputConfig, "stride"),
     raw_color: Annotated[bool, typer.Option("--raw-color", help="7-Scenes: keep colour as stored instead of "
                                             "registering it onto the depth image", rich_help_panel=_INPUT)] = False,
     strict: Annotated[bool, typer.Option("--strict", help="stop at the first unusable frame (missing or corrupt "
@@ -94,40 +123,42 @@ def run(
                                                    rich_help_panel=_ROS)] = None,
     world_frame: Annotated[str | None, typer.Option(help="ROS bag: /tf world frame", rich_help_panel=_ROS)] = None,
     camera_frame: Annotated[str | None, typer.Option(help="ROS bag: /tf camera frame", rich_help_panel=_ROS)] = None,
-    resolution: Annotated[float, typer.Option(help="finest voxel size (m)", rich_help_panel=_MAPPING)] = 0.05,
-    min_depth: Annotated[float, typer.Option(help="ignore depth below (m)", rich_help_panel=_MAPPING)] = 0.1,
-    max_depth: Annotated[float, typer.Option(help="ignore depth above (m)", rich_help_panel=_MAPPING)] = 8.0,
+    resolution: Annotated[float, typer.Option(help="finest voxel size (m)",
+                                              rich_help_panel=_MAPPING)] = _default(MappingConfig, "resolution"),
+    min_depth: Annotated[float, typer.Option(help="ignore depth below (m)",
+                                             rich_help_panel=_MAPPING)] = _default(MappingConfig, "min_depth"),
+    max_depth: Annotated[float, typer.Option(help="ignore depth above (m)",
+                                             rich_help_panel=_MAPPING)] = _default(MappingConfig, "max_depth"),
     max_range: Annotated[float, typer.Option(help="OctoMap max range (m), -1 = none",
-                                             rich_help_panel=_MAPPING)] = -1.0,
+                                             rich_help_panel=_MAPPING)] = _default(MappingConfig, "max_range"),
     pixel_stride: Annotated[int, typer.Option(help="use every k-th pixel row/column",
-                                              rich_help_panel=_MAPPING)] = 1,
-    semantics: Annotated[str, typer.Option(help="auto | labels | oracle | none",
-                                           rich_help_panel=_SEMANTICS)] = "auto",
-    label_confidence: Annotated[float, typer.Option(help="confidence of hard labels",
-                                                    rich_help_panel=_SEMANTICS)] = 0.9,
-    lam: Annotated[float, typer.Option("--lambda", help="penalty λ of the top-3 fusion",
-                                       rich_help_panel=_SEMANTICS)] = 0.9,
-    segmenter: Annotated[str | None, typer.Option(help="oracle | precomputed | espnetv2 | fcn | pspnet | cbam-pspnet "
-                                                       "| rgbd-net | rgb-only (default: from --semantics)",
+                                              rich_help_panel=_MAPPING)] = _default(MappingConfig, "pixel_stride"),
+    semantics: Annotated[str, typer.Option(help=_SOURCES,
+                                           rich_help_panel=_SEMANTICS)] = _default(SemanticsConfig, "source").value,
+    label_confidence: Annotated[float, typer.Option(help="confidence of hard labels", rich_help_panel=_SEMANTICS)
+                                ] = _default(SemanticsConfig, "label_confidence"),
+    lam: Annotated[float, typer.Option("--lambda", help="penalty λ of the top-k fusion (Algorithm 1)",
+                                       rich_help_panel=_SEMANTICS)] = _default(SemanticsConfig, "lam"),
+    segmenter: Annotated[str | None, typer.Option(help=f"{SEGMENTERS.choices()} (default: from --semantics)",
                                                   rich_help_panel=_SEMANTICS)] = None,
     weights: Annotated[Path | None, typer.Option(help="network weights (espnetv2; semmap's networks default to the "
                                                  "shipped weights/), or the predictions folder (precomputed)",
                                                  rich_help_panel=_SEMANTICS)] = None,
     segment_every: Annotated[int, typer.Option(help="segment every k-th frame (others add geometry and colour)",
-                                               rich_help_panel=_SEMANTICS)] = 1,
+                                               rich_help_panel=_SEMANTICS)] = _default(SemanticsConfig,
+                                                                                       "segment_every"),
     keyframes: Annotated[bool, typer.Option("--keyframes", help="segment only frames where the camera moved "
                                             "10 cm or turned 10° since the last segmented one",
                                             rich_help_panel=_SEMANTICS)] = False,
-    batch_size: Annotated[int, typer.Option(help="frames per network batch", rich_help_panel=_SEMANTICS)] = 1,
-    backend: Annotated[str, typer.Option(help="torch | onnx: network runtime", rich_help_panel=_SEMANTICS)] = "torch",
+    batch_size: Annotated[int, typer.Option(help="frames per network batch",
+                                            rich_help_panel=_SEMANTICS)] = _default(SemanticsConfig, "batch_size"),
+    backend: Annotated[str, typer.Option(help="torch | onnx: network runtime",
+                                         rich_help_panel=_SEMANTICS)] = _default(SemanticsConfig, "backend"),
     input_size: Annotated[str | None, typer.Option(help="network input: WIDTHxHEIGHT, or a short side N "
                                                    "keeping the aspect ratio (espnetv2 default: 320)",
                                                    rich_help_panel=_SEMANTICS)
                           ] = None,
-    poses: Annotated[str, typer.Option(help="gt (the dataset's) | slam | slam-noloop | slam-orb | slam-features | "
-                                            "odometry | X-objects (tracker X with object-constrained keyframes, "
-                                            "needs --instances) | PATH of a TUM trajectory",
-                                       rich_help_panel=_POSES)] = "gt",
+    poses: Annotated[str, typer.Option(help=pose_sources_help(), rich_help_panel=_POSES)] = GROUND_TRUTH,
     online: Annotated[bool, typer.Option("--online", help="map each frame as soon as the tracker has its pose, "
                                          "segmenting beside tracking (default: track the whole sequence first)",
                                          rich_help_panel=_POSES)] = False,
@@ -135,45 +166,45 @@ def run(
                                                     "a live camera delivers them (latency counts from each "
                                                     "frame's due time)", rich_help_panel=_POSES)] = None,
     color_mode: Annotated[str, typer.Option(help="class | rgb: voxel colour in map.ot",
-                                            rich_help_panel=_OUTPUT)] = "class",
+                                            rich_help_panel=_OUTPUT)] = _default(OutputConfig, "color_mode").value,
     rerun: Annotated[Path | None, typer.Option(help="log images, poses and the growing map to this rerun "
                                                "recording (.rrd)", rich_help_panel=_OUTPUT)] = None,
     rerun_spawn: Annotated[bool, typer.Option("--rerun-spawn", help="watch the map grow in a rerun viewer",
                                               rich_help_panel=_OUTPUT)] = False,
     rerun_map_every: Annotated[int, typer.Option(help="frames between two logs of the whole map to rerun",
-                                                 rich_help_panel=_OUTPUT)] = 10,
+                                                 rich_help_panel=_OUTPUT)] = _default(OutputConfig, "rerun_map_every"),
     checkpoint_every: Annotated[int, typer.Option(help="save the run's state every N mapped frames (0: never), so "
                                                   "--resume can continue after a crash", rich_help_panel=_OUTPUT)] = 0,
     resume: Annotated[bool, typer.Option("--resume", help="continue a run that was killed, from its last checkpoint "
                                          "(same options as the first time)", rich_help_panel=_OUTPUT)] = False,
-    maps: Annotated[str, typer.Option(help="maps built side by side, comma-separated, the first is the primary: "
-                                           "octomap | voxelgrid | points", rich_help_panel=_MAPS)] = "octomap",
-    fusion: Annotated[str | None, typer.Option(help="label fusion for every map: max | topk | bayes | bayes-prior | "
-                                                    "vote (default: each map's own: octomap topk, voxelgrid bayes, "
-                                                    "points bayes-prior)", rich_help_panel=_MAPS)] = None,
+    maps: Annotated[str, typer.Option(help=f"maps built side by side, comma-separated, the first is the primary: "
+                                           f"{MAPS.choices()}", rich_help_panel=_MAPS)] = _DEFAULT_MAPS,
+    fusion: Annotated[str | None, typer.Option(help=f"label fusion for every map: {_RULES} (default: each map's "
+                                                    f"own: {own_rules()})", rich_help_panel=_MAPS)] = None,
     state_dtype: Annotated[str | None, typer.Option(help="float16 | float32: per-class numbers of the voxel grid and "
                                                          "point map (default float32 / float16)",
                                                     rich_help_panel=_MAPS)] = None,
     free_space: Annotated[bool, typer.Option("--free-space", help="voxel grid: ray-cast free space too",
                                              rich_help_panel=_MAPS)] = False,
-    point_resolution: Annotated[float, typer.Option(help="filter cell of the point map (m)",
-                                                    rich_help_panel=_MAPS)] = 0.01,
+    point_resolution: Annotated[float, typer.Option(help="filter cell of the point map (m)", rich_help_panel=_MAPS)
+                                ] = _default(MappingConfig, "point_resolution"),
     top_k: Annotated[int, typer.Option(help="classes per top-k set (1..8): the segmenter's sets and topk fusion",
-                                       rich_help_panel=_MAPS)] = 3,
+                                       rich_help_panel=_MAPS)] = _default(SemanticsConfig, "k"),
     max_confidence: Annotated[float, typer.Option(help="cap on a voxel's top confidence (topk, max)",
-                                                  rich_help_panel=_MAPS)] = 0.999,
+                                                  rich_help_panel=_MAPS)] = _default(SemanticsConfig,
+                                                                                     "max_confidence"),
     class_prior: Annotated[Path | None, typer.Option(help="bayes-prior: JSON {class name: frequency} "
                                                      "(default uniform)", rich_help_panel=_MAPS)] = None,
     crf: Annotated[bool, typer.Option("--crf", help="refine every map with a 3D dense CRF after mapping",
                                       rich_help_panel=_MAPS)] = False,
     crf_every: Annotated[int, typer.Option(help="with --crf, also refine every N keyframes while mapping",
-                                           rich_help_panel=_MAPS)] = 0,
-    instances: Annotated[str | None, typer.Option(help="oracle | components | maskrcnn: also build the object map "
+                                           rich_help_panel=_MAPS)] = _default(CrfConfig, "every"),
+    instances: Annotated[str | None, typer.Option(help=f"{INSTANCE_SOURCES.choices()}: also build the object map "
                                                    "(objects.json, objects.ply)", rich_help_panel=_OBJECTS)] = None,
     instance_weights: Annotated[Path | None, typer.Option(help="Mask R-CNN weights (--instances maskrcnn)",
                                                           rich_help_panel=_OBJECTS)] = None,
     instance_errors: Annotated[str, typer.Option(help="oracle instances' errors: exact | maskrcnn-like | noisy",
-                                                 rich_help_panel=_OBJECTS)] = "maskrcnn-like",
+                                                 rich_help_panel=_OBJECTS)] = _default(ObjectsConfig, "errors"),
     verbose: Annotated[bool, typer.Option("--verbose", "-v", help="debug logging")] = False,
 ) -> None:
     """Map an RGB-D sequence: writes map.ot, map.bt, map.semmap (and voxelgrid.* / points.* for --maps,
@@ -273,9 +304,10 @@ def _validated(make):
     except ValidationError as exc:
         first = exc.errors()[0]
         where = ".".join(str(p) for p in first["loc"])
+        msg = str(first["msg"]).removeprefix("Value error, ")
         if not where:  # a rule across options
-            raise SemmapError(str(first["msg"]).removeprefix("Value error, ")) from None
-        raise SemmapError(f"invalid option {where}: {first['msg']}") from None
+            raise SemmapError(msg) from None
+        raise SemmapError(f"invalid option {where}: {msg}") from None
 
 
 def _print_summary(report: dict, out_dir: Path) -> None:
@@ -357,7 +389,7 @@ class _ProgressCallback:
 def demo(
     out: Annotated[Path, typer.Option("--out", "-o", help="output folder")] = Path("outputs/demo"),
     frames: Annotated[int, typer.Option(help="frames of the default trajectory")] = 300,
-    resolution: Annotated[float, typer.Option(help="finest voxel size (m)")] = 0.05,
+    resolution: Annotated[float, typer.Option(help="finest voxel size (m)")] = _default(MappingConfig, "resolution"),
     scene_seed: Annotated[int, typer.Option(help="scene generator seed")] = 0,
     rerun: Annotated[Path | None, typer.Option(help="also log the run to this rerun recording (.rrd)")] = None,
     semantics: Annotated[str, typer.Option(help="network (the shipped network named in weights/manifest.json, "
@@ -368,18 +400,18 @@ def demo(
     _setup_logging(False)
     from semmap.runner import run_demo
 
-    if semantics not in ("network", "oracle"):
+    if semantics not in ("network", SegmenterName.ORACLE):
         raise SemmapError(f"--semantics must be network or oracle, got {semantics!r}")
     with _interruptible():
         result = _validated(lambda: run_demo(out=out, frames=frames, resolution=resolution, scene_seed=scene_seed,
-                                             rerun=rerun, oracle=semantics == "oracle",
+                                             rerun=rerun, oracle=semantics == SegmenterName.ORACLE,
                                              progress=progress_bar("simulate + map")))
     _print_summary(result.report, result.out_dir)
 
 
 @app.command()
 def train(
-    model: Annotated[str, typer.Option(help="fcn | pspnet | cbam-pspnet | rgbd-net | rgb-only")],
+    model: Annotated[str, typer.Option(help=MODELS.choices())],
     data: Annotated[list[Path], typer.Option(help="training folder (semmap simulate output, or images/ + labels/ "
                                                   "[+ depth/]) or a folder of them; repeat for several")],
     out: Annotated[Path, typer.Option("--out", "-o", help="run folder: checkpoints, logs, curve, best.pt")],
@@ -463,9 +495,8 @@ class _TrainProgress:
 def track(
     dataset: Annotated[Path, typer.Argument(help="RGB-D sequence folder (TUM RGB-D or 7-Scenes layout)")],
     out: Annotated[Path, typer.Option("--out", "-o", help="trajectory file to write (TUM format)")],
-    method: Annotated[str, typer.Option(help="slam | slam-noloop | slam-orb | slam-features | odometry | "
-                                             "open3d-f2f | open3d-f2f-tensor")] = "slam",
-    format: Annotated[str, typer.Option(help="auto | tum | 7scenes")] = "auto",
+    method: Annotated[str, typer.Option(help=TRACKERS.choices())] = TRACKERS.names[0],
+    format: Annotated[str, typer.Option(help=_FORMATS)] = AUTO,
     max_frames: Annotated[int | None, typer.Option(help="use at most N frames")] = None,
     stride: Annotated[int, typer.Option(help="use every k-th frame")] = 1,
     plot: Annotated[Path | None, typer.Option(help="also plot the trajectory (and ground truth) to this PNG")] = None,
@@ -497,8 +528,8 @@ def localize(
     motion: Annotated[str, typer.Option(help="odometry (semmap's dense odometry) | gt-noisy (ground truth with "
                                              "drift, experiments) | PATH of a TUM trajectory")] = "odometry",
     motion_noise: Annotated[float, typer.Option(help="gt-noisy: drift as a fraction of each motion")] = 0.05,
-    segmenter: Annotated[str, typer.Option(help="auto (oracle when the sequence has label images) | oracle | "
-                                                "espnetv2 | precomputed | none")] = "auto",
+    segmenter: Annotated[str, typer.Option(help=f"auto (oracle when the sequence has label images) | none | "
+                                                f"{SEGMENTERS.choices()}")] = "auto",
     weights: Annotated[Path | None, typer.Option(help="network weights (espnetv2) or predictions folder "
                                                  "(precomputed)")] = None,
     height: Annotated[float | None, typer.Option(help="ground mode: camera height (m); default: from ground "
@@ -656,14 +687,14 @@ def batch(
     config: Annotated[Path | None, typer.Option(help="a run's config.json to use for every sequence (its dataset "
                                                 "and output folder are replaced); the options below are then "
                                                 "ignored")] = None,
-    format: Annotated[str, typer.Option(help="auto | tum | 7scenes | rosbag")] = "auto",
+    format: Annotated[str, typer.Option(help=_FORMATS)] = AUTO,
     max_frames: Annotated[int | None, typer.Option(help="use at most N frames")] = None,
-    stride: Annotated[int, typer.Option(help="use every k-th frame")] = 1,
-    resolution: Annotated[float, typer.Option(help="finest voxel size (m)")] = 0.05,
-    semantics: Annotated[str, typer.Option(help="auto | labels | oracle | none")] = "auto",
-    segmenter: Annotated[str | None, typer.Option(help="segmenter name (see semmap run)")] = None,
+    stride: Annotated[int, typer.Option(help="use every k-th frame")] = _default(InputConfig, "stride"),
+    resolution: Annotated[float, typer.Option(help="finest voxel size (m)")] = _default(MappingConfig, "resolution"),
+    semantics: Annotated[str, typer.Option(help=_SOURCES)] = _default(SemanticsConfig, "source").value,
+    segmenter: Annotated[str | None, typer.Option(help=SEGMENTERS.choices())] = None,
     weights: Annotated[Path | None, typer.Option(help="segmenter weights")] = None,
-    poses: Annotated[str, typer.Option(help="gt | a tracker (see semmap run)")] = "gt",
+    poses: Annotated[str, typer.Option(help=f"{GROUND_TRUTH} | a tracker | PATH (see semmap run)")] = GROUND_TRUTH,
     strict: Annotated[bool, typer.Option("--strict", help="stop a sequence at its first unusable frame")] = False,
 ) -> None:
     """Map many sequences as Ray tasks (one `semmap run` each), locally or on a cluster; resumes a half-finished

@@ -1,6 +1,8 @@
 """Run configuration: one pydantic model per section and one root model, written next to every result.
 
-Only the small ``get_*`` factories read it (see ``pipeline.py``); components take plain arguments.
+The run layer reads it (``runner.py``, ``pipeline.py``, the ``get_*`` / ``*_for`` factories in ``factories.py``);
+components take plain arguments. Fields that name a family (segmenter, instance source, pose source, dataset
+format, maps, fusion rule) are typed with the enum of that family's registry.
 """
 
 from __future__ import annotations
@@ -10,9 +12,15 @@ from pathlib import Path
 
 from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 
+from semmap.datasets import AUTO, FORMATS, DatasetFormat
+from semmap.fusion.rules import FusionRule
 from semmap.fusion.topk_bayes import DEFAULT_LAMBDA, DEFAULT_MAX_CONFIDENCE
 from semmap.geometry import DEFAULT_MAX_DEPTH, DEFAULT_MIN_DEPTH
-from semmap.types import MapKind
+from semmap.maps.registry import MAPS, MapKind, own_rules
+from semmap.perception.instances.registry import INSTANCE_SOURCES, InstanceSourceName
+from semmap.perception.registry import SEGMENTERS, SegmenterName
+from semmap.poses.track import GROUND_TRUTH, POSE_SOURCES, PoseSource
+from semmap.registry import check_name
 
 
 class ColorMode(str, Enum):
@@ -60,13 +68,18 @@ class RosConfig(_Section):
 
 class InputConfig(_Section):
     dataset: Path
-    format: str = "auto"
+    format: DatasetFormat = Field(DatasetFormat(AUTO), description=f"{FORMATS.choices((AUTO,))}")
     labels: Path | None = None
     stride: int = Field(1, ge=1)
     max_frames: int | None = Field(None, ge=1)
     raw_color: bool = Field(False, description="keep colour unregistered (7-Scenes colour is registered to depth)")
     ros: RosConfig = RosConfig()
     strict: bool = Field(False, description="stop at the first frame that cannot be used instead of skipping it")
+
+    @field_validator("format", mode="before")
+    @classmethod
+    def _known_format(cls, v: object) -> object:
+        return check_name(FORMATS, v, (AUTO,))
 
 
 class MappingConfig(_Section):
@@ -86,6 +99,13 @@ class MappingConfig(_Section):
                                                 "float16)")
     free_space: bool = Field(False, description="voxel grid: also ray-cast free space (occupancy OctoMap)")
     point_resolution: float = Field(0.01, ge=0.001, le=1.0, description="filter cell of the point map (m)")
+
+    @field_validator("maps", mode="before")
+    @classmethod
+    def _known_maps(cls, v: object) -> object:
+        for name in v if isinstance(v, list | tuple) else ():
+            check_name(MAPS, name)
+        return v
 
     @field_validator("maps")
     @classmethod
@@ -111,33 +131,36 @@ class SemanticsConfig(_Section):
     label_confidence: float = Field(0.9, gt=0.0, le=1.0, description="confidence given to hard labels")
     oracle_preset: str = "cnn-like"
     seed: int = 0
-    segmenter: str | None = Field(None, description="oracle | precomputed | espnetv2 (None: from source)")
+    segmenter: SegmenterName | None = Field(None, description=f"{SEGMENTERS.choices()} (None: from source)")
     weights: Path | None = Field(None, description="network weights, or the folder of precomputed predictions")
     segment_every: int = Field(1, ge=1, description="segment every k-th frame")
     keyframes: bool = Field(False, description="segment only frames where the camera moved enough")
     batch_size: int = Field(1, ge=1, le=64, description="frames per network batch")
     backend: str = Field("torch", pattern="^(torch|onnx)$", description="network runtime")
-    fusion: str | None = Field(None, description="max | topk | bayes | bayes-prior | vote for every map (None: each "
-                                                  "map's own: octomap topk, voxelgrid bayes, points bayes-prior)")
+    fusion: FusionRule | None = Field(None, description=f"{' | '.join(r.value for r in FusionRule)} for every map "
+                                                        f"(None: each map's own: {own_rules()})")
     class_prior: Path | None = Field(None, description="bayes-prior: JSON {class name: frequency} (None: uniform)")
     input_size: tuple[int, int] | int | None = Field(
         None, description="network input: (width, height), or the short side keeping the aspect ratio; None = the "
                     "segmenter's default (espnetv2: 320)")
 
 
-    @field_validator("fusion")
+    @field_validator("segmenter", mode="before")
     @classmethod
-    def _known_rule(cls, v: str | None) -> str | None:
-        from semmap.fusion.rules import FusionRule
+    def _known_segmenter(cls, v: object) -> object:
+        return check_name(SEGMENTERS, v)
 
+    @field_validator("fusion", mode="before")
+    @classmethod
+    def _known_rule(cls, v: object) -> object:
         if v is not None and v not in {r.value for r in FusionRule}:
             raise ValueError(f"unknown fusion rule {v!r}; choose from {', '.join(r.value for r in FusionRule)}")
         return v
 
 
 class PosesConfig(_Section):
-    source: str = Field("gt", description="gt | a tracker (slam, odometry, ...: semmap.poses.track.METHODS) | path of "
-                                          "a TUM trajectory file")
+    source: PoseSource | Path = Field(PoseSource(GROUND_TRUTH), union_mode="left_to_right",
+                                      description=f"{' | '.join(POSE_SOURCES)} | path of a TUM trajectory file")
     max_time_diff: float = Field(0.02, gt=0.0, description="largest timestamp gap when reading a trajectory file")
 
 
@@ -174,10 +197,16 @@ class OutputConfig(_Section):
 
 
 class ObjectsConfig(_Section):
-    instances: str | None = Field(None, description="oracle | components | maskrcnn: build the object map (None: no)")
+    instances: InstanceSourceName | None = Field(None, description=f"{INSTANCE_SOURCES.choices()}: build the object "
+                                                                   "map (None: no)")
     weights: Path | None = Field(None, description="Mask R-CNN state dict (--instances maskrcnn)")
     errors: str = Field("maskrcnn-like", description="oracle instances' error preset: exact | maskrcnn-like | noisy")
     seed: int = 0
+
+    @field_validator("instances", mode="before")
+    @classmethod
+    def _known_source(cls, v: object) -> object:
+        return check_name(INSTANCE_SOURCES, v)
 
 
 class RunConfig(_Section):

@@ -25,19 +25,16 @@ import numpy as np
 from semmap.errors import ConfigError
 from semmap.maps.objects import CameraClouds, ObjectMap, ObjectMapParams, Sighting, overlap_iou, pack_cells
 from semmap.perception.instances.base import InstanceSource
+from semmap.perception.instances.registry import INSTANCE_SOURCES
 from semmap.perception.schedule import Scheduler, SegmentationSchedule
 from semmap.perception.tracking import DeepSort
 from semmap.poses.base import PoseTracker
 from semmap.poses.object_graph import ObjectEdge, agrees, apply_corrections, fit_rigid, optimise_with_object_edges
-from semmap.poses.track import make_tracker
+from semmap.poses.track import OBJECT_METHODS, OBJECTS_SUFFIX, make_tracker
 from semmap.types import Frame, Trajectory, invert_pose
 
 #: Weight of the angle between two viewing directions against the distance of the cameras (metres per radian).
 VIEW_METRES_PER_RADIAN = 0.5
-#: Pose sources ``X-objects``: tracker X with object-constrained keyframe poses.
-OBJECTS_SUFFIX = "-objects"
-OBJECT_METHODS: tuple[str, ...] = tuple(f"{m}{OBJECTS_SUFFIX}" for m in ("slam", "slam-noloop", "slam-orb",
-                                                                          "slam-features", "odometry"))
 
 
 @dataclass(frozen=True)
@@ -231,10 +228,11 @@ def _closest_views(candidates: list[int], T_kf: np.ndarray, b: int, k: int) -> l
 
 
 def make_pose_tracker(method: str, *, instances: InstanceSource | None = None) -> PoseTracker:
-    """The tracker ``method`` names: one of :data:`~semmap.poses.track.METHODS`, or ``X-objects``
-    (:data:`OBJECT_METHODS`), which needs the run's instance source."""
+    """The tracker ``method`` names: one of :data:`~semmap.poses.track.TRACKERS`, or ``X-objects``
+    (:data:`~semmap.poses.track.OBJECT_METHODS`), which needs the run's instance source."""
     if method in OBJECT_METHODS:
         if instances is None:
-            raise ConfigError(f"--poses {method} needs an instance source (--instances oracle|components|maskrcnn)")
+            choices = INSTANCE_SOURCES.choices(sep="|")
+            raise ConfigError(f"--poses {method} needs an instance source (--instances {choices})")
         return ObjectConstrainedTracker(make_tracker(method[: -len(OBJECTS_SUFFIX)]), instances)
     return make_tracker(method)

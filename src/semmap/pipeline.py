@@ -22,11 +22,12 @@ from semmap.datasets import Dataset
 from semmap.datasets.prefetch import Prefetcher
 from semmap.errors import ConfigError
 from semmap.eval.run_report import GroundTruthFn, RunOutcome, RunRecord, RunScorer, build_report, write_report
+from semmap.factories import get_map, open_dataset_of
 from semmap.geometry import backproject_world, pixel_normals
 from semmap.interrupt import RunInterrupted, deferred_interrupts, stop_requested
 from semmap.io.staged_run import StagedRun, check_out_dir
 from semmap.maps.base import SemanticMap
-from semmap.maps.registry import compile_kernels, get_map
+from semmap.maps.registry import MapKind, compile_kernels
 from semmap.object_stage import ObjectStage
 from semmap.perception.base import Segmenter
 from semmap.perception.instances.base import InstanceSource
@@ -43,12 +44,11 @@ from semmap.run.outputs import refine_maps, warn_if_empty, write_outputs
 from semmap.run.prepare import (
     FirstFrame,
     label_set_for,
-    open_dataset_of,
     pose_source_for,
     prepare_segmenter,
     warm_tracker,
 )
-from semmap.types import Frame, LabelSet, MapKind, Observation, TopKProbs
+from semmap.types import Frame, LabelSet, Observation, TopKProbs
 from semmap.viz.rerun_log import NoVisualizer, Visualizer, get_visualizer
 
 log = logging.getLogger("semmap")

@@ -11,11 +11,11 @@ from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
-from semmap.config import InputConfig, LoopMode, MappingConfig, OutputConfig, RunConfig, SemanticsConfig, SemanticSource
+from semmap.config import InputConfig, MappingConfig, OutputConfig, RunConfig, SemanticsConfig, SemanticSource
 from semmap.datasets import Dataset
 from semmap.eval.run_report import GroundTruthFn
+from semmap.factories import instance_source_for, segmenter_for
 from semmap.pipeline import Pipeline, RunResult
-from semmap.run.prepare import open_dataset_of
 from semmap.types import Trajectory
 
 log = logging.getLogger("semmap")
@@ -42,39 +42,6 @@ def simulated_ground_truth(dataset: Path | Dataset) -> GroundTruthFn | None:
         return gt.keys, gt.class_ids
 
     return ground_truth
-
-
-def segmenter_for(config: RunConfig, dataset: Dataset | None = None):
-    """The segmenter the configuration names (``--segmenter``, or ``--semantics oracle``), or None; ``dataset``
-    (when already open) gives the oracle its label set."""
-    from semmap.perception.registry import make_segmenter
-
-    s = config.semantics
-    name = s.segmenter or ("oracle" if s.source == SemanticSource.ORACLE else None)
-    if name is None:
-        return None
-    label_set = None
-    if name == "oracle":
-        label_set = (dataset if dataset is not None else open_dataset_of(config.input, max_frames=1)).label_set
-    # online, the network has one core to itself beside tracking and mapping (its own threads would fight theirs)
-    threads = config.online.segment_threads if config.mode == LoopMode.ONLINE else None
-    return make_segmenter(name, weights=s.weights, label_set=label_set, k=s.k, label_confidence=s.label_confidence,
-                          oracle_preset=s.oracle_preset, seed=s.seed, backend=s.backend, batch_size=s.batch_size,
-                          input_size=s.input_size, threads=threads)
-
-
-def instance_source_for(config: RunConfig, segmenter, dataset: Dataset | None = None):
-    """The instance source ``--instances`` names (None without it)."""
-    o = config.objects
-    if o.instances is None:
-        return None
-    from semmap.perception.instances import make_instance_source
-
-    label_set = None
-    if segmenter is None:
-        label_set = (dataset if dataset is not None else open_dataset_of(config.input, max_frames=1)).label_set
-    return make_instance_source(o.instances, label_set=label_set, segmenter=segmenter, weights=o.weights,
-                                preset=o.errors, seed=o.seed)
 
 
 def run_config(config: RunConfig, *, dataset: Dataset | None = None, progress: Progress | None = None,
@@ -115,9 +82,11 @@ def run_demo(*, out: Path, frames: int = 300, resolution: float | None = None, s
     simulator's ground truth."""
     config, dataset = demo_config(out=out, frames=frames, resolution=resolution, scene_seed=scene_seed,
                                   rerun=rerun, oracle=oracle)
-    segmenter_name = config.semantics.segmenter or "oracle"
+    from semmap.perception.registry import SegmenterName
+
+    segmenter = SegmenterName(config.semantics.segmenter or SegmenterName.ORACLE)
     return run_config(config, dataset=dataset, progress=progress,
-                      title=f"semmap demo: {dataset.name} ({segmenter_name})")
+                      title=f"semmap demo: {dataset.name} ({segmenter.value})")
 
 
 @dataclass

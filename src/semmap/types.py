@@ -9,7 +9,6 @@ from __future__ import annotations
 import json
 from collections.abc import Sequence
 from dataclasses import dataclass, field
-from enum import Enum
 from pathlib import Path
 
 import numpy as np
@@ -342,14 +341,6 @@ class Frame:
 # --------------------------------------------------------------------------------------------------
 # Maps
 # --------------------------------------------------------------------------------------------------
-class MapKind(str, Enum):
-    """The maps ``semmap run --maps`` builds (see :mod:`semmap.maps.base`)."""
-
-    OCTOMAP = "octomap"  # semantic OctoMap: occupancy + free space + top-k fusion (maps.semantic_octomap)
-    VOXELGRID = "voxelgrid"  # dense-K semantic voxel grid (maps.voxel_grid)
-    POINTS = "points"  # fine voxel-filtered semantic point map (maps.point_map)
-
-
 @dataclass(frozen=True)
 class Observation:
     """One frame's evidence as every map integrates it: world points with the colour, class distribution,

@@ -4,8 +4,10 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from semmap.datasets import rosbag, sevenscenes, tum
 from semmap.datasets.base import (
     Dataset,
+    FormatEntry,
     SkippedFrame,
     UnreadableFileError,
     ensure_folder,
@@ -14,37 +16,41 @@ from semmap.datasets.base import (
     read_label_image,
 )
 from semmap.datasets.label_folder import LabelFolder
-from semmap.datasets.rosbag import RosbagDataset, is_rosbag
+from semmap.datasets.rosbag import RosbagDataset
 from semmap.datasets.sevenscenes import SevenScenesDataset
 from semmap.datasets.tum import TumDataset
 from semmap.errors import DatasetError
 from semmap.io.tum_writer import write_tum_sequence
+from semmap.registry import Registry
 
-#: Format name -> reader class; every reader takes ``(root, *, stride, max_frames, labels_dir, ...)``.
-READERS: dict[str, type] = {
-    "tum": TumDataset,
-    "7scenes": SevenScenesDataset,
-    "rosbag": RosbagDataset,
-}
+#: Every on-disk format, in the order :func:`detect_format` tries them; each reader module declares its ``FORMAT``.
+FORMATS: Registry[FormatEntry] = Registry("dataset format", (rosbag.FORMAT, tum.FORMAT, sevenscenes.FORMAT),
+                                          error=DatasetError)
+#: ``--format`` value that detects the format.
+AUTO = "auto"
+#: The format names and ``auto`` as an enum (the type of ``input.format`` in the run configuration).
+DatasetFormat = FORMATS.enum("DatasetFormat", __name__, (AUTO,))
 
 
 def detect_format(path: str | Path) -> str:
-    """Format of the sequence at ``path``: "rosbag" (a ROS 1 .bag, a ROS 2 bag folder), "tum" (rgb.txt +
-    depth.txt) or "7scenes" (frame-*.color.*)."""
-    if is_rosbag(Path(path)):
-        return "rosbag"
+    """Name of the format of the sequence at ``path`` (the first of :data:`FORMATS` that recognises it), or a
+    DatasetError saying what was looked for."""
+    path = Path(path)
+    for entry in FORMATS.values():
+        if not entry.folder and entry.detect(path):
+            return entry.name
     root = ensure_folder(path)
-    if (root / "rgb.txt").is_file() and (root / "depth.txt").is_file():
-        return "tum"
-    if next(root.glob("frame-*.color.*"), None) is not None:
-        return "7scenes"
-    raise DatasetError(f"{root}: unknown dataset format; looked for rgb.txt and depth.txt (TUM RGB-D), "
-                       f"frame-*.color.png|jpg files (7-Scenes) and metadata.yaml (ROS 2 bag)")
+    for entry in FORMATS.values():
+        if entry.folder and entry.detect(root):
+            return entry.name
+    looked = [e.looks_for for e in FORMATS.values() if e.folder] + [e.looks_for for e in FORMATS.values()
+                                                                     if not e.folder]
+    raise DatasetError(f"{root}: unknown dataset format; looked for {', '.join(looked[:-1])} and {looked[-1]}")
 
 
 def open_dataset(
     path: str | Path,
-    format: str = "auto",
+    format: str = AUTO,
     *,
     labels: str | Path | LabelFolder | None = None,
     stride: int = 1,
@@ -61,25 +67,21 @@ def open_dataset(
     reader (e.g. ``depth_scale`` for TUM); ``ros`` holds the ROS bag reader's topic and frame options (ignored
     by the other readers); ``strict`` stops at the first frame that cannot be used instead of skipping it.
     """
-    name = detect_format(path) if format == "auto" else format
-    if name == "rosbag":
-        if not Path(path).exists():
-            raise DatasetError(f"{path}: ROS bag does not exist")
-        return RosbagDataset(path, labels_dir=labels, stride=stride, max_frames=max_frames, strict=strict,
-                             **(ros or {}), **kwargs)
-    root = ensure_folder(path)
-    if name == "7scenes":
-        kwargs["register_color"] = not raw_color
-    try:
-        reader = READERS[name]
-    except KeyError:
-        raise DatasetError(f"unknown dataset format {name!r}; known: auto, {', '.join(READERS)}") from None
-    return reader(root, labels_dir=labels, stride=stride, max_frames=max_frames, strict=strict, **kwargs)
+    name = detect_format(path) if format == AUTO else format
+    if name not in FORMATS or FORMATS[name].folder:
+        path = ensure_folder(path)
+    if name not in FORMATS:
+        raise DatasetError(FORMATS.unknown(name, (AUTO,)))
+    return FORMATS[name].factory(path, labels=labels, stride=stride, max_frames=max_frames, strict=strict,
+                                 raw_color=raw_color, ros=ros, **kwargs)
 
 
 __all__ = [
-    "READERS",
+    "AUTO",
+    "FORMATS",
     "Dataset",
+    "DatasetFormat",
+    "FormatEntry",
     "LabelFolder",
     "RosbagDataset",
     "SevenScenesDataset",

@@ -247,3 +247,17 @@ def ensure_folder(root: str | Path) -> Path:
     if not path.is_dir():
         raise DatasetError(f"{path}: is a file, expected a dataset folder (or a ROS bag: .bag, .mcap, .db3)")
     return path
+
+
+@dataclass(frozen=True)
+class FormatEntry:
+    """An on-disk dataset format, declared as ``FORMAT`` by its reader's module and found by
+    :data:`semmap.datasets.FORMATS`: its name, opener, one line of help, and how to recognise it."""
+
+    name: str
+    #: ``open(path, *, labels, stride, max_frames, strict, raw_color, ros, **reader_kwargs) -> Dataset``
+    factory: Callable[..., Dataset]
+    help: str
+    detect: Callable[[Path], bool]  #: True when ``path`` holds this format
+    looks_for: str  #: what :attr:`detect` looks for, for the "unknown format" message
+    folder: bool = True  #: a folder (checked with :func:`ensure_folder` before ``detect`` and ``factory``)

@@ -22,7 +22,14 @@ import numpy as np
 
 from semmap.datasets._ros_images import decode_color, decode_depth
 from semmap.datasets._ros_tf import TransformTree
-from semmap.datasets.base import SkippedFrame, UnreadableFileError, check_image_size, select_frames, skip_frame
+from semmap.datasets.base import (
+    FormatEntry,
+    SkippedFrame,
+    UnreadableFileError,
+    check_image_size,
+    select_frames,
+    skip_frame,
+)
 from semmap.datasets.tum import associate
 from semmap.errors import DatasetError
 from semmap.files.safe import regular_file_size
@@ -423,3 +430,14 @@ class RosbagDataset:
         if world.lstrip("/") not in tree:
             raise DatasetError(f"--world-frame {world}: not in /tf; frames: {', '.join(tree.frames)}")
         return world, camera_frame
+
+
+def _open_rosbag(path: Path, *, labels, raw_color: bool, ros: dict | None, **kwargs) -> RosbagDataset:
+    if not Path(path).exists():
+        raise DatasetError(f"{path}: ROS bag does not exist")
+    return RosbagDataset(path, labels_dir=labels, **(ros or {}), **kwargs)
+
+
+#: ROS 1 and ROS 2 bags (read by the ``rosbags`` package).
+FORMAT = FormatEntry("rosbag", _open_rosbag, "ROS 1 .bag file or ROS 2 bag folder (colour, depth, CameraInfo, "
+                     "/tf or a pose topic)", detect=is_rosbag, looks_for="metadata.yaml (ROS 2 bag)", folder=False)

@@ -18,6 +18,7 @@ import numpy as np
 
 from semmap.datasets.base import (
     LOG,
+    FormatEntry,
     SequenceReader,
     UnreadableFileError,
     check_image_size,
@@ -169,3 +170,13 @@ def _find_intrinsics(root: Path, color_paths: list[Path]) -> CameraIntrinsics:
         return CameraIntrinsics(width, height, float(fx), float(fy), float(cx), float(cy))
     except ConfigError as exc:
         raise DatasetError(f"{path}: {exc}") from None
+
+
+def _open_7scenes(root: Path, *, labels, raw_color: bool, ros: dict | None, **kwargs) -> SevenScenesDataset:
+    return SevenScenesDataset(root, labels_dir=labels, register_color=not raw_color, **kwargs)
+
+
+#: Microsoft's 7-Scenes layout.
+FORMAT = FormatEntry("7scenes", _open_7scenes, "7-Scenes sequence folder: frame-*.color.png, .depth.png, .pose.txt",
+                     detect=lambda root: next(root.glob("frame-*.color.*"), None) is not None,
+                     looks_for="frame-*.color.png|jpg files (7-Scenes)")

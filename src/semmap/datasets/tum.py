@@ -15,6 +15,7 @@ import numpy as np
 
 from semmap.datasets.base import (
     LOG,
+    FormatEntry,
     SequenceReader,
     check_image_size,
     ensure_folder,
@@ -224,3 +225,13 @@ def _find_intrinsics(root: Path, rgb_paths: list[Path]) -> CameraIntrinsics:
     fx, fy, cx, cy = next((v for key, v in FREIBURG_INTRINSICS.items() if key in folder), default)
     width, height = image_size(rgb_paths, root)
     return CameraIntrinsics(width, height, fx, fy, cx, cy)
+
+
+def _open_tum(root: Path, *, labels, raw_color: bool, ros: dict | None, **kwargs) -> TumDataset:
+    return TumDataset(root, labels_dir=labels, **kwargs)
+
+
+#: The TUM RGB-D layout (also what ``semmap simulate`` writes).
+FORMAT = FormatEntry("tum", _open_tum, "TUM RGB-D folder: rgb.txt, depth.txt (and groundtruth.txt)",
+                     detect=lambda root: (root / "rgb.txt").is_file() and (root / "depth.txt").is_file(),
+                     looks_for="rgb.txt and depth.txt (TUM RGB-D)")

@@ -12,6 +12,7 @@ from pathlib import Path
 import numpy as np
 
 from semmap.files.atomic import write_bytes_atomic
+from semmap.poses.track import GROUND_TRUTH
 from semmap.types import MapCloud, Trajectory
 
 #: File names of the plots, by the report section they belong to.
@@ -170,7 +171,7 @@ def write_report_plots(out_dir: str | Path, report: dict, *, used: Trajectory | 
     out_dir = Path(out_dir)
     plots: dict[str, str] = {}
     if used is not None and len(used) >= 2:
-        same = ground_truth is not None and report.get("poses") == "gt"
+        same = ground_truth is not None and report.get("poses") == GROUND_TRUTH
         ate = report.get("trajectory_vs_ground_truth", {}).get("ate_rmse_m")
         plot_trajectory(out_dir / PLOT_FILES["trajectory"], used, None if same else ground_truth, cloud=cloud,
                         label="ground-truth poses" if same else f"poses used ({report.get('poses', '?')})",

@@ -24,10 +24,12 @@ from semmap.eval.report_plots import write_report_plots
 from semmap.eval.semantic import confusion, evaluate_2d, evaluate_cloud_3d
 from semmap.files.atomic import write_text_atomic
 from semmap.maps.base import SemanticMap
+from semmap.maps.registry import MAPS, MapKind
 from semmap.perception.schedule import Scheduler
 from semmap.poses.base import LiveTracker
-from semmap.poses.frame_poses import GROUND_TRUTH, FramePoses
-from semmap.types import MapKind, TopKProbs, Trajectory, rotation_angle
+from semmap.poses.frame_poses import FramePoses
+from semmap.poses.track import GROUND_TRUTH
+from semmap.types import TopKProbs, Trajectory, rotation_angle
 
 log = logging.getLogger("semmap")
 #: Ground truth for 3D evaluation: resolution -> (keys (M, 3), class ids (M,)) of the true surface voxels.
@@ -97,8 +99,7 @@ class RunScorer:
 
 def files_of(m: SemanticMap) -> set[str]:
     """Names of the files a map's save writes (the OctoMap's map.*; other maps <kind>.*), and its preview."""
-    stem = "map" if m.kind == MapKind.OCTOMAP else m.kind.value
-    return {f"{stem}.ot", f"{stem}.bt", f"{stem}.semmap", f"{stem}.ply", f"preview_{m.kind.value}.png"}
+    return MAPS[m.kind].files()
 
 
 def maps_report(maps: Sequence[SemanticMap], sizes: dict[str, int], crf: dict[MapKind, dict],

@@ -16,9 +16,10 @@ import numpy as np
 from semmap.errors import FormatError, SemmapError
 from semmap.files.atomic import write_atomic
 from semmap.fusion.rules import FusionParams
+from semmap.maps.registry import MapKind
 from semmap.maps.semantic_grid import GridArrays
 from semmap.maps.semantic_octomap import CellArrays, OccupancyParams, SemanticOctoMap
-from semmap.types import LabelSet, MapKind
+from semmap.types import LabelSet
 
 FORMAT = "semmap-grid"
 VERSION = 1

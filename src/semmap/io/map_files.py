@@ -15,8 +15,8 @@ from semmap.io import grid_files, native
 from semmap.io.octomap_files import write_bt, write_ot
 from semmap.io.ply import write_ply
 from semmap.maps.base import SemanticMap
+from semmap.maps.registry import MapKind
 from semmap.maps.semantic_octomap import SemanticOctoMap
-from semmap.types import MapKind
 
 #: The files each map kind writes, in the order they are written (lossless ``.semmap`` of a grid first).
 MAP_FILES: dict[MapKind, tuple[str, ...]] = {

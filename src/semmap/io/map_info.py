@@ -7,7 +7,8 @@ from pathlib import Path
 import numpy as np
 
 from semmap.errors import FormatError
-from semmap.types import EMPTY_LABEL, MapKind
+from semmap.maps.registry import MapKind
+from semmap.types import EMPTY_LABEL
 
 
 def describe_map_file(path: str | Path) -> dict:

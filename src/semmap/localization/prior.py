@@ -18,7 +18,8 @@ from scipy import ndimage
 
 from semmap.errors import ConfigError, FormatError
 from semmap.io.map_files import load_map_file, native_file
-from semmap.types import EMPTY_LABEL, LabelSet, MapKind
+from semmap.maps.registry import MapKind
+from semmap.types import EMPTY_LABEL, LabelSet
 
 #: Cells beyond this distance (m) from every occupied voxel get no nearest voxel (their points score as clutter).
 DEFAULT_CUTOFF_M = 0.5

@@ -43,7 +43,7 @@ class LocalizeOptions:
     init_pose: np.ndarray | None = None  # tracking: starting T_world_cam (default: the first frame's ground truth)
     motion: str = "odometry"  # odometry | gt-noisy | path of a TUM trajectory
     motion_noise: float = 0.05  # gt-noisy: drift as a fraction of each motion
-    segmenter: str | None = "auto"  # auto | oracle | espnetv2 | precomputed | none
+    segmenter: str | None = "auto"  # auto | none | a segmenter (semmap.perception.registry.SEGMENTERS)
     weights: Path | None = None
     height: float | None = None  # ground mode without ground truth: camera height ...
     pitch_deg: float = 0.0  # ... and its fixed pitch and roll
@@ -73,7 +73,9 @@ def _segment_fn(options: LocalizeOptions, dataset, prior):
     model = options.settings.model
     name = options.segmenter
     if name == "auto":
-        name = "oracle" if _has_labels(dataset) else None
+        from semmap.perception.registry import SegmenterName
+
+        name = SegmenterName.ORACLE if _has_labels(dataset) else None
     if name in (None, "none"):
         if model != ObservationKind.GEOMETRY:
             raise ConfigError(f"the {model.value} model needs class sets for the frames: pass --segmenter "

@@ -1,6 +1,6 @@
 """The one map interface: every semantic map (OctoMap, voxel grid, point map, ...) is fed and read the same way.
 
-The pipeline builds a list of maps (:func:`semmap.maps.registry.get_map`) and, per frame, hands each the same
+The pipeline builds a list of maps (:func:`semmap.factories.get_map`) and, per frame, hands each the same
 :class:`~semmap.types.Observation`; afterwards it reads each as a :class:`~semmap.types.MapCloud`, saves it
 (:func:`semmap.io.map_files.save_map_files`, from the map's public arrays) and puts its self-description in the
 report.  Nothing outside ``maps/`` needs to know which map it holds.
@@ -10,7 +10,8 @@ from __future__ import annotations
 
 from typing import Protocol, runtime_checkable
 
-from semmap.types import LabelSet, MapCloud, MapKind, Observation
+from semmap.maps.registry import MapKind
+from semmap.types import LabelSet, MapCloud, Observation
 
 
 @runtime_checkable

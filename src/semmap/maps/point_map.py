@@ -11,9 +11,10 @@ from __future__ import annotations
 import numpy as np
 
 from semmap.fusion.rules import FusionParams, FusionRule
+from semmap.maps.registry import MapKind
 from semmap.maps.semantic_grid import SemanticGrid
 from semmap.maps.voxel_grid import UNCOLOURED
-from semmap.types import LabelSet, MapCloud, MapKind, Observation
+from semmap.types import LabelSet, MapCloud, Observation
 
 #: Default filter cell of the point map (metres).
 DEFAULT_POINT_RESOLUTION = 0.01

@@ -28,7 +28,8 @@ from semmap.maps import _octree_kernels as kern
 from semmap.maps._coarsen import coarsen_cells
 from semmap.maps._keys import EMPTY_KEY
 from semmap.maps.octree_tree import UNSET_COLOR, OctreeNodes, build_tree
-from semmap.types import EMPTY_LABEL, LabelSet, MapCloud, MapKind, Observation, TopKProbs, muted_grey
+from semmap.maps.registry import MapKind
+from semmap.types import EMPTY_LABEL, LabelSet, MapCloud, Observation, TopKProbs, muted_grey
 
 log = logging.getLogger("semmap")
 

@@ -15,9 +15,10 @@ import numpy as np
 
 from semmap.fusion.rules import FusionParams, FusionRule
 from semmap.keys import unpack_keys
+from semmap.maps.registry import MapKind
 from semmap.maps.semantic_grid import GridArrays, SemanticGrid
 from semmap.maps.semantic_octomap import OCCUPIED, OccupancyParams, SemanticOctoMap
-from semmap.types import LabelSet, MapCloud, MapKind, Observation
+from semmap.types import LabelSet, MapCloud, Observation
 
 #: Colour of voxels never coloured (frames without colour).
 UNCOLOURED = 128

@@ -3,10 +3,14 @@
 from __future__ import annotations
 
 import os
+from collections.abc import Callable
+from dataclasses import dataclass
 from pathlib import Path
 
 from semmap.errors import ConfigError
 from semmap.perception.base import Segmenter
+from semmap.perception.networks.registry import MODELS
+from semmap.registry import Registry
 from semmap.types import LabelSet
 
 #: ESPNetv2's default network input: 320 px short side keeping the aspect ratio (432x320 for 640x480).
@@ -15,19 +19,6 @@ from semmap.types import LabelSet
 #: loses much of the table. Indoor objects close to a Kinect look larger than in VOC's training crops.
 ESPNETV2_INPUT = 320
 
-#: name -> what it needs, for help texts and errors.
-SEGMENTERS = {
-    "oracle": "simulated network made from ground-truth labels (simulator sequences)",
-    "precomputed": "per-frame label PNGs or .npy/.npz probabilities from a folder (--weights FOLDER)",
-    "espnetv2": "ESPNetv2 trained on PASCAL VOC, 21 classes (--weights espnetv2_s_2.0_pascal_384x384.pth)",
-    "fcn": "FCN-8s trained by semmap on simulated scenes (shipped weights/fcn.pt, or --weights RUN/best.pt)",
-    "pspnet": "PSPNet trained by semmap (weights/pspnet.pt)",
-    "cbam-pspnet": "CBAM-PSPNet trained by semmap (weights/cbam-pspnet.pt)",
-    "rgbd-net": "the RGB-D multi-scale network trained by semmap, colour + depth (weights/rgbd-net.pt)",
-    "rgb-only": "the RGB-D network's colour-only twin trained by semmap (weights/rgb-only.pt)",
-}
-#: Segmenters that are semmap's own trained networks (their weight files hold architecture and label set).
-TRAINED_NETWORKS = ("fcn", "pspnet", "cbam-pspnet", "rgbd-net", "rgb-only")
 #: Environment variable naming another folder of shipped weights.
 WEIGHTS_ENV = "SEMMAP_WEIGHTS"
 #: The shipped weights' manifest (sha256, training command, data seeds, metrics, the demo's network).
@@ -58,43 +49,92 @@ def shipped_weights(name: str) -> Path:
     return shipped_weights_dir() / f"{name}.pt"
 
 
+@dataclass(frozen=True)
+class SegmenterEntry:
+    """A segmenter by name: its factory (the keywords of :func:`make_segmenter`), one line of help, and what it
+    needs."""
+
+    name: str
+    factory: Callable[..., Segmenter]
+    help: str
+    needs_weights: bool = False  #: ``--weights`` is required (no shipped default)
+    trained: bool = False  #: one of semmap's own networks (its weight file holds architecture and label set)
+    uses_depth: bool = False  #: reads the depth image too
+    dataset_classes: bool = False  #: predicts the dataset's own label set (needs it opened first)
+
+
+def _oracle(*, label_set: LabelSet | None, k: int, oracle_preset: str, seed: int, **_) -> Segmenter:
+    from semmap.perception.oracle import OracleSegmenter
+
+    if label_set is None:
+        from semmap.labels import INDOOR_LABELS
+
+        label_set = INDOOR_LABELS
+    return OracleSegmenter(label_set, preset=oracle_preset, seed=seed, k=k)
+
+
+def _precomputed(*, weights: Path | None, k: int, label_confidence: float, **_) -> Segmenter:
+    from semmap.perception.precomputed import PrecomputedSegmenter
+
+    if weights is None:
+        raise ConfigError("--segmenter precomputed needs the predictions folder: --weights FOLDER")
+    return PrecomputedSegmenter(weights, k=k, label_confidence=label_confidence)
+
+
+def _espnetv2(*, weights: Path | None, k: int, backend: str, batch_size: int,
+              input_size: tuple[int, int] | int | None, threads: int | None, **_) -> Segmenter:
+    from semmap.perception.espnetv2 import load_espnetv2
+    from semmap.perception.network import NetworkInput, NetworkSegmenter
+    from semmap.perception.voc import PASCAL_VOC
+
+    if weights is None:
+        raise ConfigError("--segmenter espnetv2 needs its weights: --weights espnetv2_s_2.0_pascal_384x384.pth")
+    model = load_espnetv2(weights, full_resolution=False)  # the segmenter upsamples once, to the image
+    size = ESPNETV2_INPUT if input_size is None else input_size
+    net_input = NetworkInput(short_side=size) if isinstance(size, int) else NetworkInput(size=size)
+    stat = Path(weights).stat()
+    return NetworkSegmenter(model, PASCAL_VOC, name=ESPNETV2, net_input=net_input, k=k, backend=backend,
+                            batch_size=batch_size, threads=threads,
+                            cache_key=f"{Path(weights).resolve()}|{stat.st_size}|{stat.st_mtime_ns}|half")
+
+
+def _trained(name: str) -> Callable[..., Segmenter]:
+    def make(*, weights: Path | None, k: int, backend: str, batch_size: int,
+             input_size: tuple[int, int] | int | None, threads: int | None, **_) -> Segmenter:
+        return trained_network_segmenter(name, weights=weights, k=k, backend=backend, batch_size=batch_size,
+                                         input_size=input_size, threads=threads)
+
+    return make
+
+
+#: The PASCAL VOC network loaded from its authors' weights.
+ESPNETV2 = "espnetv2"
+#: Every segmenter ``--segmenter`` can name: three of their own, then semmap's trained networks
+#: (:data:`~semmap.perception.networks.registry.MODELS`, shipped weights in ``weights/<name>.pt``).
+SEGMENTERS: Registry[SegmenterEntry] = Registry("segmenter", [
+    SegmenterEntry("oracle", _oracle, "simulated network made from ground-truth labels (simulator sequences)",
+                   dataset_classes=True),
+    SegmenterEntry("precomputed", _precomputed, "per-frame label PNGs or .npy/.npz probabilities from a folder "
+                   "(--weights FOLDER)", needs_weights=True),
+    SegmenterEntry(ESPNETV2, _espnetv2, "ESPNetv2 trained on PASCAL VOC, 21 classes (--weights "
+                   "espnetv2_s_2.0_pascal_384x384.pth)", needs_weights=True),
+    *(SegmenterEntry(m.name, _trained(m.name), f"{m.help}, trained by semmap (shipped weights/{m.name}.pt, or "
+                     f"--weights RUN/best.pt)", trained=True, uses_depth=m.uses_depth) for m in MODELS.values()),
+])
+#: Segmenters that are semmap's own trained networks (their weight files hold architecture and label set).
+TRAINED_NETWORKS: tuple[str, ...] = SEGMENTERS.where(trained=True)
+#: The segmenter names as an enum (the type of ``semantics.segmenter`` in the run configuration).
+SegmenterName = SEGMENTERS.enum("SegmenterName", __name__)
+
+
 def make_segmenter(name: str, *, weights: Path | None = None, label_set: LabelSet | None = None, k: int = 3,
                    label_confidence: float = 0.9, oracle_preset: str = "cnn-like", seed: int = 0,
                    backend: str = "torch", batch_size: int = 1, input_size: tuple[int, int] | int | None = None,
                    threads: int | None = None) -> Segmenter:
     """Build the segmenter ``name``; ``label_set`` is the dataset's (the oracle predicts its classes)."""
-    if name == "oracle":
-        from semmap.perception.oracle import OracleSegmenter
-
-        if label_set is None:
-            from semmap.labels import INDOOR_LABELS
-
-            label_set = INDOOR_LABELS
-        return OracleSegmenter(label_set, preset=oracle_preset, seed=seed, k=k)
-    if name == "precomputed":
-        from semmap.perception.precomputed import PrecomputedSegmenter
-
-        if weights is None:
-            raise ConfigError("--segmenter precomputed needs the predictions folder: --weights FOLDER")
-        return PrecomputedSegmenter(weights, k=k, label_confidence=label_confidence)
-    if name == "espnetv2":
-        from semmap.perception.espnetv2 import load_espnetv2
-        from semmap.perception.network import NetworkInput, NetworkSegmenter
-        from semmap.perception.voc import PASCAL_VOC
-
-        if weights is None:
-            raise ConfigError("--segmenter espnetv2 needs its weights: --weights espnetv2_s_2.0_pascal_384x384.pth")
-        model = load_espnetv2(weights, full_resolution=False)  # the segmenter upsamples once, to the image
-        size = ESPNETV2_INPUT if input_size is None else input_size
-        net_input = NetworkInput(short_side=size) if isinstance(size, int) else NetworkInput(size=size)
-        stat = Path(weights).stat()
-        return NetworkSegmenter(model, PASCAL_VOC, name="espnetv2", net_input=net_input, k=k, backend=backend,
-                                batch_size=batch_size, threads=threads,
-                                cache_key=f"{Path(weights).resolve()}|{stat.st_size}|{stat.st_mtime_ns}|half")
-    if name in TRAINED_NETWORKS:
-        return trained_network_segmenter(name, weights=weights, k=k, backend=backend, batch_size=batch_size,
-                                         input_size=input_size, threads=threads)
-    raise ConfigError(f"unknown segmenter {name!r}; choose one of {', '.join(SEGMENTERS)}")
+    return SEGMENTERS[name].factory(weights=weights, label_set=label_set, k=k, label_confidence=label_confidence,
+                                    oracle_preset=oracle_preset, seed=seed, backend=backend, batch_size=batch_size,
+                                    input_size=input_size, threads=threads)
 
 
 def trained_network_segmenter(name: str, *, weights: Path | None = None, k: int = 3, backend: str = "torch",

@@ -11,9 +11,6 @@ from semmap.poses.base import LiveTracker, PoseTracker
 from semmap.poses.file import GroundTruthRecorder
 from semmap.types import Frame, Trajectory
 
-#: ``FramePoses.source`` of a run posed by the dataset's own ground truth.
-GROUND_TRUTH = "gt"
-
 
 class FramePoses:
     """Pose of each frame from one source (ground truth, a trajectory lookup or a tracker's poses by frame

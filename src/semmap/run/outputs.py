@@ -14,8 +14,8 @@ from semmap.files.atomic import write_text_atomic
 from semmap.io.map_files import save_map_files
 from semmap.keys import TREE_MAX_VAL
 from semmap.maps.base import SemanticMap
+from semmap.maps.registry import MapKind
 from semmap.object_stage import ObjectStage
-from semmap.types import MapKind
 from semmap.viz.preview import render_preview, side_by_side, up_vector, write_png
 
 log = logging.getLogger("semmap")

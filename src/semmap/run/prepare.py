@@ -8,14 +8,15 @@ import time
 from collections.abc import Callable, Iterator
 from pathlib import Path
 
-from semmap.config import InputConfig, LoopMode, RunConfig, SemanticSource
-from semmap.datasets import Dataset, open_dataset
+from semmap.config import LoopMode, RunConfig, SemanticSource
+from semmap.datasets import Dataset
 from semmap.errors import ConfigError
 from semmap.interrupt import checked
 from semmap.perception.base import Preparable, Segmenter
 from semmap.perception.instances.base import InstanceSource
 from semmap.perception.precomputed import FALLBACK_CLASSES
-from semmap.poses.frame_poses import GROUND_TRUTH, FramePoses
+from semmap.poses.frame_poses import FramePoses
+from semmap.poses.track import GROUND_TRUTH
 from semmap.types import Frame, LabelSet
 
 Progress = Callable[[Iterator, int], Iterator]
@@ -78,9 +79,9 @@ def pose_source_for(config: RunConfig, dataset: Dataset, *, instances: InstanceS
     source = config.poses.source
     if source == GROUND_TRUTH:
         return FramePoses(GROUND_TRUTH)
-    from semmap.object_slam import OBJECT_METHODS, make_pose_tracker
+    from semmap.object_slam import make_pose_tracker
     from semmap.poses.base import estimate_trajectory
-    from semmap.poses.track import METHODS
+    from semmap.poses.track import METHODS, OBJECT_METHODS
 
     if source in METHODS or source in OBJECT_METHODS:
         t0 = time.perf_counter()
@@ -101,13 +102,7 @@ def pose_source_for(config: RunConfig, dataset: Dataset, *, instances: InstanceS
 
     path = Path(source)
     if not path.is_file():
-        raise ConfigError(f"--poses must be gt, a tracker ({', '.join(METHODS + OBJECT_METHODS)}) or a "
+        raise ConfigError(f"--poses must be {GROUND_TRUTH}, a tracker ({', '.join(METHODS + OBJECT_METHODS)}) or a "
                           f"trajectory file; {path} does not exist")
     return FramePoses(str(path), lookup=TrajectoryPoses.from_file(path, max_time_diff=config.poses.max_time_diff))
 
-
-def open_dataset_of(c: InputConfig, *, max_frames: int | None = None) -> Dataset:
-    """The dataset a run's input section names (``max_frames`` overrides its own, e.g. 1 to read a label set)."""
-    return open_dataset(c.dataset, c.format, labels=c.labels, stride=c.stride,
-                        max_frames=c.max_frames if max_frames is None else max_frames, raw_color=c.raw_color,
-                        ros=c.ros.options(), strict=c.strict)

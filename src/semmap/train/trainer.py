@@ -31,7 +31,7 @@ from semmap.eval.semantic import confusion, scores
 from semmap.files.atomic import write_bytes_atomic, write_text_atomic
 from semmap.perception.network import IMAGENET_MEAN, IMAGENET_STD
 from semmap.perception.networks.pspnet import AUX_WEIGHT
-from semmap.perception.networks.registry import NetworkSpec, build_network, count_parameters, save_weights
+from semmap.perception.networks.registry import MODELS, NetworkSpec, build_network, count_parameters, save_weights
 from semmap.train.augment import Augmentation, augment
 from semmap.train.class_weights import IGNORE, median_frequency_weights
 from semmap.train.data import DEPTH_MM, TrainingSet, gather
@@ -149,7 +149,7 @@ class Trainer:
         if settings.threads is not None:
             torch.set_num_threads(int(settings.threads))
         self.device = self._device(settings.device)
-        need_depth = settings.model == "rgbd-net"
+        need_depth = MODELS[settings.model].uses_depth
         label_set = None
         if settings.label_set is not None:
             from semmap.types import LabelSet

@@ -1,26 +1,77 @@
 """Networks by name, and their weight files: one ``.pt`` holding the architecture (:class:`NetworkSpec`), the
-label set, the training input size and the state dict (float16 on disk, float32 in memory)."""
+label set, the training input size and the state dict (float16 on disk, float32 in memory).
+
+PyTorch is imported only when a network is built or a weight file read, so the names are cheap to list."""
 
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import asdict, dataclass, fields, replace
 from pathlib import Path
-
-import torch
+from typing import TYPE_CHECKING
 
 from semmap.errors import ConfigError, FormatError
-from semmap.perception.networks.base import SegmentationNet
+from semmap.registry import Registry
 from semmap.types import LabelSet
 
-#: name -> what it is (help texts; the names ``semmap train --model`` and ``semmap run --segmenter`` take).
-MODELS: dict[str, str] = {
-    "fcn": "FCN-8s over a ResNet (or VGG-16) backbone",
-    "pspnet": "PSPNet: dilated ResNet, pyramid pooling 1/2/3/6, auxiliary head",
-    "cbam-pspnet": "CBAM-PSPNet: PSPNet with channel + spatial attention in every residual block",
-    "rgbd-net": "RGB-D two-branch VGG-16 with step-by-step fusion and multi-scale fusion module (needs depth)",
-    "rgb-only": "the RGB-D network's colour-only twin",
-}
+if TYPE_CHECKING:
+    import torch
+
+    from semmap.perception.networks.base import SegmentationNet
+
+
+@dataclass(frozen=True)
+class NetworkEntry:
+    """A network by name: its builder ``(spec, full_resolution) -> network``, one line of help, its inputs."""
+
+    name: str
+    factory: Callable[[NetworkSpec, bool], SegmentationNet]
+    help: str
+    uses_depth: bool = False  #: takes the depth image as a fourth channel
+    backbone: str | None = None  #: fixed backbone (None: a ResNet of ``spec.depth``)
+    chooses_backbone: bool = False  #: ``spec.backbone`` picks ResNet or VGG-16
+
+
+def _fcn(spec: NetworkSpec, full_resolution: bool) -> SegmentationNet:
+    from semmap.perception.networks.fcn import FCN8s
+
+    return FCN8s(spec.num_classes, backbone=spec.backbone, depth=spec.depth, width=spec.width,
+                 full_resolution=full_resolution)
+
+
+def _pspnet(spec: NetworkSpec, full_resolution: bool) -> SegmentationNet:
+    from semmap.perception.networks.pspnet import PSPNet
+
+    return PSPNet(spec.num_classes, depth=spec.depth, width=spec.width, full_resolution=full_resolution)
+
+
+def _cbam_pspnet(spec: NetworkSpec, full_resolution: bool) -> SegmentationNet:
+    from semmap.perception.networks.cbam_pspnet import CBAMPSPNet
+
+    return CBAMPSPNet(spec.num_classes, depth=spec.depth, width=spec.width, full_resolution=full_resolution)
+
+
+def _rgbd_net(use_depth: bool) -> Callable[[NetworkSpec, bool], SegmentationNet]:
+    def build(spec: NetworkSpec, full_resolution: bool) -> SegmentationNet:
+        from semmap.perception.networks.rgbd_net import RGBDNet
+
+        return RGBDNet(spec.num_classes, width=spec.width, use_depth=use_depth, msff_dilation=spec.msff_dilation,
+                       full_resolution=full_resolution)
+
+    return build
+
+
+#: The networks ``semmap train --model`` trains and ``semmap run --segmenter`` runs (with their weight files).
+MODELS: Registry[NetworkEntry] = Registry("network", [
+    NetworkEntry("fcn", _fcn, "FCN-8s over a ResNet (or VGG-16) backbone", chooses_backbone=True),
+    NetworkEntry("pspnet", _pspnet, "PSPNet: dilated ResNet, pyramid pooling 1/2/3/6, auxiliary head"),
+    NetworkEntry("cbam-pspnet", _cbam_pspnet, "CBAM-PSPNet: PSPNet with channel + spatial attention in every "
+                 "residual block"),
+    NetworkEntry("rgbd-net", _rgbd_net(True), "RGB-D two-branch VGG-16 with step-by-step fusion and multi-scale "
+                 "fusion module (needs depth)", uses_depth=True, backbone="vgg16"),
+    NetworkEntry("rgb-only", _rgbd_net(False), "the RGB-D network's colour-only twin", backbone="vgg16"),
+])
 #: Marker and version of semmap's network weight files.
 WEIGHTS_FORMAT = "semmap-network"
 WEIGHTS_VERSION = 1
@@ -40,19 +91,20 @@ class NetworkSpec:
 
     def __post_init__(self) -> None:
         if self.model not in MODELS:
-            raise ConfigError(f"unknown network {self.model!r}; choose one of {', '.join(MODELS)}")
+            raise ConfigError(MODELS.unknown(self.model))
         if not (math.isfinite(self.width) and 0 < self.width <= 4):
             raise ConfigError(f"width multiplier must be in (0, 4], got {self.width}")
 
     @property
     def uses_depth(self) -> bool:
-        return self.model == "rgbd-net"
+        return MODELS[self.model].uses_depth
 
     def describe(self) -> str:
         """Short name with the size, e.g. ``cbam-pspnet-r18-w0.25``."""
-        if self.model in ("rgbd-net", "rgb-only"):
-            return f"{self.model}-vgg16-w{self.width:g}"
-        bb = "vgg16" if self.model == "fcn" and self.backbone == "vgg16" else f"r{self.depth}"
+        entry = MODELS[self.model]
+        if entry.backbone is not None:
+            return f"{self.model}-{entry.backbone}-w{self.width:g}"
+        bb = "vgg16" if entry.chooses_backbone and self.backbone == "vgg16" else f"r{self.depth}"
         return f"{self.model}-{bb}-w{self.width:g}"
 
     def to_dict(self) -> dict:
@@ -67,23 +119,7 @@ class NetworkSpec:
 def build_network(spec: NetworkSpec, *, full_resolution: bool = False) -> SegmentationNet:
     """A freshly initialised network for ``spec``."""
     try:
-        if spec.model == "fcn":
-            from semmap.perception.networks.fcn import FCN8s
-
-            return FCN8s(spec.num_classes, backbone=spec.backbone, depth=spec.depth, width=spec.width,
-                         full_resolution=full_resolution)
-        if spec.model == "pspnet":
-            from semmap.perception.networks.pspnet import PSPNet
-
-            return PSPNet(spec.num_classes, depth=spec.depth, width=spec.width, full_resolution=full_resolution)
-        if spec.model == "cbam-pspnet":
-            from semmap.perception.networks.cbam_pspnet import CBAMPSPNet
-
-            return CBAMPSPNet(spec.num_classes, depth=spec.depth, width=spec.width, full_resolution=full_resolution)
-        from semmap.perception.networks.rgbd_net import RGBDNet
-
-        return RGBDNet(spec.num_classes, width=spec.width, use_depth=spec.model == "rgbd-net",
-                       msff_dilation=spec.msff_dilation, full_resolution=full_resolution)
+        return MODELS[spec.model].factory(spec, full_resolution)
     except ValueError as exc:
         raise ConfigError(f"cannot build {spec.describe()}: {exc}") from None
 
@@ -116,6 +152,8 @@ def save_weights(path: str | Path, model: SegmentationNet, spec: NetworkSpec, la
             "state_dict": state}
     import io
 
+    import torch
+
     buf = io.BytesIO()
     torch.save(blob, buf)
     return write_bytes_atomic(path, buf.getvalue())
@@ -127,6 +165,8 @@ def load_weights(path: str | Path, *, full_resolution: bool = False) -> NetworkW
     path = Path(path)
     if not path.is_file():
         raise FormatError(f"{path}: network weights file not found")
+    import torch
+
     try:
         blob = torch.load(path, map_location="cpu", weights_only=True)
     except Exception as exc:  # torch raises many types for a corrupt / non-torch file
