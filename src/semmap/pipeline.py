@@ -26,6 +26,7 @@ from semmap.eval.report_html import write_report_html
 from semmap.eval.report_md import write_report_md
 from semmap.eval.report_plots import write_report_plots
 from semmap.eval.semantic import confusion, evaluate_2d, evaluate_cloud_3d
+from semmap.frame_arrays import class_sets, frame_from_arrays
 from semmap.geometry import backproject_world, pixel_normals
 from semmap.interrupt import RunInterrupted, checked, deferred_interrupts, stop_requested
 from semmap.io.atomic import write_text_atomic
@@ -45,6 +46,7 @@ from semmap.perception.schedule import (
 )
 from semmap.poses.base import LiveTracker, PoseTracker
 from semmap.types import (
+    CameraIntrinsics,
     Frame,
     LabelSet,
     MapCloud,
@@ -110,6 +112,16 @@ class Mapper:
             ms.update(steps if i == 0 else {f"{m.kind.value}:{k}": v for k, v in steps.items()})
         self.points_integrated += len(points_world)
         return ms
+
+    def integrate_arrays(self, rgb: np.ndarray, depth_m: np.ndarray, intrinsics: CameraIntrinsics | np.ndarray,
+                         T_world_cam: np.ndarray, semantics: np.ndarray | TopKProbs | None = None, *, k: int = 3,
+                         label_confidence: float = 0.9, index: int = 0) -> dict[str, float]:
+        """:meth:`integrate` for a user's own loop: one frame as plain arrays (see
+        :func:`semmap.frame_arrays.frame_from_arrays` and :func:`~semmap.frame_arrays.class_sets`)."""
+        frame = frame_from_arrays(rgb, depth_m, intrinsics, T_world_cam=T_world_cam, index=index)
+        classes = next((len(m.label_set) for m in self.maps if m.label_set is not None), None)
+        sem = class_sets(semantics, frame.depth.shape, num_classes=classes, k=k, label_confidence=label_confidence)
+        return self.integrate(frame, frame.T_world_cam, sem)
 
 
 def semantics_for(frame: Frame, source: SemanticSource, *, segmenter: Segmenter | None,

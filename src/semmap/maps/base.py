@@ -10,6 +10,9 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Protocol, runtime_checkable
 
+import numpy as np
+
+from semmap.errors import ConfigError
 from semmap.types import LabelSet, MapCloud, MapKind, Observation
 
 
@@ -34,6 +37,11 @@ class SemanticMap(Protocol):
         """Occupied voxels (or points) as flat arrays, in a deterministic order."""
         ...
 
+    def class_at(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Most probable class (uint16, EMPTY_LABEL where none) and its probability (float32) at each (N, 3) world
+        point: the class :meth:`cloud` reports for the occupied voxel (or point cell) holding it."""
+        ...
+
     def save(self, out_dir: Path) -> dict[str, int]:
         """Write the map's files into ``out_dir`` atomically; returns ``{file name: bytes}``."""
         ...
@@ -41,3 +49,16 @@ class SemanticMap(Protocol):
     def describe(self) -> dict:
         """Counts and memory of the map for the report (JSON-serialisable)."""
         ...
+
+
+def voxels_of_class(m: SemanticMap, cls: int | str) -> np.ndarray:
+    """Centres (M, 3) of the occupied voxels (or points) of ``m`` whose most probable class is ``cls``: a class id,
+    or a class name of the map's label set."""
+    if isinstance(cls, str):
+        if m.label_set is None:
+            raise ConfigError(f"class {cls!r} asked of a map without a label set")
+        cls = m.label_set.id_of(cls)
+    if m.label_set is not None and not 0 <= int(cls) < len(m.label_set):
+        raise ConfigError(f"class id {cls} is outside the map's label set (0..{len(m.label_set) - 1})")
+    cloud = m.cloud()
+    return cloud.centers[cloud.labels == int(cls)]
