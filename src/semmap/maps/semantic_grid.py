@@ -30,7 +30,7 @@ DTYPES = ("float16", "float32")
 #: OctoMap's hit log-odds (p = 0.7) and upper clamp (p = 0.971): a voxel is occupied once hit.
 HIT_LOGODDS = np.float32(0.8472979)
 CLAMP_MAX_LOGODDS = np.float32(3.5138063)
-_INITIAL_ROWS = 1024
+_INITIAL_ROWS = 64  # attribute rows of an empty grid; they grow by half as voxels come
 
 
 @dataclass(frozen=True)
