@@ -2,7 +2,8 @@
 
 The pipeline builds a list of maps (:func:`semmap.maps.registry.get_map`) and, per frame, hands each the same
 :class:`~semmap.types.Observation`; afterwards it reads each as a :class:`~semmap.types.MapCloud`, saves it and
-puts its self-description in the report.  Nothing outside ``maps/`` needs to know which map it holds.
+puts its self-description in the report.  Nothing outside ``maps/`` needs to know which map it holds.  A user's
+code queries any map the same way: :meth:`SemanticMap.class_at` points, :func:`voxels_of_class`.
 """
 
 from __future__ import annotations
