@@ -4,7 +4,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed-stamp
 
-.PHONY: demo test bench lint clean
+.PHONY: demo test bench lint api-docs clean
 
 $(STAMP): pyproject.toml
 	@if command -v apt-get >/dev/null 2>&1 && ! ldconfig -p 2>/dev/null | grep -q libusb-1.0.so.0; then \
@@ -29,6 +29,12 @@ bench: $(STAMP)
 
 lint: $(STAMP)
 	$(BIN)/ruff check src tests benchmarks scripts
+
+# API reference pages from the docstrings (docs/api/index.html; not committed)
+api-docs: $(STAMP)
+	rm -rf docs/api
+	$(BIN)/pdoc --docformat restructuredtext --no-show-source -o docs/api \
+		semmap semmap.types semmap.frame_arrays semmap.maps semmap.fusion semmap.io semmap.datasets semmap.config
 
 clean:
 	rm -rf $(VENV) outputs .pytest_cache

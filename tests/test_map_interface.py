@@ -9,7 +9,7 @@ import pytest
 from semmap.config import InputConfig, OutputConfig, RunConfig
 from semmap.errors import ConfigError
 from semmap.factories import get_map
-from semmap.io.map_files import MAP_FILES, load_map_file, native_file, save_map_files
+from semmap.io.map_files import MAP_FILES, load_map, native_file, save_map_files
 from semmap.maps.base import SemanticMap
 from semmap.maps.registry import MapKind, map_kind
 from semmap.types import EMPTY_LABEL, LabelSet, Observation, TopKProbs
@@ -44,7 +44,7 @@ def test_every_map_kind_integrates_reads_back_saves_and_describes_itself(kind, t
     sizes = save_map_files(m, tmp_path / "out")
     assert list(sizes) == list(MAP_FILES[kind])
     assert all((tmp_path / "out" / name).stat().st_size == size for name, size in sizes.items())
-    back = load_map_file(tmp_path / "out" / native_file(kind))
+    back = load_map(tmp_path / "out" / native_file(kind))
     assert back.kind == kind and np.array_equal(back.cloud().labels, cloud.labels)
     d = m.describe()
     assert d["bytes_in_memory"] > 0 and d["bytes_per_voxel_in_memory"] > 0

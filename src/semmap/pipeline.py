@@ -23,6 +23,7 @@ from semmap.datasets.prefetch import Prefetcher
 from semmap.errors import ConfigError
 from semmap.eval.run_report import GroundTruthFn, RunOutcome, RunRecord, RunScorer, build_report, write_report
 from semmap.factories import get_map, open_dataset_of
+from semmap.frame_arrays import class_sets, frame_from_arrays
 from semmap.geometry import backproject_world, pixel_normals
 from semmap.interrupt import RunInterrupted, deferred_interrupts, stop_requested
 from semmap.io.staged_run import StagedRun, check_out_dir
@@ -48,7 +49,7 @@ from semmap.run.prepare import (
     prepare_segmenter,
     warm_tracker,
 )
-from semmap.types import Frame, LabelSet, Observation, TopKProbs
+from semmap.types import CameraIntrinsics, Frame, LabelSet, Observation, TopKProbs
 from semmap.viz.rerun_log import NoVisualizer, Visualizer, get_visualizer
 
 log = logging.getLogger("semmap")
@@ -98,6 +99,16 @@ class Mapper:
             ms.update(steps if i == 0 else {f"{m.kind.value}:{k}": v for k, v in steps.items()})
         self.points_integrated += len(points_world)
         return ms
+
+    def integrate_arrays(self, rgb: np.ndarray, depth_m: np.ndarray, intrinsics: CameraIntrinsics | np.ndarray,
+                         T_world_cam: np.ndarray, semantics: np.ndarray | TopKProbs | None = None, *, k: int = 3,
+                         label_confidence: float = 0.9, index: int = 0) -> dict[str, float]:
+        """:meth:`integrate` for a user's own loop: one frame as plain arrays (see
+        :func:`semmap.frame_arrays.frame_from_arrays` and :func:`~semmap.frame_arrays.class_sets`)."""
+        frame = frame_from_arrays(rgb, depth_m, intrinsics, T_world_cam=T_world_cam, index=index)
+        classes = next((len(m.label_set) for m in self.maps if m.label_set is not None), None)
+        sem = class_sets(semantics, frame.depth.shape, num_classes=classes, k=k, label_confidence=label_confidence)
+        return self.integrate(frame, frame.T_world_cam, sem)
 
 
 def semantics_for(frame: Frame, source: SemanticSource, *, label_set: LabelSet | None, label_confidence: float,

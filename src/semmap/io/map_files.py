@@ -1,7 +1,8 @@
 """Every map's files in a run folder, written and read from the maps' public arrays (maps never import io/).
 
 ``save_map_files`` writes the files of any map kind (the OctoMap's ``map.ot`` / ``map.bt`` / ``map.semmap``, a
-voxel grid's or point map's ``<kind>.semmap`` and ``<kind>.ply``); ``load_map_file`` reads any ``.semmap`` back.
+voxel grid's or point map's ``<kind>.semmap`` and ``<kind>.ply``); ``save_map`` writes one lossless ``.semmap`` of
+any kind and ``load_map`` reads any ``.semmap`` back (the Python API's pair).
 """
 
 from __future__ import annotations
@@ -53,6 +54,13 @@ def _save_octomap(m: SemanticOctoMap, out_dir: Path) -> dict[str, int]:
     }
 
 
+def save_map(path: str | Path, m: SemanticMap) -> int:
+    """Write ``m`` (any map kind) to the lossless ``.semmap`` file ``path`` atomically; returns its size in bytes."""
+    if m.kind == MapKind.OCTOMAP:
+        return native.save_map(path, m)
+    return grid_files.save_grid(path, m)
+
+
 def semmap_format(path: str | Path) -> str | None:
     """The ``format`` field of a ``.semmap`` file's JSON header (``semmap-map`` or ``semmap-grid``), None if absent."""
     path = Path(path)
@@ -64,7 +72,7 @@ def semmap_format(path: str | Path) -> str | None:
     return header.get("format") if isinstance(header, dict) else None
 
 
-def load_map_file(path: str | Path) -> SemanticMap:
+def load_map(path: str | Path) -> SemanticMap:
     """Any map from its ``.semmap`` file: a voxel grid or point map if its header says so, else the OctoMap."""
     if semmap_format(path) == grid_files.FORMAT:
         return grid_files.load_grid(path)

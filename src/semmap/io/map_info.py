@@ -35,9 +35,9 @@ def describe_map_file(path: str | Path) -> dict:
 
 
 def _describe_semmap(path: Path) -> dict:
-    from semmap.io.map_files import load_map_file
+    from semmap.io.map_files import load_map
 
-    m = load_map_file(path)
+    m = load_map(path)
     if m.kind != MapKind.OCTOMAP:
         return {"kind": m.kind.value, "resolution": m.resolution, **m.describe(),
                 "classes": None if m.label_set is None else len(m.label_set)}

@@ -17,7 +17,7 @@ import numpy as np
 from scipy import ndimage
 
 from semmap.errors import ConfigError, FormatError
-from semmap.io.map_files import load_map_file, native_file
+from semmap.io.map_files import load_map, native_file
 from semmap.maps.registry import MapKind
 from semmap.types import EMPTY_LABEL, LabelSet
 
@@ -266,7 +266,7 @@ def load_prior(path: str | Path, **kwargs) -> PriorMap:
             raise FormatError(f"{path}: folder has none of {', '.join(MAP_FILES)} (map a sequence first with "
                               f"semmap run)")
         path = found
-    m = load_map_file(path)
+    m = load_map(path)
     if m.kind == MapKind.OCTOMAP:
         return prior_from_octomap(m, **kwargs)
     return prior_from_grid_map(m, **kwargs)

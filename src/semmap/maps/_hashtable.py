@@ -15,6 +15,7 @@ from __future__ import annotations
 import numba as nb
 import numpy as np
 
+from semmap.keys import KEY_LIMIT, coords_to_keys, pack_keys
 from semmap.maps._keys import EMPTY_KEY
 from semmap.maps._prefetch import prefetch
 
@@ -26,6 +27,9 @@ MAX_LOAD = 0.85
 #: Before a frame, a shard that could exceed this with every new cell is grown first (probing safety).
 HARD_LOAD = 0.95
 GROWTH = 1.5
+#: Load of the fullest shard when the table is sized at once for a scan's new cells (a first scan, a big one): between
+#: a just-grown table's (MAX_LOAD / GROWTH) and the trigger, so that the next scans do not make it grow straight away.
+SIZED_LOAD = MAX_LOAD / GROWTH**0.5
 
 
 @nb.njit(cache=True, inline="always")
@@ -125,9 +129,28 @@ def lookup_many(keys: np.ndarray, shard_cap: int, packed: np.ndarray) -> np.ndar
     return out
 
 
+def slots_at(keys: np.ndarray, shard_cap: int, points: np.ndarray, resolution: float) -> np.ndarray:
+    """Slot of the cell at ``resolution`` holding each (N, 3) world point; -1 where the table has none, the point is
+    outside the key range or not finite."""
+    pts = np.asarray(points, np.float64).reshape(-1, 3)
+    finite = np.isfinite(pts).all(axis=1)
+    cell = coords_to_keys(np.where(finite[:, None], pts, 0.0), resolution)
+    inside = ((cell >= 0) & (cell < KEY_LIMIT)).all(axis=1) & finite
+    slots = np.full(pts.shape[0], -1, np.int64)
+    if inside.any():
+        slots[inside] = lookup_many(keys, shard_cap, pack_keys(cell[inside]))
+    return slots
+
+
 def round_capacity(n: float) -> int:
     """Shard capacity: at least GROUP, a multiple of GROUP."""
     return max(GROUP, int(np.ceil(n / GROUP)) * GROUP)
+
+
+def next_capacity(shard_cap: int, min_cap: float) -> int:
+    """Shard capacity after growing from ``shard_cap``: by the growth factor at least, and to ``min_cap`` when that
+    is more (not by repeated steps from a tiny table, which could overshoot by the whole factor)."""
+    return max(round_capacity(min_cap), round_capacity(shard_cap * GROWTH))
 
 
 class ShardedTable:
@@ -136,7 +159,7 @@ class ShardedTable:
     ``keys`` / ``logodds`` / ``attr`` are the slots (see the module docstring), ``counts`` the entries per shard.
     """
 
-    def __init__(self, shard_cap: int = GROUP * 8) -> None:
+    def __init__(self, shard_cap: int = GROUP) -> None:
         self.alloc(round_capacity(shard_cap))
 
     def alloc(self, shard_cap: int) -> None:
@@ -157,10 +180,8 @@ class ShardedTable:
         return int(self.keys.nbytes + self.logodds.nbytes + self.attr.nbytes + self.counts.nbytes)
 
     def grow(self, min_cap: int) -> None:
-        """Rehash into shards of at least ``min_cap`` slots (more if a lane overflows)."""
-        cap = self.shard_cap
-        while cap < min_cap:
-            cap = round_capacity(cap * GROWTH)
+        """Rehash into shards of at least ``min_cap`` slots and the growth factor (more if a lane overflows)."""
+        cap = next_capacity(self.shard_cap, min_cap)
         old = (self.keys, self.logodds, self.attr, self.shard_cap)
         while True:
             self.alloc(cap)

@@ -3,13 +3,17 @@
 The pipeline builds a list of maps (:func:`semmap.factories.get_map`) and, per frame, hands each the same
 :class:`~semmap.types.Observation`; afterwards it reads each as a :class:`~semmap.types.MapCloud`, saves it
 (:func:`semmap.io.map_files.save_map_files`, from the map's public arrays) and puts its self-description in the
-report.  Nothing outside ``maps/`` needs to know which map it holds.
+report.  Nothing outside ``maps/`` needs to know which map it holds.  A user's code queries any map the same way:
+:meth:`SemanticMap.class_at` points, :func:`voxels_of_class`.
 """
 
 from __future__ import annotations
 
 from typing import Protocol, runtime_checkable
 
+import numpy as np
+
+from semmap.errors import ConfigError
 from semmap.maps.registry import MapKind
 from semmap.types import LabelSet, MapCloud, Observation
 
@@ -35,6 +39,24 @@ class SemanticMap(Protocol):
         """Occupied voxels (or points) as flat arrays, in a deterministic order."""
         ...
 
+    def class_at(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Most probable class (uint16, EMPTY_LABEL where none) and its probability (float32) at each (N, 3) world
+        point: the class :meth:`cloud` reports for the occupied voxel (or point cell) holding it."""
+        ...
+
     def describe(self) -> dict:
         """Counts and memory of the map for the report (JSON-serialisable)."""
         ...
+
+
+def voxels_of_class(m: SemanticMap, cls: int | str) -> np.ndarray:
+    """Centres (M, 3) of the occupied voxels (or points) of ``m`` whose most probable class is ``cls``: a class id,
+    or a class name of the map's label set."""
+    if isinstance(cls, str):
+        if m.label_set is None:
+            raise ConfigError(f"class {cls!r} asked of a map without a label set")
+        cls = m.label_set.id_of(cls)
+    if m.label_set is not None and not 0 <= int(cls) < len(m.label_set):
+        raise ConfigError(f"class id {cls} is outside the map's label set (0..{len(m.label_set) - 1})")
+    cloud = m.cloud()
+    return cloud.centers[cloud.labels == int(cls)]

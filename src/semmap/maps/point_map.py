@@ -63,6 +63,11 @@ class SemanticPointMap:
         normals = np.where(n > 0, a.normal_sums / np.where(n > 0, n, 1.0), 0.0).astype(np.float32)
         return MapCloud(a.positions.astype(np.float64), colors, labels, conf, self.resolution, normals)
 
+    def class_at(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Most probable class and its probability of the filter cell holding each (N, 3) world point (its point's
+        class in :meth:`cloud`); EMPTY_LABEL and 0 where the map has no point in that cell."""
+        return self.grid.class_at(points)
+
     def class_probs(self) -> np.ndarray:
         """(M, K) class distribution of each point, in :meth:`cloud` order."""
         return self.grid.class_probs(self.grid.arrays())

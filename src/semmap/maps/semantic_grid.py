@@ -11,6 +11,7 @@ Every point of a frame counts (eq. 2's sum over all measurements in the cell), n
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -21,7 +22,7 @@ from semmap.fusion.half import from_half_bits, to_half_bits
 from semmap.fusion.rules import FusionParams, FusionRule
 from semmap.keys import keys_to_coords, unpack_keys
 from semmap.maps import _grid_kernels as kern
-from semmap.maps._hashtable import GROWTH, MAX_LOAD, N_SHARDS, ShardedTable, round_capacity
+from semmap.maps._hashtable import GROWTH, MAX_LOAD, N_SHARDS, ShardedTable, lookup_many, round_capacity, slots_at
 from semmap.types import EMPTY_LABEL, LabelSet, TopKProbs
 
 #: Storage types of the per-class state.
@@ -29,7 +30,7 @@ DTYPES = ("float16", "float32")
 #: OctoMap's hit log-odds (p = 0.7) and upper clamp (p = 0.971): a voxel is occupied once hit.
 HIT_LOGODDS = np.float32(0.8472979)
 CLAMP_MAX_LOGODDS = np.float32(3.5138063)
-_INITIAL_ROWS = 1024
+_INITIAL_ROWS = 64  # attribute rows of an empty grid; they grow by half as voxels come
 
 
 @dataclass(frozen=True)
@@ -219,11 +220,37 @@ class SemanticGrid:
         """Every voxel, compacted and sorted by key (deterministic)."""
         t = self._table
         used = t.used()
-        used = used[np.argsort(t.keys[used], kind="stable")]
-        rows = t.attr[used]
-        return GridArrays(t.keys[used].copy(), t.logodds[used].copy(), self._rgb[rows], self._rgb_count[rows],
+        return self.arrays_at(used[np.argsort(t.keys[used], kind="stable")])
+
+    def arrays_at(self, slots: np.ndarray) -> GridArrays:
+        """The voxels in the given table slots (each holding a voxel, e.g. from :meth:`slots_at`), in that order."""
+        t = self._table
+        rows = t.attr[slots]
+        return GridArrays(t.keys[slots].copy(), t.logodds[slots].copy(), self._rgb[rows], self._rgb_count[rows],
                           self._hits[rows], self._dense[rows], self._set_labels[rows], self._set_probs[rows],
                           self._positions[rows], self._normal_sums[rows])
+
+    def slots_at(self, points: np.ndarray) -> np.ndarray:
+        """Table slot of the voxel holding each (N, 3) world point, -1 where the grid has none."""
+        pts = np.asarray(points, np.float64)
+        if pts.ndim != 2 or pts.shape[1] != 3:
+            raise ConfigError(f"query points must be (N, 3), got {pts.shape}")
+        return slots_at(self._table.keys, self._table.shard_cap, pts, self.resolution)
+
+    def class_at(self, points: np.ndarray, keep: Callable[[GridArrays], np.ndarray] | None = None
+                 ) -> tuple[np.ndarray, np.ndarray]:
+        """Most probable class (EMPTY_LABEL where none) and its probability of the voxel holding each (N, 3)
+        world point; voxels that are absent, or that ``keep`` (a mask over their arrays) drops, give none."""
+        slots = self.slots_at(points)
+        labels = np.full(slots.shape[0], EMPTY_LABEL, np.uint16)
+        conf = np.zeros(slots.shape[0], np.float32)
+        known = np.flatnonzero(slots >= 0)
+        a = self.arrays_at(slots[known])
+        top, p, _ = self.summary(a)
+        if keep is not None:
+            known, top, p = (v[keep(a)] for v in (known, top, p))
+        labels[known], conf[known] = top, p
+        return labels, conf
 
     def load_arrays(self, a: GridArrays) -> None:
         """Replace the contents (file readers)."""
@@ -275,8 +302,6 @@ class SemanticGrid:
     def set_class_probs(self, packed: np.ndarray, probs: np.ndarray) -> None:
         """Replace the class distributions of the voxels with keys ``packed`` by ``probs`` (M, K) (e.g. a CRF's
         posterior): log-odds, vote shares scaled to the cap, or the top pairs, as the rule keeps them."""
-        from semmap.maps._hashtable import lookup_many
-
         t = self._table
         if len(packed) == 0:
             return

@@ -36,7 +36,7 @@ log = logging.getLogger("semmap")
 UNKNOWN, FREE, OCCUPIED = 0, 1, 2
 #: Largest temporary scan grid (cells = bytes); wider scans are range-limited with a warning.
 GRID_CELL_LIMIT = 1 << 27
-_INITIAL_SHARD_CAP = 64
+_INITIAL_SHARD_CAP = 8  # slots per shard of an empty map (8 KiB in all): the first scan sizes the table
 
 
 def logodds(p: float) -> np.float32:
@@ -207,9 +207,8 @@ class SemanticOctoMap:
         self._sem_probs = np.zeros((rows, w), np.float32)
 
     def _grow_table(self, min_cap: int) -> None:
-        cap = self._shard_cap
-        while cap < min_cap:
-            cap = ht.round_capacity(cap * ht.GROWTH)
+        """Rehash into shards of at least ``min_cap`` slots and the growth factor (more if a lane overflows)."""
+        cap = ht.next_capacity(self._shard_cap, min_cap)
         old = (self._keys, self._logodds, self._attr, self._shard_cap)
         while True:
             self._alloc_table(cap)
@@ -219,12 +218,12 @@ class SemanticOctoMap:
 
     def _grow_for(self, pending: int) -> None:
         """Grow mid-frame by the usual factor, or at once far enough for ``pending`` more cells (all counted as
-        new, spread over the shards like the cells so far) at the normal load, so that a frame rarely grows the
-        table twice."""
-        spread = self._counts.max() / max(self._counts.mean(), 1.0)
-        need = max(self._shard_cap * ht.GROWTH,
-                   (self._counts.max() + spread * pending / ht.N_SHARDS) / ht.MAX_LOAD)
-        self._grow_table(ht.round_capacity(need))
+        new; a shard gets its share and up to three standard deviations more, the 8 cells of a z-group hashing
+        together) at ``SIZED_LOAD``, so that a frame rarely grows the table twice.  (The fullest shard's share is
+        not estimated from the counts so far: a few cells in a new map would make it look twice the mean.)"""
+        share = pending / ht.N_SHARDS
+        spread = 3.0 * math.sqrt(ht.GROUP * share)
+        self._grow_table((self._counts.max() + share + spread) / ht.SIZED_LOAD)
 
     def _fill_limit(self) -> int:
         """Entries a shard may hold before it must grow (keeps linear probing short)."""
@@ -311,7 +310,7 @@ class SemanticOctoMap:
 
         # 5. occupancy log-odds (misses, then hits), attribute rows of first hits
         slots = self._update_occupancy(buf.free, n_free, packed, hit, threads)
-        self._ensure_attributes(self._n_attr + m)
+        self._ensure_attributes(self._n_attr + int(np.count_nonzero(self._attr[slots[hit]] < 0)))  # first hits
         rows = buf.rows[:m]
         self._n_attr = kern.assign_rows(self._attr, slots, hit, self._n_attr, rows)
         t5 = time.perf_counter()
@@ -393,8 +392,8 @@ class SemanticOctoMap:
         """Miss updates of the free cells, hit updates of the endpoint cells (a shard that fills up pauses, the
         table grows, the update resumes); returns the slot of every endpoint cell (stale for max-range ones)."""
         no_slots = np.zeros(0, np.int64)
-        self._update_cells(free, n_free, self._miss, no_slots, threads)
         hits = packed[hit] if not hit.all() else packed
+        self._update_cells(free, n_free, self._miss, no_slots, threads, more=hits.shape[0])
         slots = np.empty(hits.shape[0], np.int64)
         grown = self._update_cells(hits, hits.shape[0], self._hit, slots, threads)
         if self._counts.max() > ht.MAX_LOAD * self._shard_cap:
@@ -408,14 +407,18 @@ class SemanticOctoMap:
         out[hit] = slots
         return out
 
-    def _update_cells(self, cells: np.ndarray, n: int, delta: np.float32, slots: np.ndarray, threads: int) -> bool:
-        """Add ``delta`` to the log-odds of ``cells[:n]``, clamped, growing the table as shards fill; returns
-        whether it grew."""
+    def _update_cells(self, cells: np.ndarray, n: int, delta: np.float32, slots: np.ndarray, threads: int, *,
+                      more: int = 0) -> bool:
+        """Add ``delta`` to the log-odds of ``cells[:n]``, clamped, growing the table as shards fill (for ``more``
+        cells of this scan still to come as well, as many of them new as of the cells so far); returns whether it
+        grew."""
         progress = np.zeros(max(1, threads), np.int64)
-        grown = False
+        before, grown = int(self._counts.sum()), False
         while not kern.update_cells(cells, n, progress, self._keys, self._logodds, self._attr, self._counts,
                                     self._shard_cap, delta, self._min, self._max, self._fill_limit(), slots):
-            self._grow_for(int((n - progress).max()))
+            # each part looks at every cell and updates its own shards': the mean progress is the cells done
+            new_share = min((int(self._counts.sum()) - before) / max(float(progress.mean()), 1.0), 1.0)
+            self._grow_for(int(new_share * (int((n - progress).max()) + more)))
             grown = True
         return grown
 
@@ -465,12 +468,7 @@ class SemanticOctoMap:
         return int(sum(a.nbytes for a in arrays))
 
     def _slots_of(self, points: np.ndarray) -> np.ndarray:
-        keys = coords_to_keys(np.asarray(points).reshape(-1, 3), self.resolution)
-        inside = ((keys >= 0) & (keys < KEY_LIMIT)).all(axis=1)
-        slots = np.full(keys.shape[0], -1, np.int64)
-        if inside.any():
-            slots[inside] = ht.lookup_many(self._keys, self._shard_cap, pack_keys(keys[inside]))
-        return slots
+        return ht.slots_at(self._keys, self._shard_cap, points, self.resolution)
 
     def state_at(self, points: np.ndarray) -> np.ndarray:
         """Cell state (UNKNOWN 0, FREE 1, OCCUPIED 2) at each (N, 3) world point."""
@@ -498,6 +496,13 @@ class SemanticOctoMap:
         labels[has] = sem_labels[rows[has]]
         values[has] = sem_probs[rows[has]]
         return labels, values
+
+    def class_at(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Most probable class and its probability at each (N, 3) world point where the map is occupied, as
+        :meth:`cloud` reports them; EMPTY_LABEL and 0 at free or unknown points."""
+        sem, occupied = self.semantics_at(points), self.state_at(points) == OCCUPIED
+        return (np.where(occupied, sem.labels[:, 0], EMPTY_LABEL).astype(np.uint16),
+                np.where(occupied, sem.probs[:, 0], 0.0).astype(np.float32))
 
     def cells(self) -> CellArrays:
         """All stored cells, compacted, sorted by packed key (deterministic order)."""

@@ -98,6 +98,11 @@ class SemanticVoxelGrid:
         v = self.voxels()
         return MapCloud(v.centers, v.colors, v.labels, v.confidence, self.resolution)
 
+    def class_at(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Most probable class and its probability at each (N, 3) world point: the occupied voxel holding it, as
+        :meth:`cloud` reports it; EMPTY_LABEL and 0 where no occupied voxel holds the point."""
+        return self.grid.class_at(points, self._occupied)
+
     def class_probs(self) -> np.ndarray:
         """(M, K) class distribution of each occupied voxel, in :meth:`cloud` order."""
         a = self.grid.arrays()

@@ -231,9 +231,9 @@ def map_file_cloud(path: str | Path) -> tuple[MapCloud, LabelSet | None]:
     grey by height)."""
     path = Path(path)
     if path.suffix == ".semmap":
-        from semmap.io.map_files import load_map_file
+        from semmap.io.map_files import load_map
 
-        m = load_map_file(path)
+        m = load_map(path)
         return m.cloud(), m.label_set
     if path.suffix == ".ply":
         from semmap.io.ply import read_ply
