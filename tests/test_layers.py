@@ -26,10 +26,15 @@ def graph() -> grimp.ImportGraph:
 
 
 def _lint(config: Path) -> int:
-    """``lint-imports`` on ``config`` (its report printed, shown with a failure); 0 when every contract is kept."""
-    from importlinter.cli import lint_imports
+    """``lint-imports`` on ``config`` (its report printed, shown with a failure); 0 when every contract is kept.
 
-    return lint_imports(config_filename=str(config), no_cache=True, no_logo=True)
+    Calls import-linter's use case rather than its CLI function, which reconfigures logging and so silences the
+    loggers of the tests that run after this one."""
+    from importlinter import configuration
+    from importlinter.application.use_cases import lint_imports
+
+    configuration.configure()
+    return 0 if lint_imports(config_filename=str(config), cache_dir=None, no_logo=True) else 1
 
 
 def test_import_contracts_are_kept():
