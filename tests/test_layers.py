@@ -3,8 +3,6 @@ in the layers, and no two of the top-level packages and modules import each othe
 
 from __future__ import annotations
 
-import subprocess
-import sys
 from pathlib import Path
 
 import grimp
@@ -28,13 +26,15 @@ def graph() -> grimp.ImportGraph:
 
 
 def _lint(config: Path) -> int:
-    """``lint-imports`` on ``config`` in its own process (it reconfigures logging), its report printed (shown
-    with a failure); 0 when every contract is kept."""
-    code = ("import sys; from importlinter.cli import lint_imports; "
-            f"sys.exit(lint_imports(config_filename={str(config)!r}, no_cache=True, no_logo=True))")
-    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
-    print(r.stdout, r.stderr)
-    return r.returncode
+    """``lint-imports`` on ``config`` (its report printed, shown with a failure); 0 when every contract is kept.
+
+    Calls import-linter's use case rather than its CLI function, which reconfigures logging and so silences the
+    loggers of the tests that run after this one."""
+    from importlinter import configuration
+    from importlinter.application.use_cases import lint_imports
+
+    configuration.configure()
+    return 0 if lint_imports(config_filename=str(config), cache_dir=None, no_logo=True) else 1
 
 
 def test_import_contracts_are_kept():
