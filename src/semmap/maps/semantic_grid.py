@@ -72,7 +72,6 @@ class SemanticGrid:
         self.dtype = dtype
         self.keep_geometry = keep_geometry
         self.num_classes = len(label_set) if label_set is not None else 0
-        self._entry = self.fusion.entry
         self._params = self.fusion.kernel_params(self.num_classes)
         self._table = ShardedTable()
         self._rows = 0
@@ -80,6 +79,11 @@ class SemanticGrid:
         self._keys_buf = np.zeros((2, 0), np.int64)
 
     # ------------------------------------------------------------------ storage
+    @property
+    def _entry(self):
+        """The fusion rule's registry entry (looked up, not held: a checkpoint saves the map's plain state)."""
+        return self.fusion.entry
+
     @property
     def _half(self) -> bool:
         return self.dtype == "float16"

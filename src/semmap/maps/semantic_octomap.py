@@ -170,7 +170,6 @@ class SemanticOctoMap:
         self.occupancy = occupancy or OccupancyParams()
         self.fusion = fusion or FusionParams()
         self.label_set = label_set
-        self._entry = self.fusion.entry
         self._num_classes = len(label_set) if label_set is not None else 0
         if self._entry.dense and label_set is None:
             raise ConfigError(f"the {self._entry.name} fusion rule keeps K values per voxel: give the map a label set")
@@ -189,6 +188,11 @@ class SemanticOctoMap:
         self._grid = np.zeros(0, np.uint8)
         self._scratch = _ScanScratch.empty()
         self._warned_range = False
+
+    @property
+    def _entry(self):
+        """The fusion rule's registry entry (looked up, not held: a checkpoint saves the map's plain state)."""
+        return self.fusion.entry
 
     # ------------------------------------------------------------------ storage
     def _alloc_table(self, shard_cap: int) -> None:
