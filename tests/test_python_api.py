@@ -16,8 +16,8 @@ import semmap
 from semmap.errors import ConfigError, FormatError
 from semmap.frame_arrays import class_sets, frame_from_arrays
 from semmap.maps.base import SemanticMap, voxels_of_class
-from semmap.pipeline import Mapper
 from semmap.maps.registry import MapKind
+from semmap.pipeline import Mapper
 from semmap.types import EMPTY_LABEL, CameraIntrinsics, LabelSet, TopKProbs
 
 ROOT = Path(__file__).resolve().parents[1]

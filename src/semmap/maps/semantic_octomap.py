@@ -468,7 +468,7 @@ class SemanticOctoMap:
     def memory_bytes(self) -> int:
         """Bytes held by the map: hash table (with its slack) and attribute arrays (not the scan scratch grid)."""
         arrays = (self._keys, self._logodds, self._attr, self._counts, self._rgb, self._rgb_count,
-                  self._sem_labels, self._sem_probs)
+                  self._sem_labels, self._sem_probs, self._params)
         return int(sum(a.nbytes for a in arrays))
 
     def _slots_of(self, points: np.ndarray) -> np.ndarray:
