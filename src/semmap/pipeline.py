@@ -46,6 +46,7 @@ from semmap.run.prepare import (
     FirstFrame,
     label_set_for,
     pose_source_for,
+    pose_source_to_resume,
     prepare_segmenter,
     warm_tracker,
 )
@@ -99,6 +100,17 @@ class Mapper:
             ms.update(steps if i == 0 else {f"{m.kind.value}:{k}": v for k, v in steps.items()})
         self.points_integrated += len(points_world)
         return ms
+
+    def state(self) -> tuple[dict, dict[str, np.ndarray]]:
+        """A checkpoint's mapper: its counters and keyframe schedule (the maps save their own state)."""
+        return ({"points_integrated": self.points_integrated, "keyframes": self.keyframes,
+                 "last_was_keyframe": self.last_was_keyframe}, self._keyframe_of.state())
+
+    def restore(self, meta: dict, arrays: dict[str, np.ndarray]) -> None:
+        """Continue from :meth:`state`."""
+        self.points_integrated, self.keyframes = int(meta["points_integrated"]), int(meta["keyframes"])
+        self.last_was_keyframe = bool(meta["last_was_keyframe"])
+        self._keyframe_of.restore(arrays)
 
     def integrate_arrays(self, rgb: np.ndarray, depth_m: np.ndarray, intrinsics: CameraIntrinsics | np.ndarray,
                          T_world_cam: np.ndarray, semantics: np.ndarray | TopKProbs | None = None, *, k: int = 3,
@@ -178,7 +190,7 @@ class Pipeline:
         staged = StagedRun(self.config.output.out, resume=self.resume)
         with deferred_interrupts():
             stage = staged.open()
-            self._checkpoints = Checkpoints(staged, config_json=self.config.to_json(), every=self.checkpoint_every)
+            self._checkpoints = Checkpoints(staged, self.config, every=self.checkpoint_every)
             try:
                 outcome = self._map(stage)
                 report = self._write(outcome)
@@ -206,10 +218,10 @@ class Pipeline:
         segmenter_s = prepare_segmenter(self.segmenter, first)  # and an ONNX export / session out of the first frame's
         mapper = Mapper([get_map(kind, c, label_set) for kind in c.mapping.maps], min_depth=c.mapping.min_depth,
                         max_depth=c.mapping.max_depth, pixel_stride=c.mapping.pixel_stride)
-        resumed = self._checkpoints.load() if self.resume else None
+        resumed = (self._checkpoints.resume(mapper, lambda: pose_source_to_resume(c, dataset)) if self.resume
+                   else None)
         if resumed is not None:  # the maps, poses and sums of the last checkpoint; its frames are not read again
-            mapper, pose_of, record, name = resumed
-            log.info("resuming %s after frame %s", c.input.dataset, name)
+            pose_of, record = resumed
         else:
             pose_of = pose_source_for(c, dataset, instances=self.instances, track_progress=self.track_progress)
             record = RunRecord()

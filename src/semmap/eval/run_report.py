@@ -25,7 +25,7 @@ from semmap.eval.semantic import confusion, evaluate_2d, evaluate_cloud_3d
 from semmap.files.atomic import write_text_atomic
 from semmap.maps.base import SemanticMap
 from semmap.maps.registry import MAPS, MapKind
-from semmap.perception.schedule import Scheduler
+from semmap.perception.schedule import Scheduler, SegmentationSchedule
 from semmap.poses.base import LiveTracker
 from semmap.poses.frame_poses import FramePoses
 from semmap.poses.track import GROUND_TRUTH
@@ -59,6 +59,34 @@ class RunRecord:
 
     def __post_init__(self) -> None:
         self.timings = defaultdict(float, self.timings)
+
+    def state(self) -> tuple[dict, dict[str, np.ndarray]]:
+        """A checkpoint's record: JSON-able sums and names, and arrays (poses, latencies, confusion, schedule)."""
+        meta = {"seconds": self.seconds, "timings": dict(self.timings), "no_pose": list(self.no_pose),
+                "segmented": self.segmented, "last_index": self.last_index, "last_name": self.last_name,
+                "scheduled": self.scheduler is not None, "scored": self.conf2d is not None}
+        arrays = {"poses": np.asarray(self.poses, np.float64).reshape(-1, 4, 4),
+                  "latency_ms": np.asarray(self.latency_ms, np.float64)}
+        if self.conf2d is not None:
+            arrays["conf2d"] = self.conf2d
+        if self.scheduler is not None:
+            arrays.update({f"schedule/{k}": v for k, v in self.scheduler.state().items()})
+        return meta, arrays
+
+    @classmethod
+    def from_state(cls, meta: dict, arrays: dict[str, np.ndarray], schedule: SegmentationSchedule) -> RunRecord:
+        """The record :meth:`state` saved (its segmentation schedule continued with ``schedule``'s settings)."""
+        record = cls(poses=list(np.asarray(arrays["poses"], np.float64)),
+                     latency_ms=[float(v) for v in arrays["latency_ms"]], seconds=float(meta["seconds"]),
+                     timings={str(k): float(v) for k, v in dict(meta["timings"]).items()},
+                     no_pose=[str(n) for n in meta["no_pose"]], segmented=int(meta["segmented"]),
+                     conf2d=arrays["conf2d"] if meta["scored"] else None, last_index=meta["last_index"],
+                     last_name=meta["last_name"])
+        if meta["scheduled"]:
+            record.scheduler = Scheduler(schedule)
+            record.scheduler.restore({k.removeprefix("schedule/"): v for k, v in arrays.items()
+                                      if k.startswith("schedule/")})
+        return record
 
 
 class RunScorer:

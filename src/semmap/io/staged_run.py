@@ -9,13 +9,12 @@ there) and ``checkpoint.npz`` (the run's state after some frame). ``commit()`` r
 from __future__ import annotations
 
 import contextlib
-import json
 import logging
 import os
 import shutil
 from pathlib import Path
 
-from semmap.errors import ConfigError, FormatError
+from semmap.errors import ConfigError
 
 LOG = logging.getLogger("semmap")
 CHECKPOINT = "checkpoint.npz"
@@ -77,32 +76,6 @@ class StagedRun:
     @property
     def checkpoint_path(self) -> Path:
         return self.stage / CHECKPOINT
-
-    def save_checkpoint(self, state, *, config_json: str, frame_index: int, frame_name: str) -> None:
-        """The run's state after frame ``frame_index`` (written atomically: a kill mid-write keeps the last one)."""
-        from semmap.io.state import save_state
-
-        save_state(self.checkpoint_path, state, meta={"config": json.loads(config_json), "frame_index": frame_index,
-                                                      "frame_name": frame_name})
-
-    def load_checkpoint(self, config_json: str):
-        """``(state, frame_index, frame_name)`` of the last checkpoint of this configuration, or None (with a
-        warning) when there is none to resume from."""
-        from semmap.io.state import load_state
-
-        if not self.checkpoint_path.is_file():
-            LOG.warning("--resume: no checkpoint in %s; starting from the first frame", self.stage)
-            return None
-        try:
-            state, meta = load_state(self.checkpoint_path)
-        except FormatError as exc:
-            LOG.warning("--resume: the checkpoint cannot be read (%s); starting from the first frame", exc)
-            return None
-        if meta.get("config") != json.loads(config_json):
-            LOG.warning("--resume: the checkpoint in %s is of another configuration; starting from the first frame",
-                        self.stage)
-            return None
-        return state, int(meta["frame_index"]), str(meta.get("frame_name", meta["frame_index"]))
 
     # ------------------------------------------------------------------ end
     def commit(self) -> None:

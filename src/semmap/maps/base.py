@@ -13,7 +13,7 @@ from typing import Protocol, runtime_checkable
 
 import numpy as np
 
-from semmap.errors import ConfigError
+from semmap.errors import ConfigError, FormatError
 from semmap.maps.registry import MapKind
 from semmap.types import LabelSet, MapCloud, Observation
 
@@ -44,6 +44,14 @@ class SemanticMap(Protocol):
         point: the class :meth:`cloud` reports for the occupied voxel (or point cell) holding it."""
         ...
 
+    def state(self) -> dict[str, np.ndarray]:
+        """Everything integration changed, by the checkpoint schema's stable names (a checkpoint's map)."""
+        ...
+
+    def restore(self, state: dict[str, np.ndarray]) -> None:
+        """Continue from :meth:`state` of a map built with the same parameters (FormatError when it does not fit)."""
+        ...
+
     def describe(self) -> dict:
         """Counts and memory of the map for the report (JSON-serialisable)."""
         ...
@@ -60,3 +68,14 @@ def voxels_of_class(m: SemanticMap, cls: int | str) -> np.ndarray:
         raise ConfigError(f"class id {cls} is outside the map's label set (0..{len(m.label_set) - 1})")
     cloud = m.cloud()
     return cloud.centers[cloud.labels == int(cls)]
+
+
+#: One map's checkpoint state: its arrays and counters (0-d arrays) by stable public names (the checkpoint schema).
+MapState = dict[str, np.ndarray]
+
+
+def check_state(state: MapState, names: tuple[str, ...], what: str) -> None:
+    """A :class:`FormatError` naming what a checkpoint ``state`` of ``what`` lacks (another semmap version)."""
+    missing = [n for n in names if n not in state]
+    if missing:
+        raise FormatError(f"checkpoint of {what} lacks {', '.join(missing)} (written by another semmap version?)")

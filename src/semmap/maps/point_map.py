@@ -11,6 +11,7 @@ from __future__ import annotations
 import numpy as np
 
 from semmap.fusion.rules import FusionParams, FusionRule
+from semmap.maps.base import MapState, check_state
 from semmap.maps.registry import MapKind
 from semmap.maps.semantic_grid import SemanticGrid
 from semmap.maps.voxel_grid import UNCOLOURED
@@ -77,6 +78,16 @@ class SemanticPointMap:
         packed = self.grid.arrays().packed
         sel = np.ones(len(packed), bool) if where is None else np.asarray(where, bool)
         self.grid.set_class_probs(packed[sel], np.asarray(probs)[sel])
+
+    def state(self) -> MapState:
+        """The checkpoint state: the grid's and the frames integrated so far."""
+        return {**self.grid.state(), "frames_integrated": np.int64(self.frames_integrated)}
+
+    def restore(self, state: MapState) -> None:
+        """Continue from :meth:`state` of a point map built with the same parameters."""
+        check_state(state, ("frames_integrated",), "the point map")
+        self.grid.restore(state)
+        self.frames_integrated = int(state["frames_integrated"])
 
     def describe(self) -> dict:
         mem = self.grid.memory_bytes

@@ -13,16 +13,18 @@ from __future__ import annotations
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import ClassVar
 
 import numpy as np
 
-from semmap.errors import ConfigError
+from semmap.errors import ConfigError, FormatError
 from semmap.fusion.dense import expand_topk
 from semmap.fusion.half import from_half_bits, to_half_bits
 from semmap.fusion.rules import FusionParams, FusionRule
 from semmap.keys import keys_to_coords, unpack_keys
 from semmap.maps import _grid_kernels as kern
 from semmap.maps._hashtable import GROWTH, MAX_LOAD, N_SHARDS, ShardedTable, lookup_many, round_capacity, slots_at
+from semmap.maps.base import MapState, check_state
 from semmap.types import EMPTY_LABEL, LabelSet, TopKProbs
 
 #: Storage types of the per-class state.
@@ -115,6 +117,34 @@ class SemanticGrid:
         have = self._hits.shape[0]
         if n > have:
             self._alloc_rows(max(n, int(have * 1.5)))
+
+    # ------------------------------------------------------------------ checkpoints
+    #: Checkpoint schema: stable name -> attribute holding it (tests check that it covers every array the grid holds).
+    STATE_ARRAYS: ClassVar[dict[str, str]] = {
+        "rgb": "_rgb", "rgb_count": "_rgb_count", "hits": "_hits", "dense": "_dense", "set_labels": "_set_labels",
+        "set_probs": "_set_probs", "positions": "_positions", "normal_sums": "_normal_sums"}
+
+    def state(self) -> MapState:
+        """Everything integration changes, by the checkpoint schema's names (hash table layout included)."""
+        t = self._table
+        return {**{name: getattr(self, attr) for name, attr in self.STATE_ARRAYS.items()},
+                "table_keys": t.keys, "table_logodds": t.logodds, "table_rows": t.attr, "shard_counts": t.counts,
+                "shard_capacity": np.int64(t.shard_cap), "rows_used": np.int64(self._rows)}
+
+    def restore(self, state: MapState) -> None:
+        """Continue from :meth:`state` of a grid built with the same parameters."""
+        table = ("table_keys", "table_logodds", "table_rows", "shard_counts", "shard_capacity", "rows_used")
+        check_state(state, (*self.STATE_ARRAYS, *table), "a voxel grid")
+        for name, attr in self.STATE_ARRAYS.items():
+            have, got = getattr(self, attr), np.asarray(state[name])
+            if got.dtype != have.dtype or got.shape[1:] != have.shape[1:]:
+                raise FormatError(f"checkpoint of a voxel grid: {name} is {got.dtype}{got.shape}, this grid keeps "
+                                  f"{have.dtype}(..., {have.shape[1:]}) (another configuration?)")
+            setattr(self, attr, np.ascontiguousarray(got))
+        t = self._table
+        t.keys, t.logodds = np.ascontiguousarray(state["table_keys"]), np.ascontiguousarray(state["table_logodds"])
+        t.attr, t.counts = np.ascontiguousarray(state["table_rows"]), np.ascontiguousarray(state["shard_counts"])
+        t.shard_cap, self._rows = int(state["shard_capacity"]), int(state["rows_used"])
 
     @property
     def memory_bytes(self) -> int:

@@ -15,6 +15,7 @@ import numpy as np
 
 from semmap.fusion.rules import FusionParams, FusionRule
 from semmap.keys import unpack_keys
+from semmap.maps.base import MapState
 from semmap.maps.registry import MapKind
 from semmap.maps.semantic_grid import GridArrays, SemanticGrid
 from semmap.maps.semantic_octomap import OCCUPIED, OccupancyParams, SemanticOctoMap
@@ -116,6 +117,18 @@ class SemanticVoxelGrid:
         packed = a.packed[self._occupied(a)]
         sel = np.ones(len(packed), bool) if where is None else np.asarray(where, bool)
         self.grid.set_class_probs(packed[sel], np.asarray(probs)[sel])
+
+    def state(self) -> MapState:
+        """The checkpoint state: the grid's, and the free-space OctoMap's under ``geometry/``."""
+        geometry = {} if self.geometry is None else {f"geometry/{k}": v for k, v in self.geometry.state().items()}
+        return {**self.grid.state(), **geometry}
+
+    def restore(self, state: MapState) -> None:
+        """Continue from :meth:`state` of a voxel grid built with the same parameters."""
+        self.grid.restore({k: v for k, v in state.items() if not k.startswith("geometry/")})
+        if self.geometry is not None:
+            self.geometry.restore({k.removeprefix("geometry/"): v for k, v in state.items()
+                                   if k.startswith("geometry/")})
 
     def describe(self) -> dict:
         a = self.grid.arrays()

@@ -48,6 +48,17 @@ class Scheduler:
         self._count = 0
         self._last_pose: np.ndarray | None = None
 
+    def state(self) -> dict[str, np.ndarray]:
+        """Frames seen and the pose of the last one due (a checkpoint's schedule)."""
+        last = np.full((4, 4), np.nan) if self._last_pose is None else self._last_pose
+        return {"count": np.int64(self._count), "last_pose": np.asarray(last, np.float64)}
+
+    def restore(self, state: dict[str, np.ndarray]) -> None:
+        """Continue from :meth:`state`."""
+        self._count = int(state["count"])
+        last = np.asarray(state["last_pose"], np.float64).reshape(4, 4)
+        self._last_pose = None if np.isnan(last).all() else last
+
     def due(self, T_world_cam: np.ndarray) -> bool:
         """Whether the next frame (seen from ``T_world_cam``) is to be segmented."""
         s = self.schedule

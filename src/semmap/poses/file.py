@@ -86,6 +86,15 @@ class GroundTruthRecorder:
             self._rows.append((frame.timestamp, frame.name or str(frame.index),
                                np.asarray(frame.T_world_cam, np.float64)))
 
+    @property
+    def rows(self) -> list[tuple[float, str, np.ndarray]]:
+        """``(timestamp, frame name, T_world_cam)`` recorded so far, in the order seen."""
+        return list(self._rows)
+
+    def extend(self, rows: Iterable[tuple[float, str, np.ndarray]]) -> None:
+        """Add rows recorded elsewhere (a checkpoint's)."""
+        self._rows.extend((float(t), str(name), np.asarray(T, np.float64)) for t, name, T in rows)
+
     def watch(self, frames: Iterable[Frame]) -> Iterator[Frame]:
         """``frames`` unchanged, each one's pose recorded on the way."""
         for frame in frames:

@@ -61,7 +61,40 @@ class FramePoses:
         """The frames' own ground-truth poses, in time order."""
         return self._gt.trajectory()
 
-    def state(self) -> dict:
-        """What a checkpoint keeps of an offline pose source (poses by frame name and what was recorded so far)."""
-        return {"source": self.source, "by_name": self.by_name, "tracking_s": self.tracking_s,
-                "tracked": self.tracked, "edge_stats": self.edge_stats, "used": self._used}
+    def state(self) -> tuple[dict, dict[str, np.ndarray]]:
+        """A checkpoint's pose source (offline): its JSON-able fields and its arrays (poses by frame name, the poses
+        used and the ground truth so far). A tracker's state is not saved: online runs take no checkpoints."""
+        names = [] if self.by_name is None else list(self.by_name)
+        meta = {"source": self.source, "tracking_s": self.tracking_s, "tracked": self.tracked,
+                "edge_stats": self.edge_stats, "by_name": None if self.by_name is None else names}
+        arrays = {"by_name": _stack([self.by_name[n] for n in names])}
+        for key, rows in (("used", self._used), ("gt", self._gt.rows)):
+            meta[key] = [[float(t), str(name)] for t, name, _ in rows]
+            arrays[key] = _stack([T for _, _, T in rows])
+        return meta, arrays
+
+    def restore(self, meta: dict, arrays: dict[str, np.ndarray]) -> None:
+        """Continue from :meth:`state` (on a pose source of the same kind, its file lookup rebuilt)."""
+        if meta.get("by_name") is not None:
+            self.by_name = dict(zip(meta["by_name"], _poses(arrays, "by_name", len(meta["by_name"])), strict=True))
+        self.tracking_s, self.tracked, self.edge_stats = meta["tracking_s"], int(meta["tracked"]), meta["edge_stats"]
+        used = [(t, name, T) for (t, name), T in zip(meta["used"], _poses(arrays, "used", len(meta["used"])),
+                                                      strict=True)]
+        self._used = [(float(t), str(name), T) for t, name, T in used]
+        self._gt.extend((t, name, T) for (t, name), T in zip(meta["gt"], _poses(arrays, "gt", len(meta["gt"])),
+                                                               strict=True))
+
+
+def _stack(poses: list[np.ndarray]) -> np.ndarray:
+    return np.asarray(poses, np.float64).reshape(-1, 4, 4)
+
+
+def _poses(arrays: dict[str, np.ndarray], name: str, n: int) -> np.ndarray:
+    """``n`` poses of a checkpoint's array ``name``, or a FormatError."""
+    from semmap.errors import FormatError
+
+    poses = arrays.get(name)
+    if poses is None or poses.shape != (n, 4, 4):
+        raise FormatError(f"checkpoint of the pose source: {name} holds {None if poses is None else poses.shape}, "
+                          f"expected ({n}, 4, 4)")
+    return np.asarray(poses, np.float64)

@@ -106,3 +106,14 @@ def pose_source_for(config: RunConfig, dataset: Dataset, *, instances: InstanceS
                           f"trajectory file; {path} does not exist")
     return FramePoses(str(path), lookup=TrajectoryPoses.from_file(path, max_time_diff=config.poses.max_time_diff))
 
+
+
+def pose_source_to_resume(config: RunConfig, dataset: Dataset) -> FramePoses:
+    """The pose source a resumed run restores from its checkpoint: a tracker's poses come from the checkpoint
+    (no second tracking pass), ground truth and trajectory files are opened again."""
+    from semmap.poses.track import METHODS, OBJECT_METHODS
+
+    source = config.poses.source
+    if source in METHODS or source in OBJECT_METHODS:
+        return FramePoses(source)
+    return pose_source_for(config, dataset)
