@@ -25,4 +25,4 @@ def test_demo_writes_the_stored_map_bytes_and_report_numbers(tmp_path):
     report = {k: v for k, v in result.report.items() if k not in TIMINGS}
     for key in MEMORY:
         assert report.pop(key) <= stored["report"].pop(key), key
-    assert report == stored["report"]
+    assert {k: v for k, v in report.items() if k in stored["report"]} == stored["report"]  # (new keys may come)

@@ -13,6 +13,7 @@ from semmap.errors import ConfigError, FormatError
 from semmap.fusion import dispatch
 from semmap.fusion.registry import RuleEntry, register, rule_entry, rule_names, unregister
 from semmap.fusion.rules import FusionParams, FusionRule, fusion_rule
+from semmap.io.map_files import save_map_files
 from semmap.io.native import load_map, save_map
 from semmap.keys import coords_to_keys, pack_keys
 from semmap.maps.point_map import SemanticPointMap
@@ -166,7 +167,7 @@ def test_every_rule_on_the_octomap_writes_reads_coarsens_and_refines(fusion, tmp
     rng = np.random.default_rng(1)
     for _ in range(3):
         integrate(m, pts, sets(rng.integers(1, K, len(pts)), rng.uniform(0.4, 0.9, len(pts)).astype(np.float32)))
-    sizes = m.save(tmp_path)
+    sizes = save_map_files(m, tmp_path)
     assert sizes["map.ot"] > 0 and sizes["map.bt"] > 0
     back = load_map(tmp_path / "map.semmap")
     assert back.fusion == fusion

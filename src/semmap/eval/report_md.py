@@ -124,7 +124,7 @@ def _maps_section(maps: dict) -> list[str]:
         def fmt(key: str, m: dict = m) -> str:
             return f"{m[key]:.3f}" if key in m else "–"
 
-        lines.append(f"| {kind} | {m.get('fusion', 'topk')} | {size:,} | {fmt('miou_3d')} | "
+        lines.append(f"| {kind} | {m.get('fusion', '–')} | {size:,} | {fmt('miou_3d')} | "
                      f"{'–' if before is None else f'{before:.3f}'} | {fmt('voxel_accuracy_3d')} | {fmt('mpa_3d')} | "
                      f"{fmt('geometric_precision_3d')} | {fmt('gt_coverage_3d')} | "
                      f"{m['bytes_per_voxel_in_memory']} | {files} |")

@@ -673,7 +673,8 @@ class SemanticOctoMap:
             self._tree_counts = _tree_counts(tree, self.is_occupied(tree.values))
         return {**self._tree_counts, "occupied_voxels": self.num_occupied, "free_voxels": self.num_free,
                 "bytes_in_memory": self.memory_bytes,
-                "bytes_per_voxel_in_memory": round(self.memory_bytes / max(self.num_leaves, 1), 2)}
+                "bytes_per_voxel_in_memory": round(self.memory_bytes / max(self.num_leaves, 1), 2),
+                "fusion": self.fusion.name}
 
     def class_probs(self) -> np.ndarray:
         """(M, K) class distribution of each occupied voxel (:meth:`cloud` order): a set read as a K-vector with

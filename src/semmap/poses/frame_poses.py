@@ -68,7 +68,7 @@ class FramePoses:
         meta = {"source": self.source, "tracking_s": self.tracking_s, "tracked": self.tracked,
                 "edge_stats": self.edge_stats, "by_name": None if self.by_name is None else names}
         arrays = {"by_name": _stack([self.by_name[n] for n in names])}
-        for key, rows in (("used", self._used), ("gt", self._gt.rows)):
+        for key, rows in (("used", self._used), ("ground_truth", self._gt.rows)):
             meta[key] = [[float(t), str(name)] for t, name, _ in rows]
             arrays[key] = _stack([T for _, _, T in rows])
         return meta, arrays
@@ -78,12 +78,11 @@ class FramePoses:
         if meta.get("by_name") is not None:
             self.by_name = dict(zip(meta["by_name"], _poses(arrays, "by_name", len(meta["by_name"])), strict=True))
         self.tracking_s, self.tracked, self.edge_stats = meta["tracking_s"], int(meta["tracked"]), meta["edge_stats"]
-        used = [(t, name, T) for (t, name), T in zip(meta["used"], _poses(arrays, "used", len(meta["used"])),
-                                                      strict=True)]
-        self._used = [(float(t), str(name), T) for t, name, T in used]
-        self._gt.extend((t, name, T) for (t, name), T in zip(meta["gt"], _poses(arrays, "gt", len(meta["gt"])),
-                                                               strict=True))
-
+        self._used = [(float(t), str(name), T) for (t, name), T in
+                      zip(meta["used"], _poses(arrays, "used", len(meta["used"])), strict=True)]
+        truth = meta["ground_truth"]
+        self._gt.extend((t, name, T) for (t, name), T in
+                        zip(truth, _poses(arrays, "ground_truth", len(truth)), strict=True))
 
 def _stack(poses: list[np.ndarray]) -> np.ndarray:
     return np.asarray(poses, np.float64).reshape(-1, 4, 4)
