@@ -13,7 +13,7 @@ import numpy as np
 from semmap.fusion.rules import FusionParams, FusionRule
 from semmap.maps.base import MapState, check_state
 from semmap.maps.registry import MapKind
-from semmap.maps.semantic_grid import SemanticGrid
+from semmap.maps.semantic_grid import OnSemanticGrid, SemanticGrid
 from semmap.maps.voxel_grid import UNCOLOURED
 from semmap.types import LabelSet, MapCloud, Observation
 
@@ -21,7 +21,7 @@ from semmap.types import LabelSet, MapCloud, Observation
 DEFAULT_POINT_RESOLUTION = 0.01
 
 
-class SemanticPointMap:
+class SemanticPointMap(OnSemanticGrid):
     """Voxel-filtered semantic points updated on keyframes; implements :class:`~semmap.maps.base.SemanticMap`."""
 
     kind = MapKind.POINTS
@@ -34,18 +34,6 @@ class SemanticPointMap:
                                  keep_geometry=True)
         self.keyframes_only = keyframes_only
         self.frames_integrated = 0
-
-    @property
-    def resolution(self) -> float:
-        return self.grid.resolution
-
-    @property
-    def label_set(self) -> LabelSet | None:
-        return self.grid.label_set
-
-    @property
-    def fusion(self) -> FusionParams:
-        return self.grid.fusion
 
     def integrate(self, obs: Observation) -> dict[str, float]:
         """Fuse a keyframe's points (other frames are skipped when ``keyframes_only``)."""

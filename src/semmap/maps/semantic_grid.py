@@ -384,3 +384,22 @@ def compile_kernels() -> float:
             g.summary(a)
     _compile_normals()
     return time.perf_counter() - t
+
+
+class OnSemanticGrid:
+    """A map whose classes and colours live in a :class:`SemanticGrid` ``self.grid`` (voxel grid, point map): its
+    resolution, label set and fusion rule are the grid's."""
+
+    grid: SemanticGrid
+
+    @property
+    def resolution(self) -> float:
+        return self.grid.resolution
+
+    @property
+    def label_set(self) -> LabelSet | None:
+        return self.grid.label_set
+
+    @property
+    def fusion(self) -> FusionParams:
+        return self.grid.fusion

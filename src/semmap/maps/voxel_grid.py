@@ -17,7 +17,7 @@ from semmap.fusion.rules import FusionParams, FusionRule
 from semmap.keys import unpack_keys
 from semmap.maps.base import MapState
 from semmap.maps.registry import MapKind
-from semmap.maps.semantic_grid import GridArrays, SemanticGrid
+from semmap.maps.semantic_grid import GridArrays, OnSemanticGrid, SemanticGrid
 from semmap.maps.semantic_octomap import OCCUPIED, OccupancyParams, SemanticOctoMap
 from semmap.types import LabelSet, MapCloud, Observation
 
@@ -41,7 +41,7 @@ class GridVoxels:
         return int(self.keys.shape[0])
 
 
-class SemanticVoxelGrid:
+class SemanticVoxelGrid(OnSemanticGrid):
     """Sparse voxel grid with K-class fusion (module docstring); a :class:`~semmap.maps.base.SemanticMap`."""
 
     kind = MapKind.VOXELGRID
@@ -56,18 +56,6 @@ class SemanticVoxelGrid:
         self.max_range = float(max_range)
         self.geometry = (SemanticOctoMap(resolution, occupancy=self.occupancy, max_range=max_range)
                          if free_space else None)
-
-    @property
-    def resolution(self) -> float:
-        return self.grid.resolution
-
-    @property
-    def label_set(self) -> LabelSet | None:
-        return self.grid.label_set
-
-    @property
-    def fusion(self) -> FusionParams:
-        return self.grid.fusion
 
     @property
     def free_space(self) -> bool:

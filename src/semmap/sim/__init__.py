@@ -16,28 +16,19 @@ from __future__ import annotations
 
 import importlib
 
-_EXPORTS = {
-    "INDOOR_LABELS": "semmap.labels",
-    "Scene": "semmap.sim.scene",
-    "SceneObject": "semmap.sim.scene",
-    "Room": "semmap.sim.scene",
-    "generate_scene": "semmap.sim.scene",
-    "KINDS": "semmap.sim.scene",
-    "SIZES": "semmap.sim.scene",
-    "Renderer": "semmap.sim.render",
-    "RenderedView": "semmap.sim.render",
-    "DEFAULT_INTRINSICS": "semmap.types",
-    "KinectNoise": "semmap.sim.noise",
-    "make_trajectory": "semmap.sim.trajectory",
-    "look_at": "semmap.sim.trajectory",
-    "TRAJECTORY_KINDS": "semmap.sim.trajectory",
-    "GroundTruthVoxels": "semmap.sim.ground_truth",
-    "gt_voxels": "semmap.sim.ground_truth",
-    "gt_objects": "semmap.sim.ground_truth",
-    "coords_to_keys": "semmap.keys",
-    "simulate_sequence": "semmap.sim.export",
-    "simulate_frames": "semmap.sim.export",
+#: Module -> the public names it provides (read on first use).
+_BY_MODULE = {
+    "semmap.labels": ("INDOOR_LABELS",),
+    "semmap.sim.scene": ("Scene", "SceneObject", "Room", "generate_scene", "KINDS", "SIZES"),
+    "semmap.sim.render": ("Renderer", "RenderedView"),
+    "semmap.types": ("DEFAULT_INTRINSICS",),
+    "semmap.sim.noise": ("KinectNoise",),
+    "semmap.sim.trajectory": ("make_trajectory", "look_at", "TRAJECTORY_KINDS"),
+    "semmap.sim.ground_truth": ("GroundTruthVoxels", "gt_voxels", "gt_objects"),
+    "semmap.keys": ("coords_to_keys",),
+    "semmap.sim.export": ("simulate_sequence", "simulate_frames"),
 }
+_EXPORTS = {name: module for module, names in _BY_MODULE.items() for name in names}
 
 __all__ = sorted(_EXPORTS)
 
