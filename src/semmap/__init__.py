@@ -46,6 +46,7 @@ _EXPORTS = {
     # files
     "save_map": "semmap.io.map_files",
     "load_map": "semmap.io.map_files",
+    "save_map_files": "semmap.io.map_files",
     "read_octomap": "semmap.io.octomap_files",
     "read_ply": "semmap.io.ply",
     "write_ply": "semmap.io.ply",
