@@ -593,50 +593,11 @@ def eval_traj(
     """ATE (after SE(3) Umeyama alignment) and RPE of estimated trajectories against a reference; with several
     estimates, `--pairwise` or `--reference2`, a comparison of all of them."""
     _setup_logging(False)
-    from semmap.eval.trajectory import (
-        compare_trajectories,
-        evaluate_trajectory,
-        on_common_frames,
-        plot_position_errors,
-        plot_trajectories,
-    )
-    from semmap.io.trajectory import read_trajectory
+    from semmap.runner import evaluate_trajectories
 
-    reference = _reference_trajectory(gt)
-    estimates = _named_trajectories(est, lambda p: read_trajectory(p, strict=True))
-    if len(estimates) == 1 and not (pairwise or reference2 or rotation_frames):
-        scores = evaluate_trajectory(reference, next(iter(estimates.values())), max_time_diff=max_time_diff)
-    else:
-        scores = compare_trajectories(reference, estimates, pairwise=pairwise, rotation_frames=rotation_frames,
-                                      reference2=None if reference2 is None else _reference_trajectory(reference2),
-                                      max_time_diff=max_time_diff)
-    if plot is not None:
-        plot_trajectories(plot, reference, estimates, max_time_diff=max_time_diff)
-    if plot_errors is not None:
-        ref, common = on_common_frames(reference, estimates, max_time_diff=max_time_diff)
-        plot_position_errors(plot_errors, ref, common, title=f"position error against {gt.name}, SE(3) aligned")
+    scores = evaluate_trajectories(gt, est, max_time_diff=max_time_diff, pairwise=pairwise, reference2=reference2,
+                                   rotation_frames=rotation_frames, plot=plot, plot_errors=plot_errors)
     typer.echo(json.dumps(scores, indent=2))
-
-
-def _reference_trajectory(path: Path):
-    """A TUM trajectory file, or the ground-truth poses of a dataset folder."""
-    if path.is_dir():
-        from semmap.datasets import open_dataset
-        from semmap.poses.file import trajectory_of_dataset
-
-        return trajectory_of_dataset(open_dataset(path))
-    from semmap.io.trajectory import read_trajectory
-
-    return read_trajectory(path, strict=True)
-
-
-def _named_trajectories(paths: list[Path], read) -> dict:
-    """Trajectories by file stem (the parent folder's name is added where stems repeat)."""
-    stems = [p.stem for p in paths]
-    names = [f"{p.parent.name}/{p.stem}" if stems.count(p.stem) > 1 else p.stem for p in paths]
-    if len(set(names)) < len(names):
-        raise SemmapError(f"the same trajectory is given twice: {', '.join(map(str, paths))}")
-    return {name: read(p) for name, p in zip(names, paths, strict=True)}
 
 
 @app.command("eval-seg")

@@ -134,3 +134,56 @@ def track_summary(result: TrackResult, method: str, out: Path, *, plot: Path | N
     elif plot is not None:
         plot_trajectories(plot, est, {})
     return summary
+
+
+def reference_trajectory(path: Path) -> Trajectory:
+    """A TUM trajectory file (read strictly), or the ground-truth poses of a dataset folder."""
+    if path.is_dir():
+        from semmap.datasets import open_dataset
+        from semmap.poses.file import trajectory_of_dataset
+
+        return trajectory_of_dataset(open_dataset(path))
+    from semmap.io.trajectory import read_trajectory
+
+    return read_trajectory(path, strict=True)
+
+
+def named_trajectories(paths: list[Path]) -> dict[str, Trajectory]:
+    """TUM trajectory files by file stem (the parent folder's name is added where stems repeat)."""
+    from semmap.errors import ConfigError
+    from semmap.io.trajectory import read_trajectory
+
+    stems = [p.stem for p in paths]
+    names = [f"{p.parent.name}/{p.stem}" if stems.count(p.stem) > 1 else p.stem for p in paths]
+    if len(set(names)) < len(names):
+        raise ConfigError(f"the same trajectory is given twice: {', '.join(map(str, paths))}")
+    return {name: read_trajectory(p, strict=True) for name, p in zip(names, paths, strict=True)}
+
+
+def evaluate_trajectories(gt: Path, est: list[Path], *, max_time_diff: float = 0.02, pairwise: bool = False,
+                          reference2: Path | None = None, rotation_frames: int | None = None,
+                          plot: Path | None = None, plot_errors: Path | None = None) -> dict:
+    """``semmap eval-traj``: ATE / RPE of the estimates against ``gt`` (a TUM file or a dataset folder), a
+    comparison of all of them with several estimates, ``pairwise`` or ``reference2``; optional plots."""
+    from semmap.eval.trajectory import (
+        compare_trajectories,
+        evaluate_trajectory,
+        on_common_frames,
+        plot_position_errors,
+        plot_trajectories,
+    )
+
+    reference = reference_trajectory(gt)
+    estimates = named_trajectories(est)
+    if len(estimates) == 1 and not (pairwise or reference2 or rotation_frames):
+        scores = evaluate_trajectory(reference, next(iter(estimates.values())), max_time_diff=max_time_diff)
+    else:
+        scores = compare_trajectories(reference, estimates, pairwise=pairwise, rotation_frames=rotation_frames,
+                                      reference2=None if reference2 is None else reference_trajectory(reference2),
+                                      max_time_diff=max_time_diff)
+    if plot is not None:
+        plot_trajectories(plot, reference, estimates, max_time_diff=max_time_diff)
+    if plot_errors is not None:
+        ref, common = on_common_frames(reference, estimates, max_time_diff=max_time_diff)
+        plot_position_errors(plot_errors, ref, common, title=f"position error against {gt.name}, SE(3) aligned")
+    return scores
