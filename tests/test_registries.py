@@ -24,6 +24,7 @@ from semmap.config import (
 )
 from semmap.datasets import AUTO, FORMATS, DatasetFormat, detect_format
 from semmap.errors import ConfigError, SemmapError
+from semmap.fusion.rules import FusionRule
 from semmap.maps.registry import MAPS, MapKind
 from semmap.perception.instances.registry import INSTANCE_SOURCES, InstanceSourceName
 from semmap.perception.networks.registry import MODELS
@@ -40,9 +41,14 @@ FAMILIES: dict[str, tuple[tuple[str, ...], tuple[str, ...]]] = {
     "instance source": (tuple(INSTANCE_SOURCES), ("perception/instances/registry.py",)),
     "map": (tuple(MAPS), ("maps/registry.py",)),
     "dataset format": (tuple(FORMATS), ("datasets/tum.py", "datasets/sevenscenes.py", "datasets/rosbag.py")),
+    "fusion rule": (tuple(r.value for r in FusionRule), ("fusion/rules.py", "fusion/registry.py")),
 }
 #: (file, literal) pairs where the same word means something else, each with the reason.
 ALLOWED: dict[tuple[str, str], str] = {
+    ("eval/run_report.py", "max"): "the largest latency of an online run (a statistic, not the fusion rule)",
+    ("localization/outputs.py", "max"): "the largest localization error (a statistic)",
+    ("localization/run.py", "max"): "the largest localization error (a statistic)",
+    ("sim/scene.py", "max"): "a bounding box's upper corner",
     ("config.py", "oracle"): "SemanticSource.ORACLE: a value of --semantics (where class probabilities come from)",
     ("localization/sequence.py", "odometry"): "--motion odometry: a localization motion source (MOTION_SOURCES)",
     ("cli.py", "odometry"): "the default of localize --motion (a localization motion source)",
