@@ -233,6 +233,7 @@ class Pipeline:
         maps = mapper.maps
         self._viewer.finish(maps[0])
         warn_if_empty(maps[0], c, mapper.points_integrated, record.poses)
+        self.scorer.align_to(pose_of)  # maps from estimated poses are scored in the ground truth's frame
         crf = (refine_maps(maps, record.poses, iterations=c.crf.iterations, scorer=self.scorer)
                if c.crf.enabled else {})
         files, sizes = write_outputs(stage, maps, record.poses, c, self._objects)

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import numpy as np
+
 from semmap.files.atomic import write_text_atomic
 
 
@@ -32,7 +34,7 @@ def render_report_md(report: dict, *, title: str = "semmap run", plots: dict[str
                   f"3D: occupied voxels matched to ground-truth surface voxels within one voxel; "
                   f"geometric precision {report['geometric_precision_3d']:.3f} (occupied voxels on a true surface), "
                   f"coverage {report['gt_coverage_3d']:.3f} of the {report['gt_voxels']:,} ground-truth surface "
-                  f"voxels.", ""]
+                  f"voxels.", "", *_alignment_lines(report)]
         per3 = report.get("per_class_iou_3d", {})
         per2 = report.get(f"{seg}_per_class_iou_2d", {}) if seg else {}
         lines += ["| class | IoU 3D | IoU 2D |", "|---|---|---|"]
@@ -41,6 +43,8 @@ def render_report_md(report: dict, *, title: str = "semmap run", plots: dict[str
             b = f"{per2[name]:.3f}" if name in per2 else "–"
             lines.append(f"| {name} | {a} | {b} |")
         lines.append("")
+    else:
+        lines += _alignment_lines(report)
     lines += _plot(plots, "iou", "IoU per class")
     sizes = report["bytes_on_disk"]
     lines += ["## Storage", "", "| representation | size |", "|---|---|",
@@ -76,6 +80,22 @@ _FILES = (("map.bt", "OctoMap .bt (occupancy only)"), ("map.ot", "semantic OctoM
           ("voxelgrid.semmap", "semantic voxel grid, native (every voxel's class state)"),
           ("voxelgrid.ply", "semantic voxel grid, binary PLY (occupied voxels)"),
           ("points.semmap", "semantic point map, native"), ("points.ply", "semantic point map, binary PLY"))
+
+
+def _alignment_lines(report: dict) -> list[str]:
+    """Where the map built from estimated poses was scored: the transform onto the ground truth and its source."""
+    a = report.get("map_alignment")
+    if a is None:
+        return []
+    if "T_gt_map" not in a:
+        return [f"The map built from `{report.get('poses', '?')}` poses could not be aligned to the ground truth "
+                f"({a.get('why', '?')}): it is not scored in 3D.", ""]
+    T = np.asarray(a["T_gt_map"], np.float64)
+    angle = np.degrees(np.arccos(np.clip((np.trace(T[:3, :3]) - 1) / 2, -1.0, 1.0)))
+    return [f"The map was built from `{report.get('poses', '?')}` poses, in their frame; 3D scores and the trajectory "
+            f"plot move it onto the ground truth by the {a['method']} ({a['frames']} frames, as the ATE): a rotation "
+            f"of {angle:.2f}° and a translation of {np.linalg.norm(T[:3, 3]):.3f} m (`map_alignment` in report.json).",
+            ""]
 
 
 def _counts_line(report: dict) -> str:

@@ -6,6 +6,7 @@ Each plot is drawn only when the report has its data; :func:`write_report_plots`
 
 from __future__ import annotations
 
+import dataclasses
 import io
 from pathlib import Path
 
@@ -13,7 +14,7 @@ import numpy as np
 
 from semmap.files.atomic import write_bytes_atomic
 from semmap.poses.track import GROUND_TRUTH
-from semmap.types import MapCloud, Trajectory
+from semmap.types import MapCloud, Trajectory, transform_points
 
 #: File names of the plots, by the report section they belong to.
 PLOT_FILES = {"trajectory": "report_trajectory.png", "iou": "report_iou.png", "storage": "report_storage.png",
@@ -50,7 +51,7 @@ def _plane_axes(up: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 def plot_trajectory(path: Path, used: Trajectory, ground_truth: Trajectory | None, *, cloud: MapCloud | None = None,
                     up: np.ndarray | None = None, label: str = "poses used", ate_m: float | None = None) -> Path:
     """The camera path from above over the map (occupied voxels counted per column, grey), and the ground truth when
-    it differs from the poses used (both in the run's world frame, as the map was built)."""
+    it differs from the poses used (all in one frame: the caller moves estimated poses and their map onto it)."""
     from semmap.viz.preview import up_vector
 
     up = up_vector(used.poses) if up is None else np.asarray(up, float)
@@ -165,17 +166,34 @@ def storage_sizes(report: dict) -> dict[str, int]:
     return sizes
 
 
+def _trajectory_in_one_frame(report: dict, used: Trajectory, ground_truth: Trajectory | None,
+                             cloud: MapCloud | None) -> dict:
+    """:func:`plot_trajectory`'s arguments with everything in the ground truth's frame: estimated poses and the map
+    built from them moved by the report's ``map_alignment`` (the ATE's SE(3) fit); without one, the ground truth is
+    left out rather than drawn in another frame."""
+    source = report.get("poses", "?")
+    if ground_truth is not None and source == GROUND_TRUTH:
+        return {"used": used, "ground_truth": None, "cloud": cloud, "label": "ground-truth poses"}
+    ate = report.get("trajectory_vs_ground_truth", {}).get("ate_rmse_m")
+    T = report.get("map_alignment", {}).get("T_gt_map")
+    if T is None:
+        return {"used": used, "ground_truth": None, "cloud": cloud, "label": f"poses used ({source})", "ate_m": ate}
+    T = np.asarray(T, np.float64)
+    moved = Trajectory(used.timestamps, T @ used.poses, used.names)
+    if cloud is not None:
+        cloud = dataclasses.replace(cloud, centers=transform_points(T, cloud.centers))
+    return {"used": moved, "ground_truth": ground_truth, "cloud": cloud, "ate_m": ate,
+            "label": f"poses used ({source}), aligned to the ground truth"}
+
+
 def write_report_plots(out_dir: str | Path, report: dict, *, used: Trajectory | None = None,
                        ground_truth: Trajectory | None = None, cloud: MapCloud | None = None) -> dict[str, str]:
     """Every plot the report has data for, into ``out_dir``; returns ``{section: file name}``."""
     out_dir = Path(out_dir)
     plots: dict[str, str] = {}
     if used is not None and len(used) >= 2:
-        same = ground_truth is not None and report.get("poses") == GROUND_TRUTH
-        ate = report.get("trajectory_vs_ground_truth", {}).get("ate_rmse_m")
-        plot_trajectory(out_dir / PLOT_FILES["trajectory"], used, None if same else ground_truth, cloud=cloud,
-                        label="ground-truth poses" if same else f"poses used ({report.get('poses', '?')})",
-                        ate_m=ate)
+        plot_trajectory(out_dir / PLOT_FILES["trajectory"], **_trajectory_in_one_frame(report, used, ground_truth,
+                                                                                         cloud))
         plots["trajectory"] = PLOT_FILES["trajectory"]
     per3 = report.get("per_class_iou_3d", {})
     seg = next((k[: -len("_per_class_iou_2d")] for k in report if k.endswith("_per_class_iou_2d")), None)

@@ -29,7 +29,7 @@ from semmap.perception.schedule import Scheduler, SegmentationSchedule
 from semmap.poses.base import LiveTracker
 from semmap.poses.frame_poses import FramePoses
 from semmap.poses.track import GROUND_TRUTH
-from semmap.types import TopKProbs, Trajectory, rotation_angle
+from semmap.types import TopKProbs, Trajectory, rotation_angle, transform_points
 
 log = logging.getLogger("semmap")
 #: Ground truth for 3D evaluation: resolution -> (keys (M, 3), class ids (M,)) of the true surface voxels.
@@ -91,11 +91,43 @@ class RunRecord:
 
 class RunScorer:
     """Accuracy of a run against ground truth: the segmenter's per-pixel confusion (into the record) and each
-    map's voxels at the run's resolution (ground-truth voxels computed once per resolution)."""
+    map's voxels at the run's resolution (ground-truth voxels computed once per resolution), in the ground truth's
+    frame: a map built from estimated poses is moved there first (:meth:`align_to`)."""
 
     def __init__(self, ground_truth: GroundTruthFn | None, resolution: float) -> None:
         self.ground_truth, self.resolution = ground_truth, resolution
         self._gt: dict[float, tuple[np.ndarray, np.ndarray]] = {}
+        self.T_gt_map: np.ndarray | None = None  # the map's frame onto the ground truth's (None: already there)
+        self.alignment: dict | None = None  # how T_gt_map was found, for the report
+        self._aligned = False
+        self._frame_unknown = False  # estimated poses without a ground-truth trajectory to align them to
+
+    def align_to(self, pose_of: FramePoses) -> None:
+        """Find (once) where the map lies against the ground truth: in its frame with ground-truth poses; otherwise
+        moved by the ATE's SE(3) alignment of the poses used onto the frames' ground truth. A map that cannot be
+        aligned is not scored in 3D (a score in the wrong frame would be meaningless), with a warning."""
+        if self._aligned or pose_of.source == GROUND_TRUTH:
+            self._aligned = True
+            return
+        self._aligned = True
+        gt = pose_of.ground_truth()
+        if len(gt) == 0 and self.ground_truth is None:
+            return  # nothing to align to and nothing to score
+        from semmap.eval.trajectory import alignment_to_ground_truth
+
+        try:
+            if len(gt) == 0:
+                raise ConfigError("the frames have no ground-truth poses")
+            T, how = alignment_to_ground_truth(gt, pose_of.used_trajectory())
+        except ConfigError as exc:
+            self._frame_unknown = True
+            self.alignment = {"method": "none", "why": str(exc)}
+            if self.ground_truth is not None:
+                log.warning("the map is not scored in 3D: its %s poses cannot be aligned to the ground truth (%s)",
+                            pose_of.source, exc)
+            return
+        self.T_gt_map = T
+        self.alignment = {**how, "T_gt_map": T.round(9).tolist()}
 
     @staticmethod
     def add_segmentation(record: RunRecord, sem: TopKProbs, gt_labels: np.ndarray, num_classes: int) -> None:
@@ -104,15 +136,16 @@ class RunScorer:
         record.conf2d = conf if record.conf2d is None else record.conf2d + conf
 
     def map_3d(self, m: SemanticMap) -> dict:
-        """3D accuracy of a map at the run's voxel size (a finer point map votes per voxel); empty without ground
-        truth or classes."""
-        if self.ground_truth is None or m.label_set is None:
+        """3D accuracy of a map at the run's voxel size (a finer point map votes per voxel), its points moved onto
+        the ground truth by :attr:`T_gt_map`; empty without ground truth, classes or a known frame."""
+        if self.ground_truth is None or m.label_set is None or self._frame_unknown:
             return {}
         if self.resolution not in self._gt:
             self._gt[self.resolution] = self.ground_truth(self.resolution)
         gt_keys, gt_labels = self._gt[self.resolution]
         cloud = m.cloud()
-        return evaluate_cloud_3d(cloud.centers, cloud.labels, gt_keys, gt_labels, m.label_set, self.resolution)
+        centers = cloud.centers if self.T_gt_map is None else transform_points(self.T_gt_map, cloud.centers)
+        return evaluate_cloud_3d(centers, cloud.labels, gt_keys, gt_labels, m.label_set, self.resolution)
 
     def evaluate(self, primary: SemanticMap, record: RunRecord, segmenter_name: str | None) -> dict:
         """Accuracy against ground truth when there is any: the segmenter per pixel, then the map's voxels."""
@@ -171,14 +204,26 @@ def trajectory_report(pose_of: FramePoses, out_dir: Path, files: dict[str, Path]
         out["tracking_ms_per_frame"] = round(1e3 * pose_of.tracking_s / max(pose_of.tracked, 1), 2)
     if pose_of.edge_stats is not None:
         out["object_pose_edges"] = pose_of.edge_stats
-    gt = pose_of.ground_truth()
-    if pose_of.source != GROUND_TRUTH and len(gt) >= 3 and len(used) >= 3:
-        from semmap.eval.trajectory import evaluate_trajectory
-
-        scores = evaluate_trajectory(gt, used)
-        out["trajectory_vs_ground_truth"] = {k: scores[k] for k in ("ate_rmse_m", "rpe_trans_m", "matched")
-                                             if k in scores}
+    if pose_of.source != GROUND_TRUTH:
+        scores = _scored_against_ground_truth(pose_of.ground_truth(), used, "the trajectory used")
+        if scores is not None:
+            out["trajectory_vs_ground_truth"] = scores
     return out
+
+
+def _scored_against_ground_truth(gt: Trajectory, est: Trajectory, what: str) -> dict | None:
+    """ATE, RPE and matched poses of ``est`` against ``gt`` (at least 3 poses each); None, with a warning, where
+    they cannot be aligned (a camera that never moved): no score, not a failed run."""
+    if len(gt) < 3 or len(est) < 3:
+        return None
+    from semmap.eval.trajectory import evaluate_trajectory
+
+    try:
+        scores = evaluate_trajectory(gt, est)
+    except ConfigError as exc:
+        log.warning("%s is not scored: %s", what, exc)
+        return None
+    return {k: scores[k] for k in ("ate_rmse_m", "rpe_trans_m", "matched") if k in scores}
 
 
 def online_report(record: RunRecord, pose_of: FramePoses, resolution: float, out_dir: Path,
@@ -200,17 +245,9 @@ def online_report(record: RunRecord, pose_of: FramePoses, resolution: float, out
     if isinstance(pose_of.tracker, LiveTracker):
         out["loop_closures"] = pose_of.tracker.loop_closures
     out["drift_left_in"] = drift_left_in(pose_of.used_trajectory(), final, resolution)
-    gt = pose_of.ground_truth()
-    if len(gt) >= 3 and len(final) >= 3:
-        from semmap.eval.trajectory import evaluate_trajectory
-
-        try:
-            scores = evaluate_trajectory(gt, final)
-        except ConfigError as exc:  # a camera that never moved cannot be aligned: no score, not a failed run
-            log.warning("the final trajectory is not scored: %s", exc)
-        else:
-            out["final_trajectory_vs_ground_truth"] = {k: scores[k] for k in ("ate_rmse_m", "rpe_trans_m", "matched")
-                                                       if k in scores}
+    scores = _scored_against_ground_truth(pose_of.ground_truth(), final, "the final trajectory")
+    if scores is not None:
+        out["final_trajectory_vs_ground_truth"] = scores
     return out
 
 
@@ -263,11 +300,14 @@ def _frames_report(o: RunOutcome) -> dict:
 
 def build_report(o: RunOutcome, scorer: RunScorer, resolution: float) -> dict:
     """``report.json``'s dict of a finished run (writes ``trajectory.txt`` / ``trajectory_final.txt`` on the way)."""
+    scorer.align_to(o.pose_of)  # (once: a run with the CRF aligned before scoring the maps before it)
     report = _frames_report(o)
     report["startup_s"] = round(o.startup_s + o.segmenter_startup_s, 3)
     if o.segmenter is not None:
         report["segmenter_startup_s"] = round(o.segmenter_startup_s, 3)
     report.update(trajectory_report(o.pose_of, o.out_dir, o.files))
+    if scorer.alignment is not None:  # the map's frame against the ground truth's, as the 3D scores and plot use it
+        report["map_alignment"] = scorer.alignment
     report["peak_rss_mb"] = round(peak_rss_mb(), 1)
     # frames per second of the work a frame needs (the tracking pass before, offline, and the frame loop)
     before = (o.pose_of.tracking_s or 0.0) if o.pose_of.tracker is None else 0.0  # online it is inside the loop

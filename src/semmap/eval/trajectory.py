@@ -68,6 +68,23 @@ def align(ref: PoseTrajectory3D, est: PoseTrajectory3D, *, with_scale: bool = Fa
     return aligned, T
 
 
+def alignment_to_ground_truth(gt: Trajectory, est: Trajectory, *, max_time_diff: float = 0.02
+                              ) -> tuple[np.ndarray, dict]:
+    """``T_gt_est`` (4x4) taking ``est``'s frame onto the ground truth's, and how it was found: the SE(3) Umeyama fit
+    over the poses matched by timestamp (the alignment of :func:`evaluate_trajectory`'s ATE), or, where the positions
+    are too degenerate for it (a camera that stays put or moves along a line), the first matched pose's offset.
+
+    :class:`ConfigError` when fewer than :data:`MIN_MATCHES` poses match."""
+    ref, est_s = synchronize(gt, est, max_time_diff)
+    try:
+        _, T = align(ref, est_s)
+    except ConfigError as exc:
+        T = ref.poses_se3[0] @ np.linalg.inv(est_s.poses_se3[0])
+        T[3] = (0.0, 0.0, 0.0, 1.0)
+        return T, {"method": "se3 offset of the first matched pose", "frames": 1, "why": str(exc)}
+    return T, {"method": "se3 umeyama on the trajectory", "frames": int(ref.num_poses)}
+
+
 def _ape(ref: PoseTrajectory3D, est: PoseTrajectory3D) -> metrics.APE:
     ape = metrics.APE(metrics.PoseRelation.translation_part)
     ape.process_data((ref, est))
