@@ -8,6 +8,7 @@ from pathlib import Path
 
 from semmap.config import OutputConfig, RunConfig
 from semmap.files.outputs import Named, OutputKind, check_outputs, check_utf8
+from semmap.io.staged_run import check_out_dir
 
 
 def run_inputs(config: RunConfig) -> list[Named]:
@@ -25,6 +26,7 @@ def run_inputs(config: RunConfig) -> list[Named]:
 def check_run_paths(config: RunConfig) -> None:
     """``--out`` (a folder) and ``--rerun`` (a file) are checked against every input and the output policy, and
     every recorded input name is UTF-8, before anything is read or mapped."""
+    check_out_dir(config.output.out)  # (a file, or below one: "nothing was mapped")
     inputs = [(name, path) for name, path in run_inputs(config) if path is not None]
     for name, path in inputs:
         check_utf8(path, name)
