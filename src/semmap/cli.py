@@ -359,7 +359,7 @@ def simulate(
     stored = _size(image_size)
     if isinstance(stored, int):
         raise SemmapError(f"--image-size must be WIDTHxHEIGHT, got {image_size!r}")
-    with _ProgressCallback("rendering", frames) as callback:
+    with _interruptible(), _ProgressCallback("rendering", frames) as callback:
         root = simulate_sequence(out, scene_seed=scene_seed, kind=kind, size=size, trajectory=trajectory,
                                  frames=frames, noise=noise, progress=callback, image_size=stored, symmetric=symmetric,
                                  trajectory_seed=trajectory_seed)

@@ -81,7 +81,10 @@ def demo_config(*, out: Path, frames: int = 300, resolution: float | None = None
 def run_demo(*, out: Path, frames: int = 300, resolution: float | None = None, scene_seed: int = 0,
              rerun: Path | None = None, oracle: bool = False, progress: Progress | None = None) -> RunResult:
     """``semmap demo``: simulate the default scene and map it as ``semmap run`` would, scored against the
-    simulator's ground truth."""
+    simulator's ground truth (``out`` and ``rerun`` checked before the scene is built)."""
+    from semmap.files.outputs import OutputKind, check_outputs
+
+    check_outputs([("--out", out, OutputKind.FOLDER), ("--rerun", rerun, OutputKind.FILE)], [])
     config, dataset = demo_config(out=out, frames=frames, resolution=resolution, scene_seed=scene_seed,
                                   rerun=rerun, oracle=oracle)
     from semmap.perception.registry import SegmenterName

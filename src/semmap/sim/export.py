@@ -23,6 +23,7 @@ import numpy as np
 from semmap.errors import OutputError, SimulationError
 from semmap.files.atomic import write_text_atomic
 from semmap.files.outputs import OutputKind, check_outputs
+from semmap.interrupt import RunInterrupted
 from semmap.io.staged_run import StagedRun
 from semmap.io.tum_writer import write_tum_sequence
 from semmap.labels import INDOOR_LABELS
@@ -67,8 +68,11 @@ def simulate_sequence(
                         noise=noise, intrinsics=intrinsics, progress=progress, image_size=image_size, fps=fps,
                         symmetric=symmetric, trajectory_seed=trajectory_seed)
         staged.commit()  # every file is there: the folder becomes ``out_dir`` in one rename
+    except KeyboardInterrupt:
+        staged.abandon(keep_checkpoint=False)  # Ctrl-C leaves nothing half-written, and says so
+        raise RunInterrupted(f"interrupted while rendering; nothing written to {root}") from None
     except BaseException:
-        staged.abandon(keep_checkpoint=False)  # a failure, a full disk or Ctrl-C leaves nothing half-written
+        staged.abandon(keep_checkpoint=False)  # nor does a failure or a full disk
         raise
     return root
 
