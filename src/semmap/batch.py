@@ -19,6 +19,7 @@ from pathlib import Path
 from semmap.config import RunConfig
 from semmap.errors import ConfigError, SemmapError
 from semmap.files.atomic import write_text_atomic
+from semmap.files.outputs import OutputKind, check_outputs
 
 LOG = logging.getLogger("semmap")
 #: Logical CPUs one run asks of a Ray node (a run's numba and torch threads use about two).
@@ -70,6 +71,7 @@ def plan(datasets: list[Path], out_root: Path) -> list[BatchItem]:
     """Output folder per sequence: ``out_root/<folder or bag name>``, made unique with the parent's name."""
     if not datasets:
         raise ConfigError("semmap batch needs at least one sequence")
+    check_outputs([("--out", out_root, OutputKind.FOLDER)], [("DATASET", d) for d in datasets])
     names = [_stem(Path(d)) for d in datasets]
     items = []
     for d, name in zip(datasets, names, strict=True):

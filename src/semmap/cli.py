@@ -359,7 +359,7 @@ def simulate(
     stored = _size(image_size)
     if isinstance(stored, int):
         raise SemmapError(f"--image-size must be WIDTHxHEIGHT, got {image_size!r}")
-    with _ProgressCallback("rendering", frames) as callback:
+    with _interruptible(), _ProgressCallback("rendering", frames) as callback:
         root = simulate_sequence(out, scene_seed=scene_seed, kind=kind, size=size, trajectory=trajectory,
                                  frames=frames, noise=noise, progress=callback, image_size=stored, symmetric=symmetric,
                                  trajectory_seed=trajectory_seed)
@@ -504,14 +504,11 @@ def track(
     """Estimate the camera trajectory of a sequence and write it in TUM format; scored against the dataset's
     ground truth when it has one."""
     _setup_logging(False)
-    from semmap.datasets import open_dataset
-    from semmap.io.trajectory import write_trajectory
-    from semmap.runner import track_sequence, track_summary
+    from semmap.runner import track_to_file
 
-    ds = open_dataset(dataset, format, stride=stride, max_frames=max_frames)
-    result = track_sequence(ds, method, progress=progress_bar(f"tracking ({method})"))
-    write_trajectory(out, result.estimate)
-    typer.echo(json.dumps(track_summary(result, method, out, plot=plot), indent=2))
+    summary = track_to_file(dataset, method, out, plot=plot, format=format, stride=stride, max_frames=max_frames,
+                            progress=progress_bar(f"tracking ({method})"))
+    typer.echo(json.dumps(summary, indent=2))
 
 
 @app.command()
@@ -614,13 +611,10 @@ def eval_seg(
     confusion matrix."""
     _setup_logging(False)
     from semmap.eval.segmentation import evaluate_label_folders
-    from semmap.files.atomic import write_text_atomic
 
     result = evaluate_label_folders(pred_dir, gt_dir, num_classes, ignore=None if ignore < 0 else ignore,
-                                    resize=resize)
+                                    resize=resize, out=out)
     d = result.to_dict()
-    if out is not None:
-        write_text_atomic(out, json.dumps(d, indent=2, allow_nan=False))
     summary = {k: v for k, v in d.items() if k != "confusion"}
     typer.echo(json.dumps(summary, indent=2))
 
@@ -714,6 +708,13 @@ def main() -> None:
         app()
     except SemmapError as exc:
         print(f"semmap: error: {exc}", file=sys.stderr)
+        sys.exit(1)
+    except OSError as exc:  # a full disk, a read-only file system, a refused name: one line, not a traceback
+        from semmap.files.outputs import write_failure
+
+        if (error := write_failure(exc)) is None:
+            raise
+        print(f"semmap: error: {error}", file=sys.stderr)
         sys.exit(1)
     except KeyboardInterrupt as exc:
         from semmap.interrupt import RunInterrupted

@@ -21,3 +21,8 @@ class ConfigError(SemmapError):
 
 class SimulationError(SemmapError):
     """The scene generator or renderer was asked for something it cannot do."""
+
+
+class OutputError(SemmapError):
+    """An output cannot be written where asked: it would replace an input, is not a regular file or folder, or its
+    name or disk refuses it."""

@@ -26,7 +26,7 @@ from semmap.factories import get_map, open_dataset_of
 from semmap.frame_arrays import class_sets, frame_from_arrays
 from semmap.geometry import backproject_world, pixel_normals
 from semmap.interrupt import RunInterrupted, deferred_interrupts, stop_requested
-from semmap.io.staged_run import StagedRun, check_out_dir
+from semmap.io.staged_run import StagedRun
 from semmap.maps.base import SemanticMap
 from semmap.maps.registry import MapKind, compile_kernels
 from semmap.object_stage import ObjectStage
@@ -42,6 +42,7 @@ from semmap.perception.schedule import (
 from semmap.poses.frame_poses import FramePoses
 from semmap.run.checkpoints import Checkpoints, check_checkpoint_options
 from semmap.run.outputs import refine_maps, warn_if_empty, write_outputs
+from semmap.run.paths import check_run_paths, staged_output
 from semmap.run.prepare import (
     FirstFrame,
     label_set_for,
@@ -183,7 +184,7 @@ class Pipeline:
     def run(self) -> RunResult:
         """Map the sequence; outputs appear in ``--out`` all at once at the end (a failure or Ctrl-C leaves it as it
         was, and with checkpoints the staging folder to ``--resume`` from)."""
-        check_out_dir(self.config.output.out)
+        check_run_paths(self.config)  # --out and --rerun against every input, before any work
         check_checkpoint_options(self.checkpoint_every, self.resume, online=self.config.mode == LoopMode.ONLINE,
                                  objects=self.instances is not None,
                                  batched=self.segmenter is not None and self.config.semantics.batch_size > 1)
@@ -210,7 +211,7 @@ class Pipeline:
     def _map(self, stage: Path) -> RunOutcome:
         """Get ready, map every frame, refine, write the maps' files; what the report is made from."""
         c = self.config
-        self._viewer = get_visualizer(c.output, name=self.title)
+        self._viewer = get_visualizer(staged_output(c.output, stage), name=self.title)  # (--rerun in --out: staged)
         dataset = self.dataset if self.dataset is not None else open_dataset_of(c.input)
         label_set = label_set_for(c, dataset, self.segmenter)
         startup_s = compile_kernels(c.mapping.maps)  # numba's first-use compilation out of the per-frame timings

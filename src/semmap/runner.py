@@ -16,6 +16,7 @@ from semmap.datasets import Dataset
 from semmap.eval.run_report import GroundTruthFn
 from semmap.factories import instance_source_for, segmenter_for
 from semmap.pipeline import Pipeline, RunResult
+from semmap.run.paths import check_run_paths
 from semmap.types import Trajectory
 
 log = logging.getLogger("semmap")
@@ -49,7 +50,8 @@ def run_config(config: RunConfig, *, dataset: Dataset | None = None, progress: P
                resume: bool = False) -> RunResult:
     """Map ``config.input.dataset`` (or an already open ``dataset``, e.g. the simulator's) into
     ``config.output.out`` exactly as ``semmap run`` does (``checkpoint_every`` frames a checkpoint; ``resume``
-    continues from the last one)."""
+    continues from the last one). The outputs are checked against the inputs before anything is loaded."""
+    check_run_paths(config)
     segmenter = segmenter_for(config, dataset)
     return Pipeline(config, segmenter=segmenter, dataset=dataset, progress=progress, track_progress=track_progress,
                     ground_truth=simulated_ground_truth(dataset if dataset is not None else config.input.dataset),
@@ -79,7 +81,10 @@ def demo_config(*, out: Path, frames: int = 300, resolution: float | None = None
 def run_demo(*, out: Path, frames: int = 300, resolution: float | None = None, scene_seed: int = 0,
              rerun: Path | None = None, oracle: bool = False, progress: Progress | None = None) -> RunResult:
     """``semmap demo``: simulate the default scene and map it as ``semmap run`` would, scored against the
-    simulator's ground truth."""
+    simulator's ground truth (``out`` and ``rerun`` checked before the scene is built)."""
+    from semmap.files.outputs import OutputKind, check_outputs
+
+    check_outputs([("--out", out, OutputKind.FOLDER), ("--rerun", rerun, OutputKind.FILE)], [])
     config, dataset = demo_config(out=out, frames=frames, resolution=resolution, scene_seed=scene_seed,
                                   rerun=rerun, oracle=oracle)
     from semmap.perception.registry import SegmenterName
@@ -117,6 +122,21 @@ def track_sequence(dataset: Dataset, method: str, *, progress: Progress | None =
     t0 = time.perf_counter()
     est = estimate_trajectory(make_tracker(method), frames(), total=len(dataset), progress=progress)
     return TrackResult(est, truth.trajectory(), seen[0], time.perf_counter() - t0)
+
+
+def track_to_file(path: Path, method: str, out: Path, *, plot: Path | None = None, format: str = "auto",
+                  stride: int = 1, max_frames: int | None = None, progress: Progress | None = None) -> dict:
+    """``semmap track``: the outputs checked against the sequence first, then the trajectory tracked, written to
+    ``out`` (TUM format, atomically) and summarised (scored and plotted with ground truth)."""
+    from semmap.datasets import open_dataset
+    from semmap.files.outputs import OutputKind, check_outputs
+    from semmap.io.trajectory import write_trajectory
+
+    check_outputs([("--out", out, OutputKind.FILE), ("--plot", plot, OutputKind.FILE)], [("DATASET", path)])
+    dataset = open_dataset(path, format, stride=stride, max_frames=max_frames)
+    result = track_sequence(dataset, method, progress=progress)
+    write_trajectory(out, result.estimate)
+    return track_summary(result, method, out, plot=plot)
 
 
 def track_summary(result: TrackResult, method: str, out: Path, *, plot: Path | None = None) -> dict:
@@ -172,7 +192,10 @@ def evaluate_trajectories(gt: Path, est: list[Path], *, max_time_diff: float = 0
         plot_position_errors,
         plot_trajectories,
     )
+    from semmap.files.outputs import OutputKind, check_outputs
 
+    check_outputs([("--plot", plot, OutputKind.FILE), ("--plot-errors", plot_errors, OutputKind.FILE)],
+                  [("GT", gt), *(("EST", p) for p in est), ("--reference2", reference2)])
     reference = reference_trajectory(gt)
     estimates = named_trajectories(est)
     if len(estimates) == 1 and not (pairwise or reference2 or rotation_frames):

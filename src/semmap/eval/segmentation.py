@@ -13,6 +13,7 @@ the ground truth (a class that is neither present nor predicted has IoU 0/0); ``
 
 from __future__ import annotations
 
+import json
 import logging
 from collections.abc import Iterator
 from dataclasses import dataclass
@@ -24,6 +25,8 @@ import numpy as np
 from semmap.datasets.base import read_label_image
 from semmap.errors import ConfigError, DatasetError
 from semmap.eval.semantic import SegmentationScores, confusion, scores, scores_from_counts
+from semmap.files.atomic import write_text_atomic
+from semmap.files.outputs import OutputKind, check_outputs
 from semmap.types import LabelSet
 
 LOG = logging.getLogger("semmap")
@@ -99,14 +102,17 @@ def label_pairs(pred_dir: Path, gt_dir: Path) -> Iterator[tuple[str, Path | None
 
 
 def evaluate_label_folders(pred_dir: str | Path, gt_dir: str | Path, num_classes: int, *,
-                           ignore: int | None = 255, resize: bool = False) -> SegmentationEvaluation:
+                           ignore: int | None = 255, resize: bool = False,
+                           out: str | Path | None = None) -> SegmentationEvaluation:
     """Accumulate the confusion of every predicted label PNG against the ground-truth PNG of the same name.
 
     A prediction of another size than its ground truth is refused, or resized (nearest neighbour, with a warning)
     when ``resize``; a predicted id, or a ground-truth id other than ``ignore``, of ``num_classes`` or more is
     refused, naming the file. Ground-truth images without a prediction are listed in ``missing``. Counts are
-    kept sparse, so memory does not grow with the square of ``num_classes``.
+    kept sparse, so memory does not grow with the square of ``num_classes``. With ``out``, the scores are also
+    written there as JSON (checked against both folders before any image is read).
     """
+    check_outputs([("--out", out, OutputKind.FILE)], [("PRED_DIR", pred_dir), ("GT_DIR", gt_dir)])
     if not 2 <= num_classes <= MAX_CLASSES:
         raise ConfigError(f"--num-classes must be in 2..{MAX_CLASSES} (label images hold 16-bit ids), "
                           f"got {num_classes}")
@@ -138,8 +144,11 @@ def evaluate_label_folders(pred_dir: str | Path, gt_dir: str | Path, num_classes
     if images == 0:
         raise DatasetError(f"{pred_dir}: no prediction matches a ground-truth image in {gt_dir} by name")
     pairs = np.stack([codes // num_classes, codes % num_classes, counts], axis=1).astype(np.int64)
-    return SegmentationEvaluation(_scores_of_pairs(pairs, num_classes, ignore), pairs, num_classes, images,
-                                  tuple(missing))
+    result = SegmentationEvaluation(_scores_of_pairs(pairs, num_classes, ignore), pairs, num_classes, images,
+                                    tuple(missing))
+    if out is not None:
+        write_text_atomic(out, json.dumps(result.to_dict(), indent=2, allow_nan=False))
+    return result
 
 
 def _check_ids(path: Path, ids: np.ndarray, num_classes: int, what: str, *, hint: bool = False) -> None:

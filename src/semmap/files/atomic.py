@@ -4,18 +4,23 @@ from __future__ import annotations
 
 import contextlib
 import os
+import stat
 import tempfile
 from collections.abc import Callable
 from pathlib import Path
 from typing import BinaryIO
 
+from semmap.errors import OutputError
+
 
 def write_atomic(path: str | Path, write: Callable[[BinaryIO], None]) -> Path:
     """Call ``write(fileobj)`` on a temporary file and move it to ``path`` only when it succeeded.
 
-    A crash or an exception leaves any earlier file at ``path`` untouched.
+    A crash or an exception leaves any earlier file at ``path`` untouched; only a regular file is ever replaced (a
+    device such as ``/dev/full``, a FIFO or a folder there is refused before anything is written).
     """
     path = Path(path)
+    _refuse_non_regular(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
     try:
@@ -30,6 +35,17 @@ def write_atomic(path: str | Path, write: Callable[[BinaryIO], None]) -> Path:
             os.unlink(tmp)
         raise
     return path
+
+
+def _refuse_non_regular(path: Path) -> None:
+    """An existing ``path`` that is not a regular file is never replaced by one."""
+    try:
+        mode = os.stat(path).st_mode
+    except (FileNotFoundError, NotADirectoryError):
+        return
+    if not stat.S_ISREG(mode):
+        what = "a folder" if stat.S_ISDIR(mode) else "not a regular file"
+        raise OutputError(f"{path}: is {what}; semmap replaces only regular files (nothing was written)")
 
 
 def _umask() -> int:

@@ -14,6 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from semmap.errors import ConfigError
+from semmap.files.outputs import OutputKind, check_outputs
 from semmap.localization.filter import FilterSettings
 from semmap.localization.motion import (
     GroundTilt,
@@ -118,6 +119,9 @@ def localize_sequence(map_path: Path, seq_path: Path, out_dir: Path, options: Lo
     """Localize the camera of the sequence ``seq_path`` in the map ``map_path`` and write the outputs."""
     from semmap.datasets import open_dataset
 
+    motion = None if options.motion in MOTION_SOURCES else options.motion
+    check_outputs([("--out", out_dir, OutputKind.FOLDER)], [("MAP", map_path), ("SEQ", seq_path),
+                                                             ("--motion", motion), ("--weights", options.weights)])
     prior = load_prior(map_path)
     dataset = open_dataset(seq_path, stride=options.stride, max_frames=options.max_frames)
     segment = _segment_fn(options, dataset, prior)

@@ -20,8 +20,11 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from semmap.errors import SimulationError
+from semmap.errors import OutputError, SimulationError
 from semmap.files.atomic import write_text_atomic
+from semmap.files.outputs import OutputKind, check_outputs
+from semmap.interrupt import RunInterrupted
+from semmap.io.staged_run import StagedRun
 from semmap.io.tum_writer import write_tum_sequence
 from semmap.labels import INDOOR_LABELS
 from semmap.sim.noise import KinectNoise
@@ -57,7 +60,37 @@ def simulate_sequence(
     if not isinstance(frames, (int, np.integer)) or frames <= 0:
         raise SimulationError(f"frames must be a positive integer, got {frames!r}")
     root = Path(out_dir)
-    root.mkdir(parents=True, exist_ok=True)
+    check_sequence_out(root)
+    staged = StagedRun(root)
+    stage = staged.open()
+    try:
+        _write_sequence(stage, scene_seed=scene_seed, kind=kind, trajectory=trajectory, frames=int(frames), size=size,
+                        noise=noise, intrinsics=intrinsics, progress=progress, image_size=image_size, fps=fps,
+                        symmetric=symmetric, trajectory_seed=trajectory_seed)
+        staged.commit()  # every file is there: the folder becomes ``out_dir`` in one rename
+    except KeyboardInterrupt:
+        staged.abandon(keep_checkpoint=False)  # Ctrl-C leaves nothing half-written, and says so
+        raise RunInterrupted(f"interrupted while rendering; nothing written to {root}") from None
+    except BaseException:
+        staged.abandon(keep_checkpoint=False)  # nor does a failure or a full disk
+        raise
+    return root
+
+
+def check_sequence_out(root: Path) -> None:
+    """``--out`` of a simulation: a new or empty folder, or an earlier simulated sequence (it has ``scene.json``)
+    replaced as a whole; a folder holding anything else (a run, another sequence) is refused, never mixed."""
+    check_outputs([("--out", root, OutputKind.FOLDER)], [])
+    if root.is_dir() and any(root.iterdir()) and not (root / "scene.json").is_file():
+        raise OutputError(f"--out {root}: holds other files (not a sequence written by semmap simulate); choose a "
+                          f"new or empty folder (nothing was written)")
+
+
+def _write_sequence(root: Path, *, scene_seed: int, kind: str, trajectory: str, frames: int, size: str, noise: bool,
+                    intrinsics: CameraIntrinsics | None, progress: Callable[[int, int], None] | None,
+                    image_size: tuple[int, int] | None, fps: float, symmetric: bool,
+                    trajectory_seed: int | None) -> None:
+    """Render and write the whole sequence into the folder ``root`` (the staging folder)."""
     scene = generate_scene(scene_seed, kind, size, symmetric=symmetric)
     poses = make_trajectory(scene, trajectory, int(frames), seed=scene_seed if trajectory_seed is None
                             else trajectory_seed, fps=fps)
@@ -76,7 +109,6 @@ def simulate_sequence(
     if trajectory_seed is not None:
         info["trajectory_seed"] = int(trajectory_seed)
     write_text_atomic(root / "scene.json", json.dumps(info, indent=1) + "\n")
-    return root
 
 
 def resized_intrinsics(intrinsics: CameraIntrinsics, size: tuple[int, int]) -> CameraIntrinsics:

@@ -29,6 +29,7 @@ import torch.nn.functional as F  # noqa: N812  (the usual PyTorch alias)
 from semmap.errors import ConfigError, DatasetError, FormatError
 from semmap.eval.semantic import confusion, scores
 from semmap.files.atomic import write_bytes_atomic, write_text_atomic
+from semmap.files.outputs import OutputKind, check_outputs
 from semmap.perception.network import IMAGENET_MEAN, IMAGENET_STD
 from semmap.perception.networks.pspnet import AUX_WEIGHT
 from semmap.perception.networks.registry import MODELS, NetworkSpec, build_network, count_parameters, save_weights
@@ -146,6 +147,9 @@ class Trainer:
 
     def __init__(self, settings: TrainSettings, *, resume: bool = False) -> None:
         self.s = settings
+        check_outputs([("--out", settings.out, OutputKind.FOLDER)],
+                      [*(("--data", d) for d in settings.data), *(("--val", v) for v in settings.val),
+                       ("--class-map", settings.class_map), ("--labelset", settings.label_set)])
         if settings.threads is not None:
             torch.set_num_threads(int(settings.threads))
         self.device = self._device(settings.device)

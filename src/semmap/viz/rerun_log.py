@@ -19,6 +19,7 @@ from typing import Protocol
 import numpy as np
 
 from semmap.errors import ConfigError, FormatError
+from semmap.files.outputs import OutputKind, check_outputs
 from semmap.types import EMPTY_LABEL, Frame, LabelSet, MapCloud, TopKProbs, muted_grey
 
 LOG = logging.getLogger("semmap")
@@ -261,16 +262,29 @@ def map_file_cloud(path: str | Path) -> tuple[MapCloud, LabelSet | None]:
 
 
 def view_map(path: str | Path, *, save: str | Path | None = None, spawn: bool = True) -> int:
-    """Log a finished map file to rerun (saved to ``save`` and/or a spawned viewer); returns the voxel count."""
+    """Log a finished map file to rerun (saved to ``save`` and/or a spawned viewer); returns the voxel count.
+
+    ``save`` is checked against the map before it is read, written beside under a temporary name and renamed into
+    place once complete (never the map itself, never a device)."""
     import rerun as rr
 
+    partial = None
+    if save is not None:
+        check_outputs([("--save", save, OutputKind.FILE)], [("MAP", path)])
+        partial = Path(save).with_name(f".{Path(save).name}.partial")
     cloud, label_set = map_file_cloud(path)
-    rec = open_recording(f"semmap view {Path(path).name}", save=save, spawn=spawn)
-    rec.log("world", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
-    if label_set is not None:
-        log_classes(rec, label_set)
-    log_cloud(rec, "world/map", cloud, label_set)
-    close_recording(rec)
+    try:
+        rec = open_recording(f"semmap view {Path(path).name}", save=partial, spawn=spawn)
+        rec.log("world", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
+        if label_set is not None:
+            log_classes(rec, label_set)
+        log_cloud(rec, "world/map", cloud, label_set)
+        close_recording(rec)
+        if partial is not None:
+            os.replace(partial, save)
+    finally:
+        if partial is not None:
+            partial.unlink(missing_ok=True)
     return len(cloud)
 
 
