@@ -144,6 +144,9 @@ def run(
     weights: Annotated[Path | None, typer.Option(help="network weights (espnetv2; semmap's networks default to the "
                                                  "shipped weights/), or the predictions folder (precomputed)",
                                                  rich_help_panel=_SEMANTICS)] = None,
+    trust_weights: Annotated[bool, typer.Option("--trust-weights", help="use shipped weights whose sha256 differs "
+                                                "from weights/manifest.json (with a warning)",
+                                                rich_help_panel=_SEMANTICS)] = False,
     segment_every: Annotated[int, typer.Option(help="segment every k-th frame (others add geometry and colour)",
                                                rich_help_panel=_SEMANTICS)] = _default(SemanticsConfig,
                                                                                        "segment_every"),
@@ -240,7 +243,8 @@ def run(
                               free_space=free_space, point_resolution=point_resolution),
         semantics=SemanticsConfig(source=semantics, label_confidence=label_confidence, lam=lam, k=top_k,
                                   max_confidence=max_confidence, segmenter=segmenter,
-                                  weights=weights, segment_every=segment_every, keyframes=keyframes,
+                                  weights=weights, trust_weights=trust_weights, segment_every=segment_every,
+                                  keyframes=keyframes,
                                   batch_size=batch_size, backend=backend, input_size=_size(input_size),
                                   fusion=fusion, class_prior=class_prior),
         poses=PosesConfig(source=poses),

@@ -133,6 +133,8 @@ class SemanticsConfig(_Section):
     seed: int = 0
     segmenter: SegmenterName | None = Field(None, description=f"{SEGMENTERS.choices()} (None: from source)")
     weights: Path | None = Field(None, description="network weights, or the folder of precomputed predictions")
+    trust_weights: bool = Field(False, description="use shipped weights whose sha256 differs from weights/manifest.json"
+                                                   " (with a warning) instead of refusing them")
     segment_every: int = Field(1, ge=1, description="segment every k-th frame")
     keyframes: bool = Field(False, description="segment only frames where the camera moved enough")
     batch_size: int = Field(1, ge=1, le=64, description="frames per network batch")

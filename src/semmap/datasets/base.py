@@ -23,6 +23,10 @@ from semmap.files.safe import MAX_IMAGE_BYTES, read_bytes_limited
 from semmap.types import CameraIntrinsics, Frame, LabelSet
 
 LOG = logging.getLogger("semmap")
+#: Median depths (m) of a frame outside this range make a wrong depth unit likely (warned once per sequence).
+PLAUSIBLE_MEDIAN_DEPTH = (0.05, 20.0)
+#: Depth units per metre in common use: metres, millimetres, TUM's fifths of a millimetre, tenths of a mm.
+COMMON_DEPTH_SCALES = (1.0, 1000.0, 5000.0, 10000.0)
 
 
 @dataclass(frozen=True)
@@ -111,6 +115,25 @@ def read_depth(path: str | Path, scale: float, invalid_values: Sequence[int] = (
     return depth
 
 
+def depth_unit_warning(depth: np.ndarray, scale: float | None, where: str | Path) -> str | None:
+    """A one-line warning when the median valid depth of ``depth`` (metres, read at ``scale`` units per metre) is
+    implausible for an indoor sensor, with the likely scale; None when it is plausible or there is no depth."""
+    valid = depth[np.isfinite(depth) & (depth > 0)]
+    if valid.size == 0:
+        return None
+    median = float(np.median(valid))
+    low, high = PLAUSIBLE_MEDIAN_DEPTH
+    if low <= median <= high:
+        return None
+    hint = "check the depth unit"
+    if scale is not None:
+        stored = median * scale  # the median in stored units: the likely scale brings it nearest 2 m
+        likely = min(COMMON_DEPTH_SCALES, key=lambda c: abs(np.log(stored / c / 2.0)))
+        hint = (f"the depth images look stored at {likely:g} units per metre, not {scale:g} (depth_scale, "
+                f"--depth-scale {likely:g})")
+    return f"{where}: median depth of the first frame is {median:.3g} m, implausible for metres; {hint}"
+
+
 def read_label_image(path: str | Path) -> np.ndarray:
     """Class-id image (8- or 16-bit single-channel PNG) as (H, W) uint16."""
     image = _decode(path)
@@ -189,10 +212,14 @@ R = TypeVar("R", bound=FrameRef)
 
 
 class SequenceReader(ABC, Generic[R]):
-    """Shared reader plumbing: stride / max_frames selection, lazy loading and the skip rule.
+    """Shared reader plumbing: stride / max_frames selection, lazy loading, the skip rule and a warning when the
+    first frame's depth is implausible for its unit.
 
     Subclasses build one record per candidate frame and implement :meth:`_load` for one record.
     """
+
+    #: Stored depth units per metre (None: not a fixed integer scale), named in the depth-unit warning.
+    depth_units: float | None = None
 
     def __init__(self, root: Path, refs: Sequence[R], *, stride: int, max_frames: int | None,
                  intrinsics: CameraIntrinsics, label_set: LabelSet | None, strict: bool = False) -> None:
@@ -202,6 +229,7 @@ class SequenceReader(ABC, Generic[R]):
         self._skipped: list[SkippedFrame] = []
         self._intrinsics = intrinsics
         self._label_set = label_set
+        self._depth_checked = False
 
     @property
     def name(self) -> str:
@@ -232,6 +260,11 @@ class SequenceReader(ABC, Generic[R]):
         for ref in self._refs:
             frame = load_or_skip(lambda ref=ref: self._load(ref), ref.name, self._skipped, strict=self._strict)
             if frame is not None:
+                if not self._depth_checked:
+                    self._depth_checked = True
+                    warning = depth_unit_warning(frame.depth, self.depth_units, self._root)
+                    if warning:
+                        LOG.warning("%s", warning)
                 yield frame
 
     @abstractmethod

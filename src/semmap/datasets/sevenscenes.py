@@ -68,6 +68,8 @@ class SevenScenesDataset(SequenceReader[_SevenScenesRef]):
     Depth is uint16 millimetres with 0 and 65535 invalid; poses are camera-to-world (``T_world_cam``).
     """
 
+    depth_units = DEPTH_SCALE
+
     def __init__(
         self,
         root: str | Path,

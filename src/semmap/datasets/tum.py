@@ -75,6 +75,7 @@ class TumDataset(SequenceReader[_TumRef]):
         if not depth_scale > 0:
             raise ConfigError(f"depth_scale must be positive, got {depth_scale}")
         self._depth_scale = float(depth_scale)
+        self.depth_units = self._depth_scale
 
         rgb = read_file_list(root / "rgb.txt")
         depth = read_file_list(root / "depth.txt")

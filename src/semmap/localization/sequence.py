@@ -55,6 +55,31 @@ class LocalizeOptions:
     seed: int = 0
     gif: bool = False
 
+    def __post_init__(self) -> None:
+        """Refuse NaN, infinite or meaningless numbers here, in one line, before any numba kernel sees them."""
+        for option, value in (("--height", self.height), ("--pitch-deg", self.pitch_deg),
+                              ("--roll-deg", self.roll_deg), ("--motion-noise", self.motion_noise)):
+            if value is not None and not np.isfinite(value):
+                raise ConfigError(f"{option} must be a finite number, got {value}")
+        if self.motion_noise < 0:
+            raise ConfigError(f"--motion-noise must be at least 0, got {self.motion_noise}")
+        for option, count in (("--particles", self.settings.particles), ("--points", self.points)):
+            if isinstance(count, bool) or not isinstance(count, int | np.integer) or count < 1:
+                raise ConfigError(f"{option} must be a whole number of at least 1, got {count}")
+        if self.init_pose is not None:
+            _check_pose(self.init_pose)
+
+
+def _check_pose(pose: np.ndarray) -> None:
+    """ConfigError unless ``pose`` is a finite rigid 4x4 transform (a zero or NaN quaternion gives NaN)."""
+    T = np.asarray(pose, dtype=np.float64)
+    if T.shape != (4, 4) or not np.isfinite(T).all():
+        raise ConfigError("--init-pose must be finite numbers 'tx ty tz qx qy qz qw' with a non-zero quaternion, "
+                          f"got a pose with {'NaN or infinite values' if T.shape == (4, 4) else f'shape {T.shape}'}")
+    R = T[:3, :3]
+    if not np.allclose(R @ R.T, np.eye(3), atol=1e-4) or np.linalg.det(R) < 0:
+        raise ConfigError("--init-pose: the rotation is not a proper rotation (give a unit quaternion qx qy qz qw)")
+
 
 def motion_source(name: str, *, noise: float = 0.05, seed: int = 0) -> MotionSource:
     """The motion source ``--motion`` names: ``odometry``, ``gt-noisy`` or the path of a TUM trajectory file."""

@@ -413,15 +413,15 @@ def load_espnetv2(weights_path: str | Path, num_classes: int | None = None,
     path = Path(weights_path)
     if not path.is_file():
         raise FormatError(f"{path}: ESPNetv2 weights file not found")
-    try:
-        sd = torch.load(path, map_location="cpu", weights_only=True)
-    except Exception as exc:  # torch raises many types for a corrupt / non-torch file
-        raise FormatError(f"{path}: not a readable PyTorch weights file ({type(exc).__name__}: {exc})") from exc
+    from semmap.perception.networks.registry import check_finite_tensors, read_torch_file
+
+    sd = read_torch_file(path, "PyTorch weights file")
     if isinstance(sd, Mapping) and "state_dict" in sd and isinstance(sd["state_dict"], Mapping):
         sd = sd["state_dict"]
     if not isinstance(sd, Mapping) or not sd or not all(isinstance(v, torch.Tensor) for v in sd.values()):
         raise FormatError(f"{path}: expected a state dict of tensors, got {type(sd).__name__}")
     sd = {k.removeprefix("module."): v for k, v in sd.items()}
+    check_finite_tensors(sd, path)
     s = infer_width_multiplier(sd, path)
     if num_classes is None:
         head = sd.get("bu_dec_l4.merge_layer.3.bias")

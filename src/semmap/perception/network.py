@@ -159,12 +159,13 @@ class NetworkSegmenter:
         with self._torch.inference_mode():
             return self._model(*(self._torch.from_numpy(v) for v in inputs.values())).numpy()
 
-    def _top_classes(self, rgbs: Sequence[np.ndarray], k: int,
-                     depths: Sequence[np.ndarray] | None = None) -> list[tuple[np.ndarray, np.ndarray]]:
+    def _top_classes(self, rgbs: Sequence[np.ndarray], k: int, depths: Sequence[np.ndarray] | None = None,
+                     names: Sequence[str] | None = None) -> list[tuple[np.ndarray, np.ndarray]]:
         """Per image, (labels, probs) of its ``k`` most likely classes at the image's own resolution.
 
         Softmax runs on the network's output grid; probabilities are then sampled bilinearly at each image pixel
-        through the exact resize geometry (image -> network input -> logit grid), in one numba pass.
+        through the exact resize geometry (image -> network input -> logit grid), in one numba pass. A network
+        output holding NaN or infinity stops here (ConfigError naming the image: ``names``, else its batch index).
         """
         from semmap.perception._resample_kernels import resample_topk, sampling_map, softmax_channels_last
 
@@ -177,6 +178,7 @@ class NetworkSegmenter:
         if logits.shape[1] != len(self._label_set):
             raise ConfigError(f"{self.name}: network predicts {logits.shape[1]} classes but its label set has "
                               f"{len(self._label_set)}")
+        _check_finite_logits(logits, self.name, names)
         in_w, in_h = self.net_input.size_for(w, h)
         align = bool(getattr(self._model, "logits_align_corners", False))
         sy, oy = sampling_map(h, in_h, logits.shape[2], align)
@@ -200,14 +202,17 @@ class NetworkSegmenter:
         """(H, W, k) top-k class distribution of one image (``depth`` in metres, for RGB-D networks)."""
         return self.predict_batch([rgb], None if depth is None else [depth])[0]
 
-    def predict_batch(self, rgbs: Sequence[np.ndarray],
-                      depths: Sequence[np.ndarray] | None = None) -> list[TopKProbs]:
-        """Top-k class distributions of images, run through the network ``batch_size`` at a time."""
+    def predict_batch(self, rgbs: Sequence[np.ndarray], depths: Sequence[np.ndarray] | None = None,
+                      names: Sequence[str] | None = None) -> list[TopKProbs]:
+        """Top-k class distributions of images, run through the network ``batch_size`` at a time (``names`` name
+        the images in errors)."""
         out: list[TopKProbs] = []
+        names = list(names) if names is not None else [f"image {i}" for i in range(len(rgbs))]
         for start in range(0, len(rgbs), self.batch_size):
             stop = start + self.batch_size
             out.extend(TopKProbs(labels, probs) for labels, probs in
-                       self._top_classes(rgbs[start:stop], self.k, None if depths is None else depths[start:stop]))
+                       self._top_classes(rgbs[start:stop], self.k, None if depths is None else depths[start:stop],
+                                         names[start:stop]))
         return out
 
     def prepare(self, frame: Frame) -> float:
@@ -224,10 +229,23 @@ class NetworkSegmenter:
         return self.segment_batch([frame])[0]
 
     def segment_batch(self, frames: Sequence[Frame]) -> list[TopKProbs]:
+        names = [f"frame {f.name or f.index}" for f in frames]
         if self.uses_depth:
-            return self.predict_batch([f.rgb for f in frames], [f.depth for f in frames])
-        tops = self.predict_batch([f.rgb if f.raw_color is None else f.raw_color.image for f in frames])
+            return self.predict_batch([f.rgb for f in frames], [f.depth for f in frames], names)
+        tops = self.predict_batch([f.rgb if f.raw_color is None else f.raw_color.image for f in frames], names=names)
         return [TopKProbs(*onto_depth_grid(f, t.labels, t.probs)) for f, t in zip(frames, tops, strict=True)]
+
+
+def _check_finite_logits(logits: np.ndarray, network: str, names: Sequence[str] | None) -> None:
+    """ConfigError naming the first image whose network output holds NaN or infinity (a damaged network would
+    otherwise map every voxel as unknown without a word)."""
+    finite = np.isfinite(logits).reshape(len(logits), -1).all(axis=1)
+    if finite.all():
+        return
+    i = int(np.argmin(finite))
+    what = names[i] if names is not None and i < len(names) else f"image {i} of the batch"
+    raise ConfigError(f"{network}: the network output NaN or infinite scores on {what}; its weights or its input "
+                      f"are broken (the run stops here)")
 
 
 def export_onnx(model, path: Path, shape: tuple[int, ...], *, with_depth: bool = False) -> Path:

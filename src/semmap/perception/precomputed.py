@@ -2,7 +2,9 @@
 
 Files are matched to frames by name (``frame-000042.png`` for frame ``frame-000042``) or, failing that, by a
 timestamp in the file name within ``max_time_diff`` seconds (``1305031102.175304.npy``).  A frame without a
-file gets no semantics (a warning; its geometry and colour are still mapped).
+file gets no semantics (a warning; its geometry and colour are still mapped). A file of another aspect ratio than
+its frame, with NaN, or with another class count than the label set is refused, naming the file; one of the same
+aspect ratio at another resolution (a network's output grid) is resized to the frame.
 """
 
 from __future__ import annotations
@@ -26,6 +28,8 @@ SUFFIXES = (".png", ".npy", ".npz")
 NAME_TAGS = (".label", ".labels", ".probs", ".prob", ".seg")
 #: Classes assumed for label PNGs that come without a labelset.json.
 FALLBACK_CLASSES = 256
+#: Largest relative difference between the aspect ratios of a prediction and its frame (else refused).
+ASPECT_TOLERANCE = 0.02
 
 
 def _frame_key(path: Path) -> str:
@@ -59,11 +63,12 @@ class PrecomputedSegmenter:
         self._label_set = self._choose_label_set(label_set, files)
 
     def _choose_label_set(self, given: LabelSet | None, files: list[Path]) -> LabelSet:
-        if given is not None:
-            return given
+        """The folder's own labelset.json, else ``given`` (the dataset's classes), else generic classes."""
         path = self.root / LABELSET_FILE
         if path.is_file():
             return LabelSet.load(path)
+        if given is not None:
+            return given
         first = files[0]
         if first.suffix.lower() == ".png":
             log.info("%s: no %s; assuming %d generic classes", self.root, LABELSET_FILE, FALLBACK_CLASSES)
@@ -95,6 +100,7 @@ class PrecomputedSegmenter:
         num_classes = len(self._label_set)
         if path.suffix.lower() == ".png":
             ids = read_label_image(path)
+            _check_size(ids.shape[:2], (h, w), path, frame)
             if ids.shape != (h, w):
                 ids = cv2.resize(ids, (w, h), interpolation=cv2.INTER_NEAREST)
             if int(ids.max(initial=0)) >= num_classes:
@@ -102,6 +108,7 @@ class PrecomputedSegmenter:
                                   f"(0..{num_classes - 1}); add a {LABELSET_FILE}")
             return TopKProbs.from_hard_labels(ids, self.label_confidence, num_classes, self.k)
         probs = _orient(_load_probabilities(path), num_classes, path)
+        _check_size(probs.shape[:2], (h, w), path, frame)
         if probs.shape[:2] != (h, w):
             probs = np.dstack([cv2.resize(np.ascontiguousarray(probs[..., c:c + 256]), (w, h),
                                           interpolation=cv2.INTER_LINEAR) for c in range(0, num_classes, 256)])
@@ -133,6 +140,15 @@ def _load_probabilities(path: Path) -> np.ndarray:
     return arr
 
 
+def _check_size(got: tuple[int, ...], want: tuple[int, int], path: Path, frame: Frame) -> None:
+    """FormatError naming the file when a prediction's aspect ratio is not its frame's (resizing it would put
+    classes on the wrong pixels)."""
+    (gh, gw), (h, w) = got, want
+    if gh < 1 or gw < 1 or abs((gw / gh) / (w / h) - 1.0) > ASPECT_TOLERANCE:
+        raise FormatError(f"{path}: prediction is {gw}x{gh} but frame {frame.name} is {w}x{h} (another aspect "
+                          f"ratio); write predictions at the frame's size")
+
+
 def _orient(probs: np.ndarray, num_classes: int, path: Path) -> np.ndarray:
     """(H, W, K) float32 probabilities (accepting (K, H, W)); checks K and that rows sum to about 1."""
     if probs.shape[-1] != num_classes and probs.shape[0] == num_classes:
@@ -141,6 +157,9 @@ def _orient(probs: np.ndarray, num_classes: int, path: Path) -> np.ndarray:
         raise FormatError(f"{path}: probabilities have shape {probs.shape}, expected (H, W, {num_classes}) "
                           f"for the {num_classes} classes of the label set")
     probs = probs.astype(np.float32, copy=False)
+    if not np.isfinite(probs).all():
+        raise FormatError(f"{path}: probabilities hold NaN or infinite values ({int((~np.isfinite(probs)).sum())} "
+                          f"of {probs.size})")
     sums = probs.sum(-1)
     if probs.min() < -1e-3 or np.abs(sums - 1.0).max() > 0.02:
         raise FormatError(f"{path}: values are not per-pixel probabilities (sums range "

@@ -2,16 +2,21 @@
 
 from __future__ import annotations
 
+import hashlib
+import json
+import logging
 import os
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
-from semmap.errors import ConfigError
+from semmap.errors import ConfigError, FormatError
 from semmap.perception.base import Segmenter
 from semmap.perception.networks.registry import MODELS
 from semmap.registry import Registry
 from semmap.types import LabelSet
+
+log = logging.getLogger("semmap")
 
 #: ESPNetv2's default network input: 320 px short side keeping the aspect ratio (432x320 for 640x480).
 #: Measured on 24 7-Scenes frames (scripts/segmentation_grid.py, docs/images/): at 320 px the VOC weights find
@@ -34,8 +39,6 @@ def shipped_weights_dir() -> Path:
 def demo_network() -> str | None:
     """The shipped network ``semmap demo`` segments with: ``demo.network`` of ``weights/manifest.json`` (the
     best MIoU per millisecond), or None when the manifest or its weight file is missing."""
-    import json
-
     path = shipped_weights_dir() / MANIFEST
     try:
         name = json.loads(path.read_text())["demo"]["network"]
@@ -49,6 +52,49 @@ def shipped_weights(name: str) -> Path:
     return shipped_weights_dir() / f"{name}.pt"
 
 
+def _manifest_entry(path: Path) -> tuple[Path, dict | None]:
+    """The manifest of the shipped weights and its entry for the file ``path`` (None when it is not listed)."""
+    manifest = shipped_weights_dir() / MANIFEST
+    try:
+        networks = json.loads(manifest.read_text())["networks"]
+    except FileNotFoundError:
+        return manifest, None
+    except (OSError, ValueError, KeyError, TypeError, UnicodeDecodeError) as exc:
+        raise FormatError(f"{manifest}: unreadable weights manifest ({type(exc).__name__})") from None
+    target = path.resolve()
+    for entry in networks.values() if isinstance(networks, dict) else ():
+        if isinstance(entry, dict) and (manifest.parent / str(entry.get("file", ""))).resolve() == target:
+            return manifest, entry
+    return manifest, None
+
+
+def _sha256(path: Path) -> str:
+    digest = hashlib.sha256()
+    with open(path, "rb") as f:
+        for chunk in iter(lambda: f.read(1 << 20), b""):
+            digest.update(chunk)
+    return digest.hexdigest()
+
+
+def verify_weights(path: Path, *, shipped: bool, trust: bool = False) -> None:
+    """Check a weight file against the sha256 of ``weights/manifest.json`` when it is a shipped network's or listed
+    there: a changed or unlisted file is refused (ConfigError), or used with a warning when ``trust`` is set."""
+    manifest, entry = _manifest_entry(path)
+    if entry is None and not shipped:
+        return  # the user's own weights (e.g. RUN/best.pt): nothing to check them against
+    if entry is None:
+        problem = f"not listed in {manifest}"
+    else:
+        expected, actual = str(entry.get("sha256", "")), _sha256(path)
+        if actual == expected:
+            return
+        problem = f"sha256 {actual[:12]}... differs from {manifest} ({expected[:12]}...)"
+    if not trust:
+        raise ConfigError(f"{path}: {problem}; the weights were changed or replaced: restore them, or pass "
+                          f"--trust-weights to use them anyway")
+    log.warning("%s: %s; used anyway (--trust-weights)", path, problem)
+
+
 @dataclass(frozen=True)
 class SegmenterEntry:
     """A segmenter by name: its factory (the keywords of :func:`make_segmenter`), one line of help, and what it
@@ -60,7 +106,8 @@ class SegmenterEntry:
     needs_weights: bool = False  #: ``--weights`` is required (no shipped default)
     trained: bool = False  #: one of semmap's own networks (its weight file holds architecture and label set)
     uses_depth: bool = False  #: reads the depth image too
-    dataset_classes: bool = False  #: predicts the dataset's own label set (needs it opened first)
+    dataset_classes: bool = False  #: predicts the dataset's own label set (needs it opened first; precomputed:
+    #: unless its folder has a labelset.json)
 
 
 def _oracle(*, label_set: LabelSet | None, k: int, oracle_preset: str, seed: int, **_) -> Segmenter:
@@ -73,12 +120,13 @@ def _oracle(*, label_set: LabelSet | None, k: int, oracle_preset: str, seed: int
     return OracleSegmenter(label_set, preset=oracle_preset, seed=seed, k=k)
 
 
-def _precomputed(*, weights: Path | None, k: int, label_confidence: float, **_) -> Segmenter:
+def _precomputed(*, weights: Path | None, label_set: LabelSet | None, k: int, label_confidence: float,
+                 **_) -> Segmenter:
     from semmap.perception.precomputed import PrecomputedSegmenter
 
     if weights is None:
         raise ConfigError("--segmenter precomputed needs the predictions folder: --weights FOLDER")
-    return PrecomputedSegmenter(weights, k=k, label_confidence=label_confidence)
+    return PrecomputedSegmenter(weights, label_set=label_set, k=k, label_confidence=label_confidence)
 
 
 def _espnetv2(*, weights: Path | None, k: int, backend: str, batch_size: int,
@@ -100,9 +148,10 @@ def _espnetv2(*, weights: Path | None, k: int, backend: str, batch_size: int,
 
 def _trained(name: str) -> Callable[..., Segmenter]:
     def make(*, weights: Path | None, k: int, backend: str, batch_size: int,
-             input_size: tuple[int, int] | int | None, threads: int | None, **_) -> Segmenter:
+             input_size: tuple[int, int] | int | None, threads: int | None, trust_weights: bool = False,
+             **_) -> Segmenter:
         return trained_network_segmenter(name, weights=weights, k=k, backend=backend, batch_size=batch_size,
-                                         input_size=input_size, threads=threads)
+                                         input_size=input_size, threads=threads, trust_weights=trust_weights)
 
     return make
 
@@ -115,7 +164,7 @@ SEGMENTERS: Registry[SegmenterEntry] = Registry("segmenter", [
     SegmenterEntry("oracle", _oracle, "simulated network made from ground-truth labels (simulator sequences)",
                    dataset_classes=True),
     SegmenterEntry("precomputed", _precomputed, "per-frame label PNGs or .npy/.npz probabilities from a folder "
-                   "(--weights FOLDER)", needs_weights=True),
+                   "(--weights FOLDER)", needs_weights=True, dataset_classes=True),
     SegmenterEntry(ESPNETV2, _espnetv2, "ESPNetv2 trained on PASCAL VOC, 21 classes (--weights "
                    "espnetv2_s_2.0_pascal_384x384.pth)", needs_weights=True),
     *(SegmenterEntry(m.name, _trained(m.name), f"{m.help}, trained by semmap (shipped weights/{m.name}.pt, or "
@@ -130,18 +179,20 @@ SegmenterName = SEGMENTERS.enum("SegmenterName", __name__)
 def make_segmenter(name: str, *, weights: Path | None = None, label_set: LabelSet | None = None, k: int = 3,
                    label_confidence: float = 0.9, oracle_preset: str = "cnn-like", seed: int = 0,
                    backend: str = "torch", batch_size: int = 1, input_size: tuple[int, int] | int | None = None,
-                   threads: int | None = None) -> Segmenter:
-    """Build the segmenter ``name``; ``label_set`` is the dataset's (the oracle predicts its classes)."""
+                   threads: int | None = None, trust_weights: bool = False) -> Segmenter:
+    """Build the segmenter ``name``; ``label_set`` is the dataset's (the oracle predicts its classes);
+    ``trust_weights`` uses shipped weights whose sha256 differs from the manifest (with a warning)."""
     return SEGMENTERS[name].factory(weights=weights, label_set=label_set, k=k, label_confidence=label_confidence,
                                     oracle_preset=oracle_preset, seed=seed, backend=backend, batch_size=batch_size,
-                                    input_size=input_size, threads=threads)
+                                    input_size=input_size, threads=threads, trust_weights=trust_weights)
 
 
 def trained_network_segmenter(name: str, *, weights: Path | None = None, k: int = 3, backend: str = "torch",
                               batch_size: int = 1, input_size: tuple[int, int] | int | None = None,
-                              threads: int | None = None) -> Segmenter:
-    """A segmenter running one of semmap's trained networks from its weight file (default: the shipped one),
-    at the input size it was trained at unless ``input_size`` says otherwise."""
+                              threads: int | None = None, trust_weights: bool = False) -> Segmenter:
+    """A segmenter running one of semmap's trained networks from its weight file (default: the shipped one,
+    checked against the manifest's sha256), at the input size it was trained at unless ``input_size`` says
+    otherwise."""
     import cv2
 
     from semmap.perception.network import NetworkInput, NetworkSegmenter
@@ -151,6 +202,8 @@ def trained_network_segmenter(name: str, *, weights: Path | None = None, k: int 
     if weights is None and not path.is_file():
         raise ConfigError(f"--segmenter {name}: no shipped weights at {path}; train them (semmap train) and pass "
                           f"--weights RUN_DIR/best.pt")
+    if path.is_file():
+        verify_weights(path, shipped=weights is None, trust=trust_weights)
     loaded = load_weights(path)
     if loaded.spec.model != name:
         raise ConfigError(f"{path}: holds a {loaded.spec.model} network, not {name}")

@@ -32,7 +32,14 @@ from semmap.files.atomic import write_bytes_atomic, write_text_atomic
 from semmap.files.outputs import OutputKind, check_outputs
 from semmap.perception.network import IMAGENET_MEAN, IMAGENET_STD
 from semmap.perception.networks.pspnet import AUX_WEIGHT
-from semmap.perception.networks.registry import MODELS, NetworkSpec, build_network, count_parameters, save_weights
+from semmap.perception.networks.registry import (
+    MODELS,
+    NetworkSpec,
+    build_network,
+    count_parameters,
+    read_torch_file,
+    save_weights,
+)
 from semmap.train.augment import Augmentation, augment
 from semmap.train.class_weights import IGNORE, median_frequency_weights
 from semmap.train.data import DEPTH_MM, TrainingSet, gather
@@ -326,10 +333,7 @@ class Trainer:
         path = self.last_path
         if not path.is_file():
             raise ConfigError(f"{self.s.out}: nothing to resume (no last.pt)")
-        try:
-            blob = torch.load(path, map_location="cpu", weights_only=True)
-        except Exception as exc:  # torch raises many types for a corrupt file
-            raise FormatError(f"{path}: unreadable checkpoint ({type(exc).__name__}: {exc})") from None
+        blob = read_torch_file(path, "training checkpoint")
         if not isinstance(blob, dict) or blob.get("format") != CHECKPOINT_FORMAT:
             raise FormatError(f"{path}: not a semmap training checkpoint")
         saved, now = blob["config"], self._config()

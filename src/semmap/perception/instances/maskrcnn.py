@@ -11,13 +11,12 @@ representation of each final box (what DeepSORT's re-identification network prov
 
 from __future__ import annotations
 
-import pickle
 from pathlib import Path
 
 import numpy as np
 import torch
 
-from semmap.errors import ConfigError
+from semmap.errors import ConfigError, FormatError
 from semmap.geometry import onto_depth_grid
 from semmap.types import Frame, Instances, LabelSet, TopKProbs, distinct_colors
 
@@ -66,12 +65,17 @@ class MaskRcnnInstances:
     @classmethod
     def from_weights(cls, path: str | Path, **kwargs) -> MaskRcnnInstances:
         """Load a ``maskrcnn_resnet50_fpn(_v2)`` state dict; the class count comes from the weights."""
+        from semmap.perception.networks.registry import check_finite_tensors, read_torch_file
+
         path = Path(path)
+        if not path.is_file():
+            raise ConfigError(f"{path}: Mask R-CNN weights file not found")
         try:
-            state = torch.load(path, map_location="cpu", weights_only=True)
-        except (OSError, RuntimeError, ValueError, EOFError, pickle.UnpicklingError) as exc:
-            raise ConfigError(f"{path}: cannot read Mask R-CNN weights: {exc}") from None
-        state = state.get("model", state) if isinstance(state, dict) else state
+            state = read_torch_file(path, "Mask R-CNN weights file")
+            state = state.get("model", state) if isinstance(state, dict) else state
+            check_finite_tensors(state, path)
+        except FormatError as exc:
+            raise ConfigError(str(exc)) from None
         key = "roi_heads.box_predictor.cls_score.weight"
         if not isinstance(state, dict) or key not in state:
             raise ConfigError(f"{path}: not a Mask R-CNN state dict (no {key})")

@@ -165,12 +165,7 @@ def load_weights(path: str | Path, *, full_resolution: bool = False) -> NetworkW
     path = Path(path)
     if not path.is_file():
         raise FormatError(f"{path}: network weights file not found")
-    import torch
-
-    try:
-        blob = torch.load(path, map_location="cpu", weights_only=True)
-    except Exception as exc:  # torch raises many types for a corrupt / non-torch file
-        raise FormatError(f"{path}: not a readable PyTorch file ({type(exc).__name__}: {exc})") from None
+    blob = read_torch_file(path, "network weights file")
     if not isinstance(blob, dict) or blob.get("format") != WEIGHTS_FORMAT:
         raise FormatError(f"{path}: not a semmap network weights file (no '{WEIGHTS_FORMAT}' marker)")
     try:
@@ -183,6 +178,7 @@ def load_weights(path: str | Path, *, full_resolution: bool = False) -> NetworkW
     if spec.num_classes != len(label_set):
         raise FormatError(f"{path}: network predicts {spec.num_classes} classes but its label set has "
                           f"{len(label_set)}")
+    check_finite_tensors(state, path)
     model = build_network(spec, full_resolution=full_resolution)
     expected = model.state_dict()
     bad = sorted(set(expected) ^ set(state))
@@ -192,6 +188,37 @@ def load_weights(path: str | Path, *, full_resolution: bool = False) -> NetworkW
                           f"e.g. {bad[0]})")
     model.load_state_dict({k: v.to(expected[k].dtype) for k, v in state.items()})
     return NetworkWeights(model.eval(), spec, label_set, input_size, dict(blob.get("meta") or {}))
+
+
+def read_torch_file(path: str | Path, what: str) -> object:
+    """``torch.load`` of a user's file with plain data and tensors only; FormatError in one line of semmap's own
+    when it is not readable or holds other Python objects (torch's own message advises an unsafe reload)."""
+    import pickle
+
+    import torch
+
+    try:
+        return torch.load(path, map_location="cpu", weights_only=True)
+    except pickle.UnpicklingError as exc:  # torch's text advises an unsafe reload: never shown
+        if "Unsupported global" in str(exc) or "Unsupported class" in str(exc):  # an object besides plain data
+            raise FormatError(f"{path}: refused: this {what} holds Python objects besides tensors and plain data, "
+                              f"which could run code when loaded; semmap reads only plain weight files") from None
+        raise FormatError(f"{path}: cannot read this {what} (not a PyTorch file, or a damaged one)") from None
+    except Exception as exc:  # torch raises many types for a corrupt / non-torch file
+        first = str(exc).strip().splitlines()[0][:160] if str(exc).strip() else ""
+        raise FormatError(f"{path}: cannot read this {what} ({type(exc).__name__}: {first})") from None
+
+
+def check_finite_tensors(state: object, path: str | Path) -> None:
+    """FormatError naming the file and a tensor when a state dict holds NaN or infinite values."""
+    import torch
+
+    if not isinstance(state, dict):
+        return
+    for key, value in state.items():
+        if isinstance(value, torch.Tensor) and value.is_floating_point() and not bool(torch.isfinite(value).all()):
+            raise FormatError(f"{path}: weights hold NaN or infinite values (tensor {key}); the file is damaged "
+                              f"or comes from a diverged training")
 
 
 def with_classes(spec: NetworkSpec, num_classes: int) -> NetworkSpec:
