@@ -24,6 +24,7 @@ from semmap.errors import SimulationError
 from semmap.files.atomic import write_text_atomic
 from semmap.io.tum_writer import write_tum_sequence
 from semmap.labels import INDOOR_LABELS
+from semmap.limits import check_simulation
 from semmap.sim.noise import KinectNoise
 from semmap.sim.render import Renderer
 from semmap.sim.scene import Scene, generate_scene
@@ -56,6 +57,7 @@ def simulate_sequence(
     ``fps`` spreads few frames over the whole path (varied views for training data)."""
     if not isinstance(frames, (int, np.integer)) or frames <= 0:
         raise SimulationError(f"frames must be a positive integer, got {frames!r}")
+    check_simulation(int(frames), image_size)
     root = Path(out_dir)
     root.mkdir(parents=True, exist_ok=True)
     scene = generate_scene(scene_seed, kind, size, symmetric=symmetric)
