@@ -204,3 +204,12 @@ def test_h2_h3_a_full_or_read_only_folder_refuses_the_recording(tmp_path: Path, 
     monkeypatch.setattr(rerun_log.os, "access", lambda *_: False)
     with pytest.raises(ConfigError, match="is not writable"):
         rerun_log.check_recording_space(tmp_path / "x.rrd")
+
+
+def test_m4_a_prior_grid_beyond_the_budget_is_refused_before_it_is_built(small_budget) -> None:
+    from semmap.localization.prior import build_prior
+
+    corners = np.array([[0.0, 0.0, 0.0], [5.0, 5.0, 3.0]])
+    with pytest.raises(MemoryBudgetError, match="the prior map's lookup grid of .* cells of 0.01 m"):
+        build_prior(corners, 0.01)
+    assert build_prior(corners, 0.25).num_occupied == 2
