@@ -20,10 +20,13 @@ from semmap.config import RunConfig
 from semmap.errors import ConfigError, SemmapError
 from semmap.files.atomic import write_text_atomic
 from semmap.files.outputs import OutputKind, check_outputs
+from semmap.limits import check
 
 LOG = logging.getLogger("semmap")
 #: Logical CPUs one run asks of a Ray node (a run's numba and torch threads use about two).
 DEFAULT_CPUS_PER_RUN = 2
+#: The longest a batch waits for its next sequence to finish before it stops with one line (seconds).
+WAIT_TIMEOUT_S = 6 * 3600.0
 #: Files of a finished run besides those its report lists.
 RUN_FILES = ("report.json", "config.json")
 
@@ -187,10 +190,16 @@ class BatchResult:
 
 
 def run_batch(template: RunConfig, items: list[BatchItem], *, address: str | None = None, workers: int | None = None,
-              cpus_per_run: float = DEFAULT_CPUS_PER_RUN, resume: bool = True, on_row=None) -> BatchResult:
+              cpus_per_run: float = DEFAULT_CPUS_PER_RUN, resume: bool = True, on_row=None,
+              wait_timeout_s: float = WAIT_TIMEOUT_S) -> BatchResult:
     """Map every item as a Ray task; items with complete outputs of the same configuration are skipped when
     ``resume``. ``address``: an existing cluster (``ray://host:10001``, ``host:6379`` or ``auto``); None starts a
-    local one with ``workers`` CPUs. ``on_row(row)`` is called as each sequence finishes."""
+    local one with ``workers`` CPUs. ``on_row(row)`` is called as each sequence finishes; the batch stops with one
+    line when none finishes within ``wait_timeout_s``. CPUs a run cannot get are refused before submitting."""
+    check("workers", workers)
+    check("cpus_per_run", cpus_per_run)
+    if not address:  # a local cluster: refused before Ray starts
+        _check_cpus(cpus_per_run, workers or os.cpu_count() or 1, "the local cluster")
     import ray
 
     start = time.perf_counter()
@@ -212,10 +221,15 @@ def run_batch(template: RunConfig, items: list[BatchItem], *, address: str | Non
         started_here = _connect(ray, address, workers)
     try:
         nodes = len([n for n in ray.nodes() if n.get("Alive")]) if todo else 0
+        if todo and address:
+            _check_cpus(cpus_per_run, _largest_node_cpus(ray), f"the largest node of {address}")
         task = ray.remote(num_cpus=cpus_per_run, max_retries=0)(run_item)
         pending = {task.remote(config.to_json()): k for k, config in todo}
         while pending:
-            done, _ = ray.wait(list(pending), num_returns=1)
+            done, _ = ray.wait(list(pending), num_returns=1, timeout=wait_timeout_s)
+            if not done:
+                raise ConfigError(f"no sequence of the batch finished within {wait_timeout_s:.0f} s "
+                                  f"({len(pending)} waiting); the cluster may lack resources or a run hangs")
             k = pending.pop(done[0])
             rows[k] = _row_from_task(ray, done[0], items[k])
             if on_row:
@@ -225,6 +239,18 @@ def run_batch(template: RunConfig, items: list[BatchItem], *, address: str | Non
             ray.shutdown()
     return BatchResult([rows[k] for k in range(len(items))], time.perf_counter() - start,
                        address or "local", nodes)
+
+
+def _check_cpus(per_run: float, available: float, where: str) -> None:
+    """One line instead of a task Ray would wait for forever."""
+    if per_run > available:
+        raise ConfigError(f"--cpus-per-run {per_run:g}: one sequence needs {per_run:g} CPUs, {where} has "
+                          f"{available:g}; lower --cpus-per-run (or raise --workers)")
+
+
+def _largest_node_cpus(ray) -> float:
+    """CPUs of the cluster's largest live node (a task runs on one node)."""
+    return max((float(n.get("Resources", {}).get("CPU", 0.0)) for n in ray.nodes() if n.get("Alive")), default=0.0)
 
 
 def _earlier_rows(items: list[BatchItem]) -> dict[str, dict]:

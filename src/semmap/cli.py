@@ -46,6 +46,19 @@ _ROS = "ROS bags"
 _MAPS = "Maps and fusion"
 
 
+#: ``--memory-budget`` of the commands that allocate in proportion to an option (see ``semmap.limits``).
+_MemoryBudget = Annotated[str | None, typer.Option(help="refuse options whose memory estimate exceeds this (e.g. "
+                                                        "4G; default: SEMMAP_MEMORY_BUDGET, else 75 % of the "
+                                                        "available memory)")]
+
+
+def _budget(text: str | None) -> None:
+    """Apply ``--memory-budget`` for this command."""
+    from semmap.limits import set_memory_budget
+
+    set_memory_budget(text)
+
+
 def _default(section, field: str):
     """The run configuration's default of ``section.field``: the CLI repeats none of them."""
     return section.model_fields[field].default
@@ -209,11 +222,13 @@ def run(
     instance_errors: Annotated[str, typer.Option(help="oracle instances' errors: exact | maskrcnn-like | noisy",
                                                  rich_help_panel=_OBJECTS)] = _default(ObjectsConfig, "errors"),
     verbose: Annotated[bool, typer.Option("--verbose", "-v", help="debug logging")] = False,
+    memory_budget: _MemoryBudget = None,
 ) -> None:
     """Map an RGB-D sequence: writes map.ot, map.bt, map.semmap (and voxelgrid.* / points.* for --maps,
     objects.json / objects.ply for --instances), preview.png, trajectory.txt, report.json, report.md and
     config.json."""
     _setup_logging(verbose)
+    _budget(memory_budget)
     from semmap.config import (
         CrfConfig,
         InputConfig,
@@ -355,9 +370,11 @@ def simulate(
     trajectory_seed: Annotated[int | None, typer.Option(help="seed of the camera path (default: the scene seed); "
                                                         "another seed gives another path through the same scene")
                                ] = None,
+    memory_budget: _MemoryBudget = None,
 ) -> None:
     """Render a procedural indoor scene to a TUM RGB-D folder with labels, instances, objects and scene.json."""
     _setup_logging(False)
+    _budget(memory_budget)
     from semmap.sim.export import simulate_sequence
 
     stored = _size(image_size)
@@ -443,10 +460,12 @@ def train(
     depth_scale: Annotated[float | None, typer.Option(help="depth PNG units per metre (default: 5000 for "
                                                            "simulate/TUM folders, 1000 for plain folders)")] = None,
     augment: Annotated[bool, typer.Option("--augment/--no-augment", help="flips, scale and colour jitter")] = True,
+    memory_budget: _MemoryBudget = None,
 ) -> None:
     """Train a segmentation network (median-frequency weighted cross entropy, SGD with poly learning rate) and
     keep the best checkpoint by validation mIoU (RUN_DIR/best.pt, usable as --weights)."""
     _setup_logging(False)
+    _budget(memory_budget)
     from semmap.train.trainer import Trainer, TrainSettings
 
     size = _size(input_size)
@@ -542,10 +561,12 @@ def localize(
     max_frames: Annotated[int | None, typer.Option(help="use at most N frames")] = None,
     seed: Annotated[int, typer.Option(help="random seed")] = 0,
     gif: Annotated[bool, typer.Option("--gif", help="also write particles.gif")] = False,
+    memory_budget: _MemoryBudget = None,
 ) -> None:
     """Monte-Carlo localization of a sequence's camera in a prior map: writes localization.txt, localization.npz,
     report.json, report.md, particles.png, errors.png (with ground truth) and optionally particles.gif."""
     _setup_logging(False)
+    _budget(memory_budget)
     from semmap.localization.filter import FilterSettings
     from semmap.localization.motion import MotionMode
     from semmap.localization.observation import ObservationKind

@@ -13,9 +13,11 @@ from pathlib import Path
 from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 
 from semmap.datasets import AUTO, FORMATS, DatasetFormat
+from semmap.errors import ConfigError
 from semmap.fusion.rules import FusionRule
 from semmap.fusion.topk_bayes import DEFAULT_LAMBDA, DEFAULT_MAX_CONFIDENCE
 from semmap.geometry import DEFAULT_MAX_DEPTH, DEFAULT_MIN_DEPTH
+from semmap.limits import check, field_bounds
 from semmap.maps.registry import MAPS, MapKind, own_rules
 from semmap.perception.instances.registry import INSTANCE_SOURCES, InstanceSourceName
 from semmap.perception.registry import SEGMENTERS, SegmenterName
@@ -47,7 +49,7 @@ class LoopMode(str, Enum):
 
 
 class _Section(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)  # NaN never reaches a kernel
 
 
 class RosConfig(_Section):
@@ -59,7 +61,8 @@ class RosConfig(_Section):
     pose_topic: str | None = Field(None, description="PoseStamped / Odometry / TransformStamped topic (else /tf)")
     world_frame: str | None = Field(None, description="/tf frame of the world (default: the camera's root frame)")
     camera_frame: str | None = Field(None, description="/tf frame of the camera (default: the depth images' frame)")
-    max_time_diff: float = Field(0.02, gt=0.0, description="largest colour/depth timestamp gap (s)")
+    max_time_diff: float = Field(0.02, **field_bounds("time_diff"),
+                                 description="largest colour/depth timestamp gap (s)")
 
     def options(self) -> dict:
         """Keyword arguments for :class:`semmap.datasets.rosbag.RosbagDataset`."""
@@ -70,8 +73,8 @@ class InputConfig(_Section):
     dataset: Path
     format: DatasetFormat = Field(DatasetFormat(AUTO), description=f"{FORMATS.choices((AUTO,))}")
     labels: Path | None = None
-    stride: int = Field(1, ge=1)
-    max_frames: int | None = Field(None, ge=1)
+    stride: int = Field(1, **field_bounds("stride"))
+    max_frames: int | None = Field(None, **field_bounds("max_frames"))
     raw_color: bool = Field(False, description="keep colour unregistered (7-Scenes colour is registered to depth)")
     ros: RosConfig = RosConfig()
     strict: bool = Field(False, description="stop at the first frame that cannot be used instead of skipping it")
@@ -83,22 +86,24 @@ class InputConfig(_Section):
 
 
 class MappingConfig(_Section):
-    resolution: float = Field(0.05, ge=0.001, le=10.0, description="finest voxel size (m)")
-    min_depth: float = Field(DEFAULT_MIN_DEPTH, ge=0.0)
-    max_depth: float = Field(DEFAULT_MAX_DEPTH, gt=0.0)
-    max_range: float = Field(-1.0, description="OctoMap max range (m); readings beyond only clear space; -1 = none")
-    pixel_stride: int = Field(1, ge=1, le=16, description="use every k-th pixel row and column")
-    prob_hit: float = 0.7
-    prob_miss: float = 0.4
-    clamp_min: float = 0.1192
-    clamp_max: float = 0.971
+    resolution: float = Field(0.05, **field_bounds("resolution"), description="finest voxel size (m)")
+    min_depth: float = Field(DEFAULT_MIN_DEPTH, **field_bounds("min_depth"))
+    max_depth: float = Field(DEFAULT_MAX_DEPTH, **field_bounds("max_depth"))
+    max_range: float = Field(-1.0, **field_bounds("max_range"),
+                             description="OctoMap max range (m); readings beyond only clear space; -1 = none")
+    pixel_stride: int = Field(1, **field_bounds("pixel_stride"), description="use every k-th pixel row and column")
+    prob_hit: float = Field(0.7, **field_bounds("probability"))
+    prob_miss: float = Field(0.4, **field_bounds("probability"))
+    clamp_min: float = Field(0.1192, **field_bounds("probability"))
+    clamp_max: float = Field(0.971, **field_bounds("probability"))
     maps: tuple[MapKind, ...] = Field((MapKind.OCTOMAP,), min_length=1,
                                       description="maps built side by side; the first is the primary one")
     state_dtype: str | None = Field(None, pattern="^(float16|float32)$",
                                     description="per-class numbers of the voxel grid / point map (None: float32 / "
                                                 "float16)")
     free_space: bool = Field(False, description="voxel grid: also ray-cast free space (occupancy OctoMap)")
-    point_resolution: float = Field(0.01, ge=0.001, le=1.0, description="filter cell of the point map (m)")
+    point_resolution: float = Field(0.01, **field_bounds("point_resolution"),
+                                    description="filter cell of the point map (m)")
 
     @field_validator("maps", mode="before")
     @classmethod
@@ -125,19 +130,19 @@ class MappingConfig(_Section):
 
 class SemanticsConfig(_Section):
     source: SemanticSource = SemanticSource.AUTO
-    k: int = Field(3, ge=1, le=8, description="classes kept per voxel")
-    lam: float = Field(DEFAULT_LAMBDA, ge=0.0, le=1.0, description="penalty λ of Algorithm 1")
-    max_confidence: float = Field(DEFAULT_MAX_CONFIDENCE, gt=0.0, le=1.0)
-    label_confidence: float = Field(0.9, gt=0.0, le=1.0, description="confidence given to hard labels")
+    k: int = Field(3, **field_bounds("k"), description="classes kept per voxel")
+    lam: float = Field(DEFAULT_LAMBDA, **field_bounds("lam"), description="penalty λ of Algorithm 1")
+    max_confidence: float = Field(DEFAULT_MAX_CONFIDENCE, **field_bounds("confidence"))
+    label_confidence: float = Field(0.9, **field_bounds("confidence"), description="confidence given to hard labels")
     oracle_preset: str = "cnn-like"
     seed: int = 0
     segmenter: SegmenterName | None = Field(None, description=f"{SEGMENTERS.choices()} (None: from source)")
     weights: Path | None = Field(None, description="network weights, or the folder of precomputed predictions")
     trust_weights: bool = Field(False, description="use shipped weights whose sha256 differs from weights/manifest.json"
                                                    " (with a warning) instead of refusing them")
-    segment_every: int = Field(1, ge=1, description="segment every k-th frame")
+    segment_every: int = Field(1, **field_bounds("segment_every"), description="segment every k-th frame")
     keyframes: bool = Field(False, description="segment only frames where the camera moved enough")
-    batch_size: int = Field(1, ge=1, le=64, description="frames per network batch")
+    batch_size: int = Field(1, **field_bounds("batch_size"), description="frames per network batch")
     backend: str = Field("torch", pattern="^(torch|onnx)$", description="network runtime")
     fusion: FusionRule | None = Field(None, description=f"{' | '.join(r.value for r in FusionRule)} for every map "
                                                         f"(None: each map's own: {own_rules()})")
@@ -146,6 +151,15 @@ class SemanticsConfig(_Section):
         None, description="network input: (width, height), or the short side keeping the aspect ratio; None = the "
                     "segmenter's default (espnetv2: 320)")
 
+    @field_validator("input_size")
+    @classmethod
+    def _input_in_limits(cls, v: tuple[int, int] | int | None) -> tuple[int, int] | int | None:
+        try:
+            for side in (v if isinstance(v, tuple) else (v,)):
+                check("input_side", side, "--input-size")
+        except ConfigError as exc:
+            raise ValueError(str(exc)) from None
+        return v
 
     @field_validator("segmenter", mode="before")
     @classmethod
@@ -163,29 +177,36 @@ class SemanticsConfig(_Section):
 class PosesConfig(_Section):
     source: PoseSource | Path = Field(PoseSource(GROUND_TRUTH), union_mode="left_to_right",
                                       description=f"{' | '.join(POSE_SOURCES)} | path of a TUM trajectory file")
-    max_time_diff: float = Field(0.02, gt=0.0, description="largest timestamp gap when reading a trajectory file")
+    max_time_diff: float = Field(0.02, **field_bounds("time_diff"),
+                                 description="largest timestamp gap when reading a trajectory file")
 
 
 class OnlineConfig(_Section):
     """Bounds of an online run's frame loop (``mode = online``)."""
 
-    max_pending: int = Field(8, ge=1, description="frames waiting behind a frame still being segmented before "
-                                                  "tracking waits too")
-    segment_queue: int = Field(2, ge=1, description="frames queued for or in segmentation at once")
-    segment_threads: int = Field(1, ge=1, description="threads of the network runtime (ONNX Runtime / PyTorch)")
-    segment_numba_threads: int = Field(1, ge=1, description="numba threads of the segmentation thread's kernels")
-    read_ahead: int = Field(2, ge=1, description="frames read (decoded, colour registered) ahead on a thread")
-    rate: float | None = Field(None, gt=0, description="replay the frames at this many per second, as a live camera "
-                                                       "delivers them (latency counts from each frame's due time); "
-                                                       "None: as fast as the loop takes them")
+    max_pending: int = Field(8, **field_bounds("queue"),
+                             description="frames waiting behind a frame still being segmented before "
+                                         "tracking waits too")
+    segment_queue: int = Field(2, **field_bounds("queue"), description="frames queued for or in segmentation at once")
+    segment_threads: int = Field(1, **field_bounds("threads"),
+                                 description="threads of the network runtime (ONNX Runtime / PyTorch)")
+    segment_numba_threads: int = Field(1, **field_bounds("threads"),
+                                       description="numba threads of the segmentation thread's kernels")
+    read_ahead: int = Field(2, **field_bounds("queue"),
+                            description="frames read (decoded, colour registered) ahead on a thread")
+    rate: float | None = Field(None, **field_bounds("rate"),
+                               description="replay the frames at this many per second, as a live camera "
+                                           "delivers them (latency counts from each frame's due time); "
+                                           "None: as fast as the loop takes them")
 
 
 class CrfConfig(_Section):
     """3D dense CRF over each map after integration (and every ``every`` keyframes while mapping)."""
 
     enabled: bool = False
-    every: int = Field(0, ge=0, description="also refine every N keyframes during mapping (0: only at the end)")
-    iterations: int = Field(5, ge=1, le=50)
+    every: int = Field(0, **field_bounds("every"),
+                       description="also refine every N keyframes during mapping (0: only at the end)")
+    iterations: int = Field(5, **field_bounds("crf_iterations"))
 
 
 class OutputConfig(_Section):
@@ -195,7 +216,8 @@ class OutputConfig(_Section):
     plots: bool = Field(True, description="draw the report's plots (trajectory, IoU, storage, timings)")
     rerun: Path | None = Field(None, description="log the run to this rerun recording (.rrd)")
     rerun_spawn: bool = Field(False, description="stream the run to a rerun viewer")
-    rerun_map_every: int = Field(10, ge=1, description="frames between two logs of the whole map")
+    rerun_map_every: int = Field(10, **field_bounds("every_positive"),
+                                 description="frames between two logs of the whole map")
 
 
 class ObjectsConfig(_Section):

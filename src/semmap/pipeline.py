@@ -27,6 +27,7 @@ from semmap.frame_arrays import class_sets, frame_from_arrays
 from semmap.geometry import backproject_world, pixel_normals
 from semmap.interrupt import RunInterrupted, deferred_interrupts, stop_requested
 from semmap.io.staged_run import StagedRun
+from semmap.limits import check_map_extent
 from semmap.maps.base import SemanticMap
 from semmap.maps.registry import MapKind, compile_kernels
 from semmap.object_stage import ObjectStage
@@ -71,6 +72,7 @@ class Mapper:
         self.last_was_keyframe = False
         self._keyframe_of = Scheduler(SegmentationSchedule(keyframes=True))
         self._normals = any(m.needs_normals for m in maps)
+        self._extent_checked = False  # the memory of the free space the first frame spans, checked once
 
     def integrate(self, frame: Frame, T_world_cam: np.ndarray, semantics: TopKProbs | None) -> dict[str, float]:
         """Integrate one frame seen from ``T_world_cam`` with optional per-pixel class sets (H, W, k) into every
@@ -80,6 +82,9 @@ class Mapper:
         points_world, pixels = backproject_world(frame.depth, frame.intrinsics, T_world_cam,
                                                  min_depth=self.min_depth, max_depth=self.max_depth,
                                                  stride=self.pixel_stride)
+        if not self._extent_checked and len(points_world):
+            self._extent_checked = True
+            self._check_extent(points_world, np.asarray(T_world_cam, np.float64)[:3, 3])
         # colour and class set of each point's pixel
         colors = np.take(frame.rgb.reshape(-1, 3), pixels, axis=0)
         point_sem = None
@@ -101,6 +106,14 @@ class Mapper:
             ms.update(steps if i == 0 else {f"{m.kind.value}:{k}": v for k, v in steps.items()})
         self.points_integrated += len(points_world)
         return ms
+
+    def _check_extent(self, points: np.ndarray, origin: np.ndarray) -> None:
+        """Refuse a resolution whose ray-cast cells over the first frame's view (a cheap lower bound of the
+        scene) would not fit the memory budget, before the OctoMap allocates them."""
+        for m in self.maps:
+            if m.kind == MapKind.OCTOMAP:
+                extent = np.ptp(np.vstack([points.min(0), points.max(0), origin]), axis=0)
+                check_map_extent(m.resolution, tuple(extent), "the first frame's view")
 
     def state(self) -> tuple[dict, dict[str, np.ndarray]]:
         """A checkpoint's mapper: its counters and keyframe schedule (the maps save their own state)."""

@@ -18,6 +18,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from semmap.errors import ConfigError
+from semmap.limits import check, check_particles
 from semmap.localization import _kernels as kern
 from semmap.localization.motion import GroundTilt, MotionMode, MotionNoise, heading
 from semmap.localization.observation import LikelihoodParams, ObservationKind, Scan, fit, score
@@ -59,8 +60,7 @@ class FilterSettings:
     height_margin_m: float = 0.3  # 6-DoF global initialisation: camera between floor and ceiling by this margin
 
     def __post_init__(self) -> None:
-        if self.particles < 1:
-            raise ConfigError(f"need at least one particle, got {self.particles}")
+        check("particles", self.particles)
         if not 0.0 < self.resample_ess <= 1.0:
             raise ConfigError(f"resample_ess must be in (0, 1], got {self.resample_ess}")
         if not 0.0 <= self.min_ess < 1.0:
@@ -97,6 +97,7 @@ class ParticleFilter:
         self.settings = settings or FilterSettings()
         self.rng = np.random.default_rng([seed, 0x3C1])
         n = self.settings.particles
+        check_particles(n)  # the memory of the set, before any of it is allocated
         self.R = np.tile(np.eye(3), (n, 1, 1))
         self.t = np.zeros((n, 3))
         self.yaw = np.zeros(n)  # ground mode state with t[:, :2]

@@ -22,6 +22,7 @@ import numpy as np
 
 from semmap.errors import ConfigError
 from semmap.geometry import onto_depth_grid
+from semmap.limits import check_network_input
 from semmap.types import EMPTY_LABEL, Frame, LabelSet, TopKProbs
 
 log = logging.getLogger("semmap")
@@ -101,6 +102,14 @@ def parse_input_size(text: str | None) -> tuple[int, int] | int | None:
     return w, h
 
 
+def _check_input_budget(net_input: NetworkInput, batch: int) -> None:
+    """Refuse an input size whose batch would not fit the memory budget (a 4:3 image for a short side)."""
+    if net_input.size is not None:
+        check_network_input(*net_input.size, batch)
+    elif net_input.short_side is not None:
+        check_network_input(net_input.short_side * 4 // 3, net_input.short_side, batch)
+
+
 class NetworkSegmenter:
     """:class:`~semmap.perception.base.Segmenter` around a network predicting logits over ``label_set``."""
 
@@ -119,6 +128,7 @@ class NetworkSegmenter:
         self.k = k
         self.batch_size = max(1, int(batch_size))
         self.backend = backend
+        _check_input_budget(net_input, self.batch_size)
         self._torch = torch
         if threads is not None:
             torch.set_num_threads(int(threads))

@@ -27,6 +27,7 @@ from semmap.interrupt import RunInterrupted
 from semmap.io.staged_run import StagedRun
 from semmap.io.tum_writer import write_tum_sequence
 from semmap.labels import INDOOR_LABELS
+from semmap.limits import check_simulation
 from semmap.sim.noise import KinectNoise
 from semmap.sim.render import Renderer
 from semmap.sim.scene import Scene, generate_scene
@@ -59,6 +60,7 @@ def simulate_sequence(
     ``fps`` spreads few frames over the whole path (varied views for training data)."""
     if not isinstance(frames, (int, np.integer)) or frames <= 0:
         raise SimulationError(f"frames must be a positive integer, got {frames!r}")
+    check_simulation(int(frames), image_size)
     root = Path(out_dir)
     check_sequence_out(root)
     staged = StagedRun(root)

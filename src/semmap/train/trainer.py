@@ -30,6 +30,7 @@ from semmap.errors import ConfigError, DatasetError, FormatError
 from semmap.eval.semantic import confusion, scores
 from semmap.files.atomic import write_bytes_atomic, write_text_atomic
 from semmap.files.outputs import OutputKind, check_outputs
+from semmap.limits import check, check_network_input
 from semmap.perception.network import IMAGENET_MEAN, IMAGENET_STD
 from semmap.perception.networks.pspnet import AUX_WEIGHT
 from semmap.perception.networks.registry import (
@@ -97,6 +98,13 @@ class TrainSettings:
             raise ConfigError(f"training input must be at least 16x16, got {self.input_size}")
         if self.device not in ("cpu", "cuda") and not self.device.startswith("cuda:"):
             raise ConfigError(f"--device must be cpu or cuda, got {self.device!r}")
+        check("batch", self.batch)
+        check("iterations", self.iterations)
+        check("epochs", self.epochs)
+        check("depth_scale", self.depth_scale)
+        check("learning_rate", self.lr, "--lr")
+        if self.device == "cpu":  # one step's activations and gradients, in this machine's memory
+            check_network_input(*self.input_size, self.batch, training=True)
 
     def spec(self, num_classes: int) -> NetworkSpec:
         dil = self.msff_dilation or max(1, round(12 * self.input_size[0] / PAPER_INPUT_WIDTH))

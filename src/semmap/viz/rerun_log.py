@@ -74,6 +74,22 @@ def viewer_executable() -> str | None:
     return str(beside) if beside.is_file() else shutil.which("rerun")
 
 
+#: Free space a recording's folder needs before rerun's file writer starts (it blocks, or deadlocks, on a full
+#: disk instead of failing).
+MIN_RECORDING_SPACE = 64 << 20
+
+
+def check_recording_space(path: Path) -> None:
+    """Refuse, in one line before logging starts, a recording whose folder is not writable or nearly full."""
+    folder = path.parent
+    if not os.access(folder, os.W_OK | os.X_OK):
+        raise ConfigError(f"{path}: cannot write the rerun recording, {folder} is not writable")
+    free = shutil.disk_usage(folder).free
+    if free < MIN_RECORDING_SPACE:
+        raise ConfigError(f"{path}: only {free / 2**20:.1f} MB free in {folder}; a rerun recording needs at least "
+                          f"{MIN_RECORDING_SPACE >> 20} MB (rerun would hang on a full disk)")
+
+
 def open_recording(name: str, *, save: str | Path | None, spawn: bool):
     """A rerun recording stream writing to ``save`` (.rrd) and/or a newly spawned viewer."""
     import rerun as rr
@@ -83,6 +99,7 @@ def open_recording(name: str, *, save: str | Path | None, spawn: bool):
     sinks = []
     if save is not None:
         Path(save).parent.mkdir(parents=True, exist_ok=True)
+        check_recording_space(Path(save))
         sinks.append(rr.FileSink(str(save)))
     if spawn:
         if sys.platform.startswith("linux") and not (os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY")):

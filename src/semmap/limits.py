@@ -1,0 +1,224 @@
+"""One table of limits for every numeric option, and the memory budget checked before big allocations.
+
+The CLI, the run configuration (``config.py``) and the library read the same :data:`LIMITS`, so an option is
+refused in one line wherever it enters, and NaN or infinite values never reach a numba kernel. Memory that one
+option controls (particles, network input, frames, batches, map cells) is estimated with :func:`check_memory`
+before it is allocated and refused beyond the budget: ``--memory-budget``, else ``SEMMAP_MEMORY_BUDGET``, else
+75 % of the memory available now (``MemAvailable`` of ``/proc/meminfo``).
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import re
+from dataclasses import dataclass
+
+from semmap.errors import ConfigError
+
+#: Environment variable holding the memory budget (bytes, or a size like ``4G``, ``512M``).
+BUDGET_ENV = "SEMMAP_MEMORY_BUDGET"
+#: Share of the available memory one command may plan to use when no budget is given.
+DEFAULT_BUDGET_SHARE = 0.75
+
+
+class MemoryBudgetError(ConfigError):
+    """An option asks for more memory than the budget allows (the message holds the estimate)."""
+
+
+@dataclass(frozen=True)
+class Limit:
+    """The accepted range of one numeric option (inclusive) and what it measures."""
+
+    lo: float
+    hi: float
+    what: str
+    integer: bool = False
+
+
+#: Every numeric option semmap accepts, by name (the option's name without ``--``, underscores as in the config).
+LIMITS: dict[str, Limit] = {
+    "resolution": Limit(0.001, 10.0, "voxel size (m)"),
+    "point_resolution": Limit(0.001, 1.0, "point-map filter cell (m)"),
+    "min_depth": Limit(0.0, 1000.0, "depth (m)"),
+    "max_depth": Limit(0.001, 1000.0, "depth (m)"),
+    "max_range": Limit(-1.0, 1000.0, "range (m), -1 = none"),
+    "depth_scale": Limit(1e-6, 1e6, "depth units per metre"),
+    "pixel_stride": Limit(1, 16, "pixels", integer=True),
+    "stride": Limit(1, 1_000_000, "frames", integer=True),
+    "max_frames": Limit(1, 10_000_000, "frames", integer=True),
+    "frames": Limit(1, 1_000_000, "frames", integer=True),
+    "k": Limit(1, 8, "classes per voxel", integer=True),
+    "lam": Limit(0.0, 1.0, "penalty"),
+    "confidence": Limit(1e-6, 1.0, "probability"),
+    "probability": Limit(0.0, 1.0, "probability"),
+    "segment_every": Limit(1, 1_000_000, "frames", integer=True),
+    "batch_size": Limit(1, 64, "frames per network batch", integer=True),
+    "batch": Limit(1, 4096, "images per step", integer=True),
+    "input_side": Limit(16, 8192, "pixels", integer=True),
+    "image_side": Limit(16, 8192, "pixels", integer=True),
+    "particles": Limit(1, 10_000_000, "particles", integer=True),
+    "scan_points": Limit(1, 100_000, "points per scan", integer=True),
+    "workers": Limit(1, 4096, "CPUs", integer=True),
+    "cpus_per_run": Limit(0.01, 4096, "CPUs"),
+    "rate": Limit(1e-3, 10_000.0, "frames per second"),
+    "every": Limit(0, 1_000_000, "frames", integer=True),
+    "every_positive": Limit(1, 1_000_000, "frames", integer=True),
+    "iterations": Limit(1, 10_000_000, "steps", integer=True),
+    "epochs": Limit(0.001, 100_000, "passes over the data"),
+    "crf_iterations": Limit(1, 50, "iterations", integer=True),
+    "threads": Limit(1, 1024, "threads", integer=True),
+    "queue": Limit(1, 10_000, "frames", integer=True),
+    "height": Limit(-100.0, 100.0, "camera height (m)"),
+    "angle_deg": Limit(-180.0, 180.0, "degrees"),
+    "noise": Limit(0.0, 10.0, "fraction"),
+    "learning_rate": Limit(1e-9, 10.0, "learning rate"),
+    "time_diff": Limit(1e-6, 3600.0, "seconds"),
+    "timeout": Limit(0.1, 7 * 24 * 3600.0, "seconds"),
+}
+
+
+def field_bounds(name: str) -> dict:
+    """``ge`` / ``le`` keyword arguments of a pydantic ``Field`` for the limit ``name``."""
+    lim = LIMITS[name]
+    return {"ge": lim.lo, "le": lim.hi}
+
+
+def check(name: str, value: float | int | None, option: str | None = None) -> float | int | None:
+    """``value`` when it is a finite number within the limit ``name`` (None passes), else a :class:`ConfigError`
+    naming ``option`` (default ``--name``), the value and the accepted range."""
+    if value is None:
+        return None
+    lim = LIMITS[name]
+    label = option or "--" + name.replace("_", "-")
+    try:
+        number = float(value)
+    except (TypeError, ValueError):
+        raise ConfigError(f"{label} must be a number, got {value!r}") from None
+    kind = "a whole number" if lim.integer else "a number"
+    if not math.isfinite(number) or (lim.integer and number != int(number)) or not lim.lo <= number <= lim.hi:
+        raise ConfigError(f"{label} must be {kind} from {_num(lim.lo)} to {_num(lim.hi)} ({lim.what}), got {value!r}")
+    return value
+
+
+def _num(x: float) -> str:
+    return f"{int(x):,}" if float(x).is_integer() else f"{x:g}"
+
+
+# ---------------------------------------------------------------------------------------------------- memory
+_override: int | None = None
+_UNITS = {"": 1, "B": 1, "K": 1 << 10, "M": 1 << 20, "G": 1 << 30, "T": 1 << 40}
+
+
+def parse_size(text: str | int | float, what: str = "--memory-budget") -> int:
+    """Bytes from ``"4G"``, ``"512M"``, ``"1.5GB"``, ``"1000000"``; a :class:`ConfigError` naming ``what``."""
+    m = re.fullmatch(r"\s*([0-9]*\.?[0-9]+(?:e[0-9]+)?)\s*([KMGT]?)(?:i?B)?\s*", str(text), re.IGNORECASE)
+    if not m:
+        raise ConfigError(f"{what} must be a size like 4G, 512M or a number of bytes, got {text!r}")
+    size = float(m.group(1)) * _UNITS[m.group(2).upper()]
+    if not math.isfinite(size) or size < 1 << 20:
+        raise ConfigError(f"{what} must be at least 1M, got {text!r}")
+    return int(size)
+
+
+def set_memory_budget(budget: str | int | None) -> None:
+    """Use ``budget`` (bytes or a size like ``4G``; None: back to the environment or the default) from now on."""
+    global _override
+    _override = None if budget is None else parse_size(budget)
+
+
+def available_memory() -> int:
+    """Bytes the system can still give (``MemAvailable``); the physical memory where that is not known."""
+    try:
+        with open("/proc/meminfo", encoding="ascii") as f:
+            for line in f:
+                if line.startswith("MemAvailable:"):
+                    return int(line.split()[1]) * 1024
+    except (OSError, ValueError, IndexError):
+        pass
+    try:
+        return os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_AVPHYS_PAGES")
+    except (ValueError, OSError, AttributeError):
+        return 8 << 30
+
+
+def memory_budget() -> tuple[int, str]:
+    """The budget in bytes and where it comes from (for the message)."""
+    if _override is not None:
+        return _override, "--memory-budget"
+    env = os.environ.get(BUDGET_ENV)
+    if env:
+        return parse_size(env, BUDGET_ENV), BUDGET_ENV
+    return int(available_memory() * DEFAULT_BUDGET_SHARE), f"{DEFAULT_BUDGET_SHARE:.0%} of the available memory"
+
+
+def human(n: float) -> str:
+    """``1.5 GB``-style size."""
+    for unit, scale in (("TB", 1e12), ("GB", 1e9), ("MB", 1e6), ("kB", 1e3)):
+        if n >= scale:
+            return f"{n / scale:.1f} {unit}"
+    return f"{int(n)} B"
+
+
+def check_memory(what: str, estimate: float) -> None:
+    """Refuse (:class:`MemoryBudgetError`, one line with the estimate) when ``what`` needs more than the budget."""
+    budget, source = memory_budget()
+    if not math.isfinite(estimate) or estimate > budget:
+        raise MemoryBudgetError(f"{what} needs about {human(estimate)} of memory, over the budget of "
+                                f"{human(budget)} ({source}); lower it, or raise the budget with --memory-budget "
+                                f"or {BUDGET_ENV}")
+
+
+#: Bytes per particle of the particle filter (rotation, translation, weights, scores, motion noise; measured
+#: 237 B with 10^8 particles).
+BYTES_PER_PARTICLE = 256
+#: Bytes per input pixel and image of a network's forward pass (activations; measured 43 B at 20000x20000) ...
+BYTES_PER_INFERENCE_PIXEL = 64
+#: ... and of a training step (activations kept for the backward pass, gradients, the batch itself).
+BYTES_PER_TRAINING_PIXEL = 512
+#: Bytes per voxel of a map cell a scan may touch (octree node, log-odds, top-k classes; measured 48 B).
+BYTES_PER_VOXEL = 48
+
+
+def check_particles(particles: int) -> None:
+    """Validate ``--particles`` and its memory."""
+    check("particles", particles)
+    check_memory(f"--particles {particles:,}", particles * BYTES_PER_PARTICLE)
+
+
+def check_network_input(width: int, height: int, batch: int, *, training: bool = False,
+                        option: str = "--input-size") -> None:
+    """Validate a network input size and its batch, and the memory of one forward (or training) pass."""
+    check("input_side", width, option)
+    check("input_side", height, option)
+    per_pixel = BYTES_PER_TRAINING_PIXEL if training else BYTES_PER_INFERENCE_PIXEL
+    check_memory(f"{option} {width}x{height} with a batch of {batch}", width * height * batch * per_pixel)
+
+
+def check_map_extent(resolution: float, extent_m: tuple[float, float, float], where: str) -> None:
+    """Refuse a map whose cells over ``extent_m`` (x, y, z metres of the scene, ``where`` says how it was
+    estimated) at ``resolution`` would not fit the budget."""
+    check("resolution", resolution)
+    cells = math.prod(max(float(e), resolution) / resolution for e in extent_m)
+    size = "x".join(f"{e:.1f}" for e in extent_m)
+    check_memory(f"--resolution {resolution:g} over {where} of {size} m ({cells:,.0f} cells)",
+                 cells * BYTES_PER_VOXEL)
+
+
+#: Bytes per simulated frame kept for the whole run (pose, timestamps, file lists) and per pixel of one frame
+#: while it is rendered and reduced (colour, depth, labels, instances and the renderer's buffers).
+BYTES_PER_SIMULATED_FRAME = 1024
+BYTES_PER_RENDERED_PIXEL = 64
+
+
+def check_simulation(frames: int, image_size: tuple[int, int] | None) -> None:
+    """Validate ``simulate --frames`` and ``--image-size`` and the memory of the trajectory and one frame."""
+    check("frames", frames)
+    pixels = 0
+    if image_size is not None:
+        check("image_side", image_size[0], "--image-size")
+        check("image_side", image_size[1], "--image-size")
+        pixels = image_size[0] * image_size[1]
+    size = f" at {image_size[0]}x{image_size[1]}" if image_size is not None else ""
+    check_memory(f"--frames {frames:,}{size}",
+                 frames * BYTES_PER_SIMULATED_FRAME + pixels * BYTES_PER_RENDERED_PIXEL)
