@@ -23,7 +23,7 @@ from semmap.types import Trajectory
 def run(tmp_path_factory):
     root = tmp_path_factory.mktemp("room-report")
     write_tum_sequence(root, make_room_frames(6), label_set=room_label_set())
-    out = root / "out"
+    out = tmp_path_factory.mktemp("room-report-out") / "out"  # (--out never inside its input)
     Pipeline(RunConfig(input=InputConfig(dataset=root), mapping=MappingConfig(resolution=0.1),
                        output=OutputConfig(out=out))).run()
     return out
