@@ -567,6 +567,8 @@ def localize(
     report.json, report.md, particles.png, errors.png (with ground truth) and optionally particles.gif."""
     _setup_logging(False)
     _budget(memory_budget)
+    import numpy as np
+
     from semmap.localization.filter import FilterSettings
     from semmap.localization.motion import MotionMode
     from semmap.localization.observation import ObservationKind
@@ -583,7 +585,8 @@ def localize(
     start = None
     if init_pose is not None:
         try:
-            start = pose_from_tum([float(v) for v in init_pose.replace(",", " ").split()])
+            with np.errstate(invalid="ignore", divide="ignore"):  # a zero quaternion is refused below, in one line
+                start = pose_from_tum([float(v) for v in init_pose.replace(",", " ").split()])
         except (ValueError, IndexError):
             raise SemmapError(f"--init-pose must be 7 numbers 'tx ty tz qx qy qz qw', got {init_pose!r}") from None
     settings = FilterSettings(particles=particles, mode=choice(MotionMode, mode, "mode"),
