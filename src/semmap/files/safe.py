@@ -145,3 +145,13 @@ def read_npz_members(path: str | Path, names: list[str] | None = None, *, what: 
     except (zipfile.BadZipFile, zipfile.LargeZipFile, EOFError, OSError, NotImplementedError, RuntimeError,
             ValueError, zlib.error) as exc:
         raise error(f"corrupt or truncated {what} ({type(exc).__name__}: {exc})") from None
+
+
+def json_from_bytes(path: str | Path, raw: bytes, *, what: str = "header"):
+    """The JSON value stored in ``raw`` (a file's header), or a FormatError naming ``path`` and ``what``."""
+    import json
+
+    try:
+        return json.loads(raw.decode("utf-8"))
+    except ValueError as exc:  # (UnicodeDecodeError and JSONDecodeError are ValueErrors)
+        raise FormatError(f"{path}: {what} is not JSON ({exc})") from None

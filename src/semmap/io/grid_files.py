@@ -54,14 +54,10 @@ def save_grid(path: str | Path, m) -> int:
 
 def read_header(path: str | Path) -> dict:
     """The JSON header of a grid file (what ``semmap info`` shows without loading every array)."""
-    from semmap.files.safe import read_npz_members
+    from semmap.files.safe import json_from_bytes, read_npz_members
 
     path = Path(path)
-    raw = read_npz_members(path, ["header"], what="semmap map")["header"]
-    try:
-        header = json.loads(raw.tobytes().decode("utf-8"))
-    except (UnicodeDecodeError, ValueError) as exc:
-        raise FormatError(f"{path}: header is not JSON ({exc})") from None
+    header = json_from_bytes(path, read_npz_members(path, ["header"], what="semmap map")["header"].tobytes())
     if not isinstance(header, dict):
         raise FormatError(f"{path}: header must be a JSON object, got {type(header).__name__}")
     if header.get("format") != FORMAT:

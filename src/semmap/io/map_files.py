@@ -7,11 +7,10 @@ any kind and ``load_map`` reads any ``.semmap`` back (the Python API's pair).
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 from semmap.errors import FormatError
-from semmap.files.safe import read_npz_members
+from semmap.files.safe import json_from_bytes, read_npz_members
 from semmap.io import grid_files, native
 from semmap.io.octomap_files import write_bt, write_ot
 from semmap.io.ply import write_ply
@@ -64,11 +63,7 @@ def save_map(path: str | Path, m: SemanticMap) -> int:
 def semmap_format(path: str | Path) -> str | None:
     """The ``format`` field of a ``.semmap`` file's JSON header (``semmap-map`` or ``semmap-grid``), None if absent."""
     path = Path(path)
-    raw = read_npz_members(path, ["header"], what="semmap map")["header"]
-    try:
-        header = json.loads(raw.tobytes().decode("utf-8"))
-    except (UnicodeDecodeError, ValueError) as exc:
-        raise FormatError(f"{path}: header is not JSON ({exc})") from None
+    header = json_from_bytes(path, read_npz_members(path, ["header"], what="semmap map")["header"].tobytes())
     return header.get("format") if isinstance(header, dict) else None
 
 

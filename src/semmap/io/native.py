@@ -19,6 +19,7 @@ import numpy as np
 
 from semmap.errors import FormatError, SemmapError
 from semmap.files.atomic import write_atomic
+from semmap.files.safe import json_from_bytes
 from semmap.fusion.rules import FusionParams, FusionRule
 from semmap.maps.semantic_octomap import CellArrays, OccupancyParams, SemanticOctoMap
 from semmap.types import LabelSet
@@ -108,10 +109,7 @@ def _number(header: dict, key: str, path: Path) -> float:
 
 def _parse_header(path: Path, raw: bytes):
     """(resolution, max_range, occupancy, semantics, label set) from the JSON header, every field type-checked."""
-    try:
-        header = json.loads(raw.decode("utf-8"))
-    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise FormatError(f"{path}: header is not JSON ({exc})") from None
+    header = json_from_bytes(path, raw)
     if not isinstance(header, dict):
         raise FormatError(f"{path}: header must be a JSON object, got {type(header).__name__}")
     if header.get("format") != FORMAT:

@@ -36,17 +36,14 @@ def write_checkpoint(path: str | Path, header: dict, arrays: dict[str, np.ndarra
 def read_checkpoint(path: str | Path) -> tuple[dict, dict[str, np.ndarray]]:
     """``(header, arrays)`` of a file written by :func:`write_checkpoint`; :class:`FormatError` for anything
     else, naming what is wrong (another format or schema version included)."""
-    from semmap.files.safe import read_npz_members
+    from semmap.files.safe import json_from_bytes, read_npz_members
 
     path = Path(path)
     arrays = read_npz_members(path, what="checkpoint", max_expansion=2)  # stored uncompressed
     raw = arrays.pop(_HEADER, None)
     if raw is None or raw.dtype != np.uint8 or raw.ndim != 1:
         raise FormatError(f"{path}: not a semmap checkpoint (no header)")
-    try:
-        header = json.loads(raw.tobytes().decode("utf-8"))
-    except (UnicodeDecodeError, ValueError) as exc:
-        raise FormatError(f"{path}: checkpoint header is not JSON ({exc})") from None
+    header = json_from_bytes(path, raw.tobytes(), what="checkpoint header")
     if not isinstance(header, dict) or header.get("format") != FORMAT:
         raise FormatError(f"{path}: not a semmap checkpoint (format {header.get('format')!r})"
                           if isinstance(header, dict) else f"{path}: not a semmap checkpoint")
