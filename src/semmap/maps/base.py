@@ -79,3 +79,14 @@ def check_state(state: MapState, names: tuple[str, ...], what: str) -> None:
     missing = [n for n in names if n not in state]
     if missing:
         raise FormatError(f"checkpoint of {what} lacks {', '.join(missing)} (written by another semmap version?)")
+
+
+def restore_arrays(obj, fields: dict[str, str], state: MapState, what: str, holder: str) -> None:
+    """Set ``obj``'s attributes from a checkpoint ``state`` by the schema ``fields`` (name -> attribute), each array
+    checked against the one ``obj`` holds now (dtype and trailing shape): a FormatError names ``what`` otherwise."""
+    for name, attr in fields.items():
+        have, got = getattr(obj, attr), np.asarray(state[name])
+        if got.dtype != have.dtype or got.shape[1:] != have.shape[1:]:
+            raise FormatError(f"checkpoint of {what}: {name} is {got.dtype}{got.shape}, this {holder} keeps "
+                              f"{have.dtype}(..., {have.shape[1:]}) (another configuration?)")
+        setattr(obj, attr, np.ascontiguousarray(got))

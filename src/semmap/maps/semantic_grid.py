@@ -17,14 +17,14 @@ from typing import ClassVar
 
 import numpy as np
 
-from semmap.errors import ConfigError, FormatError
+from semmap.errors import ConfigError
 from semmap.fusion.dense import expand_topk
 from semmap.fusion.half import from_half_bits, to_half_bits
 from semmap.fusion.rules import FusionParams, FusionRule
 from semmap.keys import keys_to_coords, unpack_keys
 from semmap.maps import _grid_kernels as kern
 from semmap.maps._hashtable import GROWTH, MAX_LOAD, N_SHARDS, ShardedTable, lookup_many, round_capacity, slots_at
-from semmap.maps.base import MapState, check_state
+from semmap.maps.base import MapState, check_state, restore_arrays
 from semmap.types import EMPTY_LABEL, LabelSet, TopKProbs
 
 #: Storage types of the per-class state.
@@ -135,12 +135,7 @@ class SemanticGrid:
         """Continue from :meth:`state` of a grid built with the same parameters."""
         table = ("table_keys", "table_logodds", "table_rows", "shard_counts", "shard_capacity", "rows_used")
         check_state(state, (*self.STATE_ARRAYS, *table), "a voxel grid")
-        for name, attr in self.STATE_ARRAYS.items():
-            have, got = getattr(self, attr), np.asarray(state[name])
-            if got.dtype != have.dtype or got.shape[1:] != have.shape[1:]:
-                raise FormatError(f"checkpoint of a voxel grid: {name} is {got.dtype}{got.shape}, this grid keeps "
-                                  f"{have.dtype}(..., {have.shape[1:]}) (another configuration?)")
-            setattr(self, attr, np.ascontiguousarray(got))
+        restore_arrays(self, self.STATE_ARRAYS, state, "a voxel grid", "grid")
         t = self._table
         t.keys, t.logodds = np.ascontiguousarray(state["table_keys"]), np.ascontiguousarray(state["table_logodds"])
         t.attr, t.counts = np.ascontiguousarray(state["table_rows"]), np.ascontiguousarray(state["shard_counts"])

@@ -21,14 +21,14 @@ from typing import ClassVar
 import numba as nb
 import numpy as np
 
-from semmap.errors import ConfigError, FormatError
+from semmap.errors import ConfigError
 from semmap.fusion.rules import FusionParams
 from semmap.keys import KEY_LIMIT, TREE_MAX_VAL, coords_to_keys, keys_to_coords, pack_keys, unpack_keys
 from semmap.maps import _hashtable as ht
 from semmap.maps import _octree_kernels as kern
 from semmap.maps._coarsen import coarsen_cells
 from semmap.maps._keys import EMPTY_KEY
-from semmap.maps.base import MapState, check_state
+from semmap.maps.base import MapState, check_state, restore_arrays
 from semmap.maps.octree_tree import UNSET_COLOR, OctreeNodes, build_tree
 from semmap.maps.registry import MapKind
 from semmap.types import EMPTY_LABEL, LabelSet, MapCloud, Observation, TopKProbs, muted_grey
@@ -482,12 +482,7 @@ class SemanticOctoMap:
     def restore(self, state: MapState) -> None:
         """Continue from :meth:`state` of a map built with the same parameters."""
         check_state(state, (*self.STATE_ARRAYS, "shard_capacity", "rows_used", "warned_range"), "the OctoMap")
-        for name, attr in self.STATE_ARRAYS.items():
-            have, got = getattr(self, attr), np.asarray(state[name])
-            if got.dtype != have.dtype or got.shape[1:] != have.shape[1:]:
-                raise FormatError(f"checkpoint of the OctoMap: {name} is {got.dtype}{got.shape}, this map keeps "
-                                  f"{have.dtype}(..., {have.shape[1:]}) (another configuration?)")
-            setattr(self, attr, np.ascontiguousarray(got))
+        restore_arrays(self, self.STATE_ARRAYS, state, "the OctoMap", "map")
         self._shard_cap, self._n_attr = int(state["shard_capacity"]), int(state["rows_used"])
         self._warned_range = bool(state["warned_range"])
         self._tree_counts = None
