@@ -10,7 +10,7 @@ from __future__ import annotations
 import logging
 import time
 from collections import defaultdict
-from collections.abc import Callable, Iterable, Iterator
+from collections.abc import Iterable, Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -40,6 +40,7 @@ from semmap.perception.schedule import (
     with_semantics,
     with_semantics_beside,
 )
+from semmap.poses.base import Progress
 from semmap.poses.frame_poses import FramePoses
 from semmap.run.checkpoints import Checkpoints, check_checkpoint_options
 from semmap.run.outputs import refine_maps, warn_if_empty, write_outputs
@@ -56,7 +57,6 @@ from semmap.types import CameraIntrinsics, Frame, LabelSet, Observation, TopKPro
 from semmap.viz.rerun_log import NoVisualizer, Visualizer, get_visualizer
 
 log = logging.getLogger("semmap")
-Progress = Callable[[Iterator, int], Iterator]
 
 
 class Mapper:

@@ -7,7 +7,6 @@ from __future__ import annotations
 
 import logging
 import time
-from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -16,11 +15,11 @@ from semmap.datasets import Dataset
 from semmap.eval.run_report import GroundTruthFn
 from semmap.factories import instance_source_for, segmenter_for
 from semmap.pipeline import Pipeline, RunResult
+from semmap.poses.base import Progress
 from semmap.run.paths import check_run_paths
 from semmap.types import Trajectory
 
 log = logging.getLogger("semmap")
-Progress = Callable[[Iterator, int], Iterator]
 
 
 def simulated_ground_truth(dataset: Path | Dataset) -> GroundTruthFn | None:

@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import dataclasses
 import time
-from collections.abc import Callable, Iterator
 from pathlib import Path
 
 from semmap.config import LoopMode, RunConfig, SemanticSource
@@ -15,11 +14,10 @@ from semmap.interrupt import checked
 from semmap.perception.base import Preparable, Segmenter
 from semmap.perception.instances.base import InstanceSource
 from semmap.perception.precomputed import FALLBACK_CLASSES
+from semmap.poses.base import Progress
 from semmap.poses.frame_poses import FramePoses
 from semmap.poses.track import GROUND_TRUTH
 from semmap.types import Frame, LabelSet
-
-Progress = Callable[[Iterator, int], Iterator]
 
 
 class FirstFrame:
