@@ -730,6 +730,91 @@ def view(
     _console().print(f"{path}: {n:,} occupied voxels" + (f" written to {save}" if save else " sent to rerun"))
 
 
+export_app = typer.Typer(no_args_is_help=True, help="Robot products from a finished map: a 2D navigation grid "
+                         "and semantic costmap (ROS map_server), a Euclidean signed distance field.")
+app.add_typer(export_app, name="export")
+
+_ExportMap = Annotated[Path, typer.Argument(help="a map: .semmap (any kind) or a run folder")]
+_ExportOut = Annotated[Path, typer.Option("--out", "-o", help="output folder (written whole or not at all)")]
+_Region = Annotated[str | None, typer.Option(help="bounded region 'xmin ymin zmin xmax ymax zmax' (m; default: "
+                                                  "everything the map knows)")]
+
+
+def _region(text: str | None) -> tuple[float, ...] | None:
+    if text is None:
+        return None
+    from semmap.errors import ConfigError
+
+    try:
+        values = tuple(float(v) for v in text.replace(",", " ").split())
+    except ValueError:
+        values = ()
+    if len(values) != 6:
+        raise ConfigError(f"--region must be 6 numbers 'xmin ymin zmin xmax ymax zmax', got {text!r}")
+    return values
+
+
+def _class_costs(items: list[str]) -> dict[str, int]:
+    from semmap.errors import ConfigError
+
+    out = {}
+    for item in items:
+        name, _, value = item.partition("=")
+        try:
+            out[name.strip()] = int(value)
+        except ValueError:
+            raise ConfigError(f"--cost {item!r}: write CLASS=COST with COST a whole number 0..100") from None
+    return out
+
+
+@export_app.command("grid")
+def export_grid_command(
+    map_path: _ExportMap,
+    out: _ExportOut,
+    z_min: Annotated[float, typer.Option(help="band above the floor that blocks the robot: from (m)")] = 0.1,
+    z_max: Annotated[float, typer.Option(help="... to (m): the robot's height")] = 1.5,
+    floor: Annotated[float | None, typer.Option(help="floor height (m; default: detected from floor-class voxels, "
+                                                     "else the lowest dense layer)")] = None,
+    no_go: Annotated[str, typer.Option(help="classes never to enter, comma-separated (e.g. person,stairs)")] = "",
+    cost: Annotated[list[str] | None, typer.Option(help="CLASS=COST (0..100) for the costmap, repeatable (e.g. "
+                                                        "door=50)")] = None,
+    inflation: Annotated[float, typer.Option(help="robot radius (m): costmap cells this close to an obstacle "
+                                                  "get cost 99")] = 0.0,
+    region: _Region = None,
+) -> None:
+    """A 2D occupancy grid (map.pgm + map.yaml, ROS map_server trinary) and a semantic costmap (costmap.png +
+    costmap.yaml in scale mode, costmap.npy exact) from a map; unknown space stays unknown."""
+    _setup_logging(False)
+    from semmap.products.export import export_grid
+    from semmap.products.navgrid import GridOptions
+
+    options = GridOptions(z_min=z_min, z_max=z_max, floor=floor,
+                          no_go=tuple(n.strip() for n in no_go.split(",") if n.strip()),
+                          costs=_class_costs(cost or []), inflation=inflation)
+    s = export_grid(map_path, out, options, _region(region))
+    c = s["cells"]
+    typer.echo(f"{out}: {s['size_cells'][0]}x{s['size_cells'][1]} cells at {s['resolution']} m, floor "
+               f"{s['floor_z']:.2f} m; occupied {c['occupied']:,}, free {c['free']:,}, unknown {c['unknown']:,}")
+
+
+@export_app.command("esdf")
+def export_esdf_command(
+    map_path: _ExportMap,
+    out: _ExportOut,
+    region: _Region = None,
+    slice_z: Annotated[float | None, typer.Option(help="height of the slice picture (m; default: the middle)")] = None,
+) -> None:
+    """A Euclidean signed distance field at the map's resolution (esdf.npz: distance, observed, origin, resolution;
+    positive outside obstacles, negative inside) and a slice picture."""
+    _setup_logging(False)
+    from semmap.products.export import export_esdf
+
+    s = export_esdf(map_path, out, _region(region), slice_z)
+    n = s["size_voxels"]
+    typer.echo(f"{out}: {n[0]}x{n[1]}x{n[2]} voxels at {s['resolution']} m in {s['ms']:.0f} ms; largest distance "
+               f"{s['max_distance_m']} m")
+
+
 def main() -> None:
     """Entry point: known errors become one line on stderr and exit code 1."""
     try:

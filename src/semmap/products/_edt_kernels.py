@@ -1,0 +1,177 @@
+"""Numba kernels of the exact Euclidean distance transform (Felzenszwalb & Huttenlocher 2012, separable lower
+envelopes of parabolas) and of the incremental brushfire update (site propagation, as voxblox and nvblox do)."""
+
+from __future__ import annotations
+
+import numba as nb
+import numpy as np
+
+INF = np.float32(1e30)
+
+
+@nb.njit(cache=True, inline="always")
+def _envelope_1d(f, n, d, v, z):
+    """Squared distances ``d[q] = min_p (q - p)^2 + f[p]`` of one line (``v``, ``z``: scratch)."""
+    k = 0
+    first = -1
+    for q in range(n):
+        if f[q] < INF:
+            first = q
+            break
+    if first < 0:
+        for q in range(n):
+            d[q] = INF
+        return
+    v[0] = first
+    z[0] = -INF
+    z[1] = INF
+    for q in range(first + 1, n):
+        if f[q] >= INF:
+            continue
+        s = ((f[q] + q * q) - (f[v[k]] + v[k] * v[k])) / (2.0 * q - 2.0 * v[k])
+        while s <= z[k]:
+            k -= 1
+            s = ((f[q] + q * q) - (f[v[k]] + v[k] * v[k])) / (2.0 * q - 2.0 * v[k])
+        k += 1
+        v[k] = q
+        z[k] = s
+        z[k + 1] = INF
+    k = 0
+    for q in range(n):
+        while z[k + 1] < q:
+            k += 1
+        d[q] = (q - v[k]) * (q - v[k]) + f[v[k]]
+
+
+@nb.njit(cache=True, parallel=True)
+def squared_edt(sites):
+    """(nx, ny, nz) float32 squared distance (voxel units) from every voxel to the nearest True voxel of ``sites``
+    (1e30 where there is none)."""
+    nx, ny, nz = sites.shape
+    out = np.empty((nx, ny, nz), np.float32)
+    # along z (contiguous): two sweeps give the 1D distance exactly
+    for i in nb.prange(nx):
+        for j in range(ny):
+            last = -1
+            for k in range(nz):
+                if sites[i, j, k]:
+                    last = k
+                out[i, j, k] = INF if last < 0 else np.float32((k - last) * (k - last))
+            last = -1
+            for k in range(nz - 1, -1, -1):
+                if sites[i, j, k]:
+                    last = k
+                if last >= 0:
+                    dd = np.float32((last - k) * (last - k))
+                    if dd < out[i, j, k]:
+                        out[i, j, k] = dd
+    m = max(nx, ny)
+    # along y, then x: lower envelopes of parabolas
+    for i in nb.prange(nx):
+        f = np.empty(m, np.float64)
+        d = np.empty(m, np.float64)
+        v = np.empty(m, np.int64)
+        z = np.empty(m + 1, np.float64)
+        for k in range(nz):
+            for j in range(ny):
+                f[j] = out[i, j, k]
+            _envelope_1d(f, ny, d, v, z)
+            for j in range(ny):
+                out[i, j, k] = d[j]
+    for j in nb.prange(ny):
+        f = np.empty(m, np.float64)
+        d = np.empty(m, np.float64)
+        v = np.empty(m, np.int64)
+        z = np.empty(m + 1, np.float64)
+        for k in range(nz):
+            for i in range(nx):
+                f[i] = out[i, j, k]
+            _envelope_1d(f, nx, d, v, z)
+            for i in range(nx):
+                out[i, j, k] = d[i]
+    return out
+
+
+@nb.njit(cache=True)
+def _push(queue, head_tail, inq, c):
+    if not inq[c]:
+        inq[c] = True
+        queue[head_tail[1] % queue.shape[0]] = c
+        head_tail[1] += 1
+
+
+@nb.njit(cache=True)
+def brushfire_update(occupied, dist2, site, added, removed, max_d2, queue, inq, lower, seeded):
+    """Update ``dist2`` (squared voxel distance to the nearest occupied voxel, flat) and ``site`` (its flat index,
+    -1 = none within ``max_d2``) in place after ``added`` voxels became occupied and ``removed`` ones stopped being
+    occupied (``occupied``, (nx, ny, nz) bool, already holds the new state). ``queue``/``lower`` (n int64) and
+    ``inq``/``seeded`` (n bool, all False) are scratch, left all False. Returns the number of voxels visited."""
+    nx, ny, nz = occupied.shape
+    occ = occupied.ravel()
+    n = occ.shape[0]
+    ht = np.zeros(2, np.int64)
+    visited = 0
+    # raise: every voxel whose nearest site was removed forgets it; its neighbours with live sites re-seed
+    n_lower = 0
+    for c in removed:
+        if not occ[c]:
+            dist2[c] = INF
+            site[c] = -1
+            _push(queue, ht, inq, c)
+    while ht[0] < ht[1]:
+        c = queue[ht[0] % n]
+        ht[0] += 1
+        inq[c] = False
+        visited += 1
+        ci, cj, ck = c // (ny * nz), (c // nz) % ny, c % nz
+        for di in range(-1, 2):
+            for dj in range(-1, 2):
+                for dk in range(-1, 2):
+                    a, b, e = ci + di, cj + dj, ck + dk
+                    if a < 0 or b < 0 or e < 0 or a >= nx or b >= ny or e >= nz:
+                        continue
+                    q = (a * ny + b) * nz + e
+                    s = site[q]
+                    if s < 0:
+                        continue
+                    if not occ[s]:
+                        dist2[q] = INF
+                        site[q] = -1
+                        _push(queue, ht, inq, q)
+                    elif not seeded[q]:
+                        seeded[q] = True
+                        lower[n_lower] = q
+                        n_lower += 1
+    # lower: new sites and the raise front's live neighbours spread their site outwards
+    for c in added:
+        dist2[c] = 0.0
+        site[c] = c
+        _push(queue, ht, inq, c)
+    for t in range(n_lower):
+        seeded[lower[t]] = False
+        _push(queue, ht, inq, lower[t])
+    while ht[0] < ht[1]:
+        c = queue[ht[0] % n]
+        ht[0] += 1
+        inq[c] = False
+        visited += 1
+        s = site[c]
+        if s < 0:
+            continue
+        si, sj, sk = s // (ny * nz), (s // nz) % ny, s % nz
+        ci, cj, ck = c // (ny * nz), (c // nz) % ny, c % nz
+        for di in range(-1, 2):
+            for dj in range(-1, 2):
+                for dk in range(-1, 2):
+                    a, b, e = ci + di, cj + dj, ck + dk
+                    if a < 0 or b < 0 or e < 0 or a >= nx or b >= ny or e >= nz:
+                        continue
+                    dd = np.float32((a - si) ** 2 + (b - sj) ** 2 + (e - sk) ** 2)
+                    if dd > max_d2:
+                        continue
+                    q = (a * ny + b) * nz + e
+                    if dd < dist2[q]:
+                        dist2[q] = dd
+                        site[q] = s
+                        _push(queue, ht, inq, q)
+    return visited
