@@ -215,6 +215,24 @@ def localization_section(bench: dict | None) -> list[str]:
         *localization_table(bench), ""]
 
 
+def products_section(bench: dict | None) -> list[str]:
+    """The BENCHMARKS.md section on robot products (nothing when bench_products.py has not been run)."""
+    if bench is None:
+        return []
+    out = ["## Robot products: navigation grid and distance field", "",
+           "`benchmarks/bench_products.py`: the OctoMap of each scene (ground-truth poses), then what `semmap export "
+           "grid|esdf` computes. ESDF: semmap's exact transform against scipy's `distance_transform_edt` (signed, "
+           "both sides) on the same volume; incremental: the update per frame from the voxels that flipped (the "
+           "last frames of the sequence, one after another, 2 m maximum distance) against the full exact transform "
+           "of the same frame. Error: largest absolute difference (m).", "",
+           "| scene | product | ms | peer ms | × | error (m) |", "|---|---|---|---|---|---|"]
+    for r in bench["results"]:
+        ratio = f"{r['peer_ms'] / r['ms']:.1f}" if r.get("peer_ms") else "–"
+        err = "–" if r["error"] is None else f"{r['error']:.1e}"
+        out.append(f"| {r['scene']} | {r['product']} | {r['ms']} | {r.get('peer_ms') or '–'} | {ratio} | {err} |")
+    return [*out, ""]
+
+
 #: The papers' own numbers beside semmap's network table (CBAM paper Table 2, ADE20K; RGB-D paper Table 3, NYUDv2).
 PAPER_NETWORKS = ("CBAM paper, Table 2 (ADE20K, ResNet-50, full size): FCN MPA 69.83 / MIoU 26.23, PSPNet 71.70 / "
                   "30.69, CBAM-PSPNet 74.25 / 32.57. RGB-D paper, Table 3 (NYUDv2): colour only 54.8 / 35.4, "
@@ -383,7 +401,8 @@ PARTS = {"octree": ("octree_vs_octomap", "benchmarks/bench_octree_vs_octomap.py"
          "fusion": ("fusion", "benchmarks/bench_fusion.py"), "demo": ("demo", None),
          "end_to_end": ("end_to_end", "benchmarks/bench_end_to_end.py"),
          "localization": ("localization", "benchmarks/bench_localization.py"),
-         "networks": ("networks", "benchmarks/bench_networks.py")}
+         "networks": ("networks", "benchmarks/bench_networks.py"),
+         "products": ("products", "benchmarks/bench_products.py")}
 #: parts the docs can do without when an earlier run did not have them yet
 OPTIONAL = {"end_to_end", "localization", "networks"}
 #: What the docs use of the demo's report (kept in the JSON block so ``--only`` can reuse it).
@@ -489,6 +508,7 @@ def benchmarks_lines(results: dict, quick: bool, stamp: str, where: str) -> list
         *end_to_end_section(results.get("end_to_end")),
         *localization_section(results.get("localization")),
         *networks_section(results.get("networks")),
+        *products_section(results.get("products")),
         *kept_section(),
         "## Demo (`semmap demo`)", "", *demo_text, "",
         "```json", json_block(results), "```", "",

@@ -1,0 +1,164 @@
+"""Robot products against their peers in the same run: the navigation grid export, the exact ESDF against scipy's
+Euclidean distance transform (time and error), and the incremental ESDF update per frame against a full recompute,
+on the 7-Scenes map at 2 cm (../shared) and a simulated house at 5 cm.
+
+    python benchmarks/bench_products.py [--quick] [--frames N]
+
+The maps are built as `semmap run` builds them (ground-truth poses, the OctoMap); the timings are of what
+`semmap export grid|esdf` runs. The last line is JSON:
+``{"bench": "products", "results": [{"scene", "product", "ms", "bytes", "error", "peer", "peer_ms"}]}``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import itertools
+import json
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+SHARED = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "7scenes-redkitchen"
+
+
+def timed(fn, repeat: int = 3) -> tuple[float, object]:
+    """Best of ``repeat`` wall times (ms) after one warm-up call, and the result."""
+    out = fn()
+    best = float("inf")
+    for _ in range(repeat):
+        t = time.perf_counter()
+        out = fn()
+        best = min(best, time.perf_counter() - t)
+    return best * 1e3, out
+
+
+def build_map(frames, resolution: float, label_set, snapshots: int):
+    """The OctoMap of ``frames`` and the occupied keys after each of the last ``snapshots`` frames."""
+    from semmap.maps.semantic_octomap import SemanticOctoMap
+    from semmap.pipeline import Mapper
+
+    m = SemanticOctoMap(resolution, label_set=label_set)
+    mapper = Mapper([m], min_depth=0.1, max_depth=4.0)
+    frames = list(frames)
+    keys = []
+    for i, f in enumerate(frames):
+        mapper.integrate(f, f.T_world_cam, None)
+        if i >= len(frames) - snapshots - 1:
+            keys.append(m.voxels().keys)
+    return m, keys
+
+
+def spread_then_consecutive(frames, total: int, n: int, last: int):
+    """``n - last`` frames spread over the first part of a ``total``-frame sequence, then its ``last`` frames one
+    after another (the per-frame update is timed on consecutive frames, as a robot's camera delivers them)."""
+    step = max(1, (total - last) // max(n - last, 1))
+    keep = set(range(0, total - last, step)) | set(range(total - last, total))
+    return (f for f in frames if f.index in keep)
+
+
+def scenes(args) -> list[tuple[str, float, object, object]]:
+    """(name, resolution, frames, label set) of each scene the run can reach."""
+    from semmap.datasets import open_dataset
+    from semmap.datasets.simulated import SimulatedDataset
+    from semmap.sim.scene import generate_scene
+    from semmap.sim.trajectory import make_trajectory
+    from semmap.types import CameraIntrinsics
+
+    out = []
+    n = 40 if args.quick else args.frames
+    if SHARED.is_dir():
+        ds = open_dataset(SHARED)
+        out.append(("7scenes-redkitchen", 0.02, spread_then_consecutive(ds, len(ds), n, args.snapshots + 1), None))
+    else:
+        print(f"skipping 7-Scenes: {SHARED} not found")
+    camera = CameraIntrinsics(320, 240, 262.5, 262.5, 159.5, 119.5)
+    scene = generate_scene(0, "living_room", "large")
+    walk = make_trajectory(scene, "walk", 10 * n, seed=0)  # 30 fps
+    ds = SimulatedDataset(scene, walk, intrinsics=camera, name="sim-house")
+    out.append(("sim-house", 0.05, spread_then_consecutive(ds, len(walk), n, args.snapshots + 1), ds.label_set))
+    return out
+
+
+def measure_scene(name: str, resolution: float, frames, label_set, snapshots: int) -> list[dict]:
+    from scipy import ndimage
+
+    from semmap.products._edt_kernels import squared_edt
+    from semmap.products.esdf import IncrementalEsdf, esdf_of
+    from semmap.products.map_server import write_costmap, write_map
+    from semmap.products.navgrid import navigation_grid
+    from semmap.products.occupancy import OCCUPIED, occupancy_volume
+
+    m, history = build_map(frames, resolution, label_set, snapshots)
+    rows = []
+    grid_ms, grid = timed(lambda: navigation_grid(occupancy_volume(m)))
+    with tempfile.TemporaryDirectory() as tmp:
+        files = write_map(Path(tmp), "map", grid.occupancy, grid.resolution, grid.origin)
+        files += write_costmap(Path(tmp), "costmap", grid.cost, grid.resolution, grid.origin)
+        size = sum(f.stat().st_size for f in files)
+    rows.append({"scene": name, "product": "grid", "ms": round(grid_ms, 1), "bytes": size, "error": None,
+                 "peer": None, "peer_ms": None})
+    vol = occupancy_volume(m)
+    occ = vol.state == OCCUPIED
+    ms, e = timed(lambda: esdf_of(vol))
+
+    def scipy_signed():
+        return np.where(occ, -ndimage.distance_transform_edt(occ), ndimage.distance_transform_edt(~occ)) * resolution
+
+    peer_ms, ref = timed(scipy_signed, repeat=1)
+    rows.append({"scene": name, "product": "esdf", "ms": round(ms, 1), "bytes": int(e.distance.nbytes),
+                 "error": float(np.abs(e.distance - ref).max()), "peer": "scipy.ndimage.distance_transform_edt",
+                 "peer_ms": round(peer_ms, 1), "voxels": int(occ.size)})
+    rows.append(incremental_row(name, vol, history, squared_edt, IncrementalEsdf))
+    return rows
+
+
+def incremental_row(name: str, vol, history: list[np.ndarray], squared_edt, incremental_cls) -> dict:
+    """Per-frame update from the voxels that flipped against the full unsigned transform of the same frame."""
+    lo = np.rint((vol.origin / vol.resolution) - 0.5).astype(np.int64) + 32768
+    masks = []
+    for keys in history:
+        mask = np.zeros(vol.shape, bool)
+        idx = keys - lo
+        ok = np.all((idx >= 0) & (idx < np.array(vol.shape)), axis=1)
+        mask[tuple(idx[ok].T)] = True
+        masks.append(mask)
+    max_d = 2.0
+    inc = incremental_cls(vol.shape, vol.resolution, vol.origin, max_distance=max_d)
+    inc.update(masks[0])
+    times, full, errors = [], [], []
+    flips = int(np.mean([(a != b).sum() for a, b in itertools.pairwise(masks)]))
+    for mask in masks[1:]:
+        t = time.perf_counter()
+        inc.update(mask)
+        times.append(time.perf_counter() - t)
+        t = time.perf_counter()
+        ref = np.sqrt(squared_edt(mask)) * vol.resolution
+        full.append(time.perf_counter() - t)
+        ref[ref > max_d] = np.inf
+        got = inc.distance()
+        fin = np.isfinite(ref) & np.isfinite(got)
+        errors.append(float(np.abs(got[fin] - ref[fin]).max()) if fin.any() else 0.0)
+    return {"scene": name, "product": "esdf-incremental-per-frame", "ms": round(1e3 * float(np.mean(times)), 2),
+            "bytes": None, "error": max(errors), "peer": "full exact transform of the frame",
+            "peer_ms": round(1e3 * float(np.mean(full)), 2), "frames": len(times), "flipped_per_frame": flips}
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--quick", action="store_true", help="40 frames per scene")
+    ap.add_argument("--frames", type=int, default=200, help="frames per scene")
+    ap.add_argument("--snapshots", type=int, default=10, help="frames whose incremental update is timed")
+    args = ap.parse_args()
+    results = []
+    for name, res, frames, labels in scenes(args):
+        for row in measure_scene(name, res, frames, labels, args.snapshots):
+            ratio = "" if not row["peer_ms"] else f"  x{row['peer_ms'] / max(row['ms'], 1e-9):.1f} vs peer"
+            print(f"{row['scene']:20s} {row['product']:28s} {row['ms']:9.1f} ms  error {row['error']}{ratio}")
+            results.append(row)
+    print(json.dumps({"bench": "products", "results": results}))
+
+
+if __name__ == "__main__":
+    main()
