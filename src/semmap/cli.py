@@ -797,6 +797,27 @@ def export_grid_command(
                f"{s['floor_z']:.2f} m; occupied {c['occupied']:,}, free {c['free']:,}, unknown {c['unknown']:,}")
 
 
+@export_app.command("scene-graph")
+def export_scene_graph_command(
+    run: Annotated[Path, typer.Argument(help="a run folder with objects.json (semmap run ... --instances ...)")],
+    out: _ExportOut,
+    sequence: Annotated[Path | None, typer.Option(help="the run's sequence (default: the one its config.json "
+                                                       "names); a simulated one gives the true rooms")] = None,
+    near: Annotated[float, typer.Option(help="objects of one room closer than this are 'near' (m)")] = 1.0,
+    door_width: Annotated[float, typer.Option(help="room segmentation of real maps: doors narrower than this "
+                                                   "separate rooms (m)")] = 1.0,
+) -> None:
+    """A scene graph (scene_graph.json, spark-dsg / Hydra): objects, rooms (the simulator's layout, or a room
+    segmentation of the map's navigation grid) and relations (in room, on, near)."""
+    _setup_logging(False)
+    from semmap.products.export import export_scene_graph
+
+    s = export_scene_graph(run, out, sequence=sequence, near=near, door_width=door_width)
+    c = s["counts"]
+    typer.echo(f"{out}: {c['objects']} objects, {c['rooms']} rooms (from the {s['rooms_from']}); relations: "
+               f"{c['in']} in, {c['on']} on, {c['near']} near")
+
+
 @export_app.command("esdf")
 def export_esdf_command(
     map_path: _ExportMap,

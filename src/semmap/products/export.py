@@ -1,8 +1,10 @@
 """``semmap export``: robot products written from a finished map into a staged output folder.
 
-``grid``: ``map.pgm``/``map.yaml`` (trinary) and ``costmap.png``/``costmap.yaml``/``costmap.npy`` (scale) for ROS
-map_server / nav2, and ``grid.json``. ``esdf``: ``esdf.npz`` (distance, observed, origin, resolution), a slice
-picture ``esdf_slice.png`` and ``esdf.json``. Each folder is written whole or not at all, never over the map.
+``grid``: ``map.pgm``/``map.yaml`` (trinary) and ``costmap.png``/``costmap.yaml``/``costmap.npy`` (scale)
+for ROS map_server / nav2, and ``grid.json``. ``esdf``: ``esdf.npz`` (distance, observed, origin, resolution),
+a slice picture ``esdf_slice.png`` and ``esdf.json``. ``scene-graph``: ``scene_graph.json`` (spark-dsg, as
+Hydra's tools read it) and ``graph.json`` (counts and relations). Each folder is written whole or not at all,
+never over its inputs.
 """
 
 from __future__ import annotations
@@ -15,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
-from semmap.errors import FormatError, OutputError
+from semmap.errors import ConfigError, FormatError, OutputError
 from semmap.files.atomic import write_bytes_atomic, write_text_atomic
 from semmap.files.outputs import OutputKind, check_outputs
 from semmap.io.map_files import MAP_FILES, load_map
@@ -27,7 +29,7 @@ from semmap.products.map_server import write_costmap, write_map
 from semmap.products.navgrid import GridOptions, NavigationGrid, navigation_grid
 from semmap.products.occupancy import occupancy_volume
 
-SUMMARIES = ("grid.json", "esdf.json")
+SUMMARIES = ("grid.json", "esdf.json", "graph.json")
 
 
 def load_product_map(path: Path) -> tuple[SemanticMap, Path]:
@@ -45,8 +47,9 @@ def load_product_map(path: Path) -> tuple[SemanticMap, Path]:
     return load_map(path), path
 
 
-def _staged(out: Path, map_path: Path, write: Callable[[Path], dict]) -> dict:
-    check_outputs([("--out", out, OutputKind.FOLDER)], [("MAP", map_path)])
+def _staged(out: Path, inputs: Path | list[tuple[str, Path]], write: Callable[[Path], dict]) -> dict:
+    named = [("MAP", inputs)] if isinstance(inputs, Path) else inputs
+    check_outputs([("--out", out, OutputKind.FOLDER)], named)
     if out.is_dir() and any(out.iterdir()) and not any((out / s).is_file() for s in SUMMARIES):
         raise OutputError(f"--out {out}: holds other files (not an export of semmap); choose a new or empty folder "
                           f"(nothing was written)")
@@ -153,3 +156,53 @@ def load_esdf(path: Path) -> Esdf:
             return Esdf(z["distance"], z["observed"], z["origin"], float(z["resolution"]))
     except (OSError, ValueError, KeyError) as exc:
         raise FormatError(f"{path}: not an esdf.npz written by semmap export esdf ({exc})") from None
+
+
+def _sequence_of_run(run: Path) -> Path | None:
+    """The dataset a run folder was made from (its config.json), when that path still exists."""
+    try:
+        config = json.loads((run / "config.json").read_text())
+        path = Path(config["input"]["dataset"])
+    except (OSError, ValueError, KeyError, TypeError):
+        return None
+    return path if path.exists() else None
+
+
+def _rooms(run: Path, sequence: Path | None, door_width: float):
+    """Rooms from the simulator's layout when the sequence is simulated, else a segmentation of the map's grid."""
+    from semmap.datasets.simulated import scene_of_folder
+    from semmap.products.rooms import rooms_from_boxes, rooms_from_grid
+
+    if sequence is not None and not Path(sequence).is_dir():
+        raise ConfigError(f"--sequence {sequence}: not a sequence folder")
+    seq = sequence or _sequence_of_run(run)
+    scene = scene_of_folder(seq) if seq is not None and seq.is_dir() else None
+    if scene is not None:
+        return rooms_from_boxes([(r.name, r.bounds_min, r.bounds_max) for r in scene.rooms])
+    m, _ = load_product_map(run)
+    return rooms_from_grid(navigation_grid(occupancy_volume(m)), door_width=door_width)
+
+
+def export_scene_graph(run: Path, out: Path, *, sequence: Path | None = None, near: float = 1.0,
+                       door_width: float = 1.0) -> dict:
+    """Write the scene graph of a run folder (its objects.json and map; rooms from ``sequence`` when simulated)."""
+    from semmap.io.objects import read_objects_json
+    from semmap.products.scene_graph import build_scene_graph, write_dsg
+
+    run = Path(run)
+    if not (run / "objects.json").is_file():
+        raise FormatError(f"{run}: no objects.json; map with objects first (semmap run ... --instances oracle|"
+                          f"components|maskrcnn)")
+    objects = read_objects_json(run / "objects.json")
+    graph = build_scene_graph(objects, _rooms(run, sequence, door_width), near=near)
+
+    def write(stage: Path) -> dict:
+        write_dsg(stage / "scene_graph.json", graph)
+        summary = {"run": str(run), "rooms_from": graph.rooms.source, "rooms": list(graph.rooms.names),
+                   "counts": graph.counts(),
+                   "relations": [f"O{a} {kind} {'R' if kind == 'in' else 'O'}{b}" for kind, a, b in graph.relations]}
+        write_text_atomic(stage / "graph.json", json.dumps(summary, indent=1) + "\n")
+        return summary
+
+    inputs = [("RUN", run)] + ([("--sequence", sequence)] if sequence is not None else [])
+    return _staged(Path(out), inputs, write)
