@@ -57,6 +57,7 @@ ALLOWED: dict[tuple[str, str], str] = {
     ("io/objects.py", "points"): "the 'points' field of objects.json / objects.ply",
     ("object_stage.py", "points"): "the 'points' count of an object in the report",
     ("maps/point_map.py", "points"): "the 'points' count of the point map's description",
+    ("products/scene_graph.py", "points"): "the 'points' field of objects.json, copied into the graph's metadata",
 }
 
 

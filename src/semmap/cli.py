@@ -730,6 +730,27 @@ def view(
     _console().print(f"{path}: {n:,} occupied voxels" + (f" written to {save}" if save else " sent to rerun"))
 
 
+@app.command()
+def diff(
+    before: Annotated[Path, typer.Argument(help="the earlier map: .semmap or a run folder")],
+    after: Annotated[Path, typer.Argument(help="the later map of the same place, in the same frame")],
+    out: Annotated[Path, typer.Option("--out", "-o", help="output folder: diff.json, diff.ply, diff.png")],
+    match_radius: Annotated[float, typer.Option(help="objects of one class closer than this are the same (m)")] = 1.0,
+    move_threshold: Annotated[float, typer.Option(help="a matched object farther than this moved (m)")] = 0.2,
+) -> None:
+    """What changed between two maps of one place: voxels that appeared, disappeared or changed class (only where
+    both maps saw the space) and, for run folders with objects.json, objects that appeared, disappeared or moved."""
+    _setup_logging(False)
+    from semmap.products.export import export_diff
+
+    s = export_diff(before, after, out, match_radius=match_radius, move_threshold=move_threshold)
+    v, o = s["voxels"], s["objects"]
+    objects = "" if o is None else (f"; objects: {o['appeared']} appeared, {o['disappeared']} disappeared, "
+                                    f"{o['moved']} moved")
+    typer.echo(f"{out}: voxels {v['appeared']:,} appeared, {v['disappeared']:,} disappeared, {v['relabelled']:,} "
+               f"changed class ({v['observed_by_both']:,} seen by both){objects}")
+
+
 export_app = typer.Typer(no_args_is_help=True, help="Robot products from a finished map: a 2D navigation grid "
                          "and semantic costmap (ROS map_server), a Euclidean signed distance field.")
 app.add_typer(export_app, name="export")

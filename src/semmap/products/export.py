@@ -29,7 +29,7 @@ from semmap.products.map_server import write_costmap, write_map
 from semmap.products.navgrid import GridOptions, NavigationGrid, navigation_grid
 from semmap.products.occupancy import occupancy_volume
 
-SUMMARIES = ("grid.json", "esdf.json", "graph.json")
+SUMMARIES = ("grid.json", "esdf.json", "graph.json", "diff.json")
 
 
 def load_product_map(path: Path) -> tuple[SemanticMap, Path]:
@@ -206,3 +206,70 @@ def export_scene_graph(run: Path, out: Path, *, sequence: Path | None = None, ne
 
     inputs = [("RUN", run)] + ([("--sequence", sequence)] if sequence is not None else [])
     return _staged(Path(out), inputs, write)
+
+
+def _objects_of(path: Path) -> list[dict] | None:
+    from semmap.io.objects import read_objects_json
+
+    folder = path if path.is_dir() else path.parent
+    return read_objects_json(folder / "objects.json") if (folder / "objects.json").is_file() else None
+
+
+def diff_picture(changes, objects: dict | None) -> bytes:
+    """Top-down picture of the changed voxels (and the moved objects' paths)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from semmap.products.changes import CHANGE_COLORS
+
+    fig, ax = plt.subplots(figsize=(6, 6))
+    for kind, pts in changes.centers.items():
+        if len(pts):
+            ax.scatter(pts[:, 0], pts[:, 1], s=2, color=np.array(CHANGE_COLORS[kind]) / 255,
+                       label=f"{kind} ({len(pts):,} voxels)")
+    for rec in (objects or {}).get("moved", []):
+        (x0, y0, _), (x1, y1, _) = rec["from"], rec["to"]
+        ax.annotate("", (x1, y1), (x0, y0), arrowprops={"arrowstyle": "->", "color": "black"})
+        ax.text(x1, y1, f" {rec['class']}", fontsize=7)
+    ax.set(xlabel="x (m)", ylabel="y (m)", title="what changed (top-down)", aspect="equal")
+    if any(len(p) for p in changes.centers.values()):
+        ax.legend(loc="best", fontsize=7)
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=100, bbox_inches="tight")
+    plt.close(fig)
+    return buf.getvalue()
+
+
+def export_diff(before: Path, after: Path, out: Path, *, match_radius: float = 1.0,
+                move_threshold: float = 0.2) -> dict:
+    """Write what changed from ``before`` to ``after`` (maps or run folders in one frame) into ``out``."""
+    from semmap.io.ply import write_ply
+    from semmap.products.changes import CHANGE_COLORS, object_changes, voxel_changes
+    from semmap.types import MapCloud
+
+    a, a_path = load_product_map(before)
+    b, b_path = load_product_map(after)
+    changes = voxel_changes(a, b)
+    objs_a, objs_b = _objects_of(Path(before)), _objects_of(Path(after))
+    objects = (object_changes(objs_a, objs_b, match_radius=match_radius, move_threshold=move_threshold)
+               if objs_a is not None and objs_b is not None else None)
+
+    def write(stage: Path) -> dict:
+        kinds = list(changes.centers)
+        centers = np.concatenate([changes.centers[k] for k in kinds]).reshape(-1, 3)
+        colors = np.concatenate([np.tile(CHANGE_COLORS[k], (len(changes.centers[k]), 1)) for k in kinds])
+        labels = np.concatenate([changes.labels[k] for k in kinds]).astype(np.uint16)
+        write_ply(stage / "diff.ply", MapCloud(centers, colors.astype(np.uint8).reshape(-1, 3), labels,
+                                               np.ones(len(labels), np.float32), float(a.resolution)))
+        write_bytes_atomic(stage / "diff.png", diff_picture(changes, objects))
+        summary = {"before": str(a_path), "after": str(b_path), "resolution": float(a.resolution),
+                   "voxels": {**changes.counts(), "observed_by_both": changes.observed_by_both,
+                              "unobserved_in_one": changes.unobserved},
+                   "objects": None if objects is None else {k: len(v) for k, v in objects.items()},
+                   "object_changes": objects}
+        write_text_atomic(stage / "diff.json", json.dumps(summary, indent=1) + "\n")
+        return summary
+
+    return _staged(Path(out), [("BEFORE", Path(before)), ("AFTER", Path(after))], write)
