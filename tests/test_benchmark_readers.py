@@ -100,3 +100,14 @@ def test_replica_trajectory_errors_name_the_line(exports, tmp_path):
     (scene / "traj.txt").write_text("1 0 0 0 0 1 0 0 0 0 1 0 0 0 0 1\n1 2 3\n")
     with pytest.raises(DatasetError, match=r"traj\.txt: line 2 has 3 numbers"):
         ReplicaDataset(scene)
+
+
+def test_frequency_weighted_miou_and_mean_accuracy():
+    from semmap.eval.semantic import confusion, scores
+
+    gt = np.array([1, 1, 1, 1, 2, 2, 0, 3])
+    pred = np.array([1, 1, 1, 2, 2, 2, 1, 1])
+    s = scores(confusion(pred, gt, 4))  # class 0 ignored; class 3 present once, never right
+    iou = {1: 3 / 5, 2: 2 / 3, 3: 0.0}
+    assert s.fw_miou == pytest.approx((4 * iou[1] + 2 * iou[2] + 1 * iou[3]) / 7)
+    assert s.mean_class_accuracy == pytest.approx((3 / 4 + 2 / 2 + 0) / 3)
