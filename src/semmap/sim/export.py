@@ -29,6 +29,7 @@ from semmap.io.staged_run import StagedRun
 from semmap.io.tum_writer import write_tum_sequence
 from semmap.labels import INDOOR_LABELS, NYU40_NAMES, simulator_to_nyu40
 from semmap.limits import check_simulation
+from semmap.sim.changes import change_scene
 from semmap.sim.noise import KinectNoise
 from semmap.sim.render import Renderer
 from semmap.sim.scene import Scene, generate_scene
@@ -55,6 +56,8 @@ def simulate_sequence(
     symmetric: bool = False,
     trajectory_seed: int | None = None,
     layout: str = "tum",
+    changes: int = 0,
+    changes_seed: int = 1,
 ) -> Path:
     """Render ``frames`` frames of a ``trajectory`` through scene (``scene_seed``, ``kind``, ``size``;
     ``symmetric``: see :mod:`semmap.sim.symmetric`) into ``out_dir`` (TUM layout plus ground truth) and return the
@@ -72,7 +75,8 @@ def simulate_sequence(
     try:
         _write_sequence(stage, scene_seed=scene_seed, kind=kind, trajectory=trajectory, frames=int(frames), size=size,
                         noise=noise, intrinsics=intrinsics, progress=progress, image_size=image_size, fps=fps,
-                        symmetric=symmetric, trajectory_seed=trajectory_seed, layout=layout)
+                        symmetric=symmetric, trajectory_seed=trajectory_seed, layout=layout,
+                        changes=(changes, changes_seed))
         staged.commit()  # every file is there: the folder becomes ``out_dir`` in one rename
     except KeyboardInterrupt:
         staged.abandon(keep_checkpoint=False)  # Ctrl-C leaves nothing half-written, and says so
@@ -95,9 +99,12 @@ def check_sequence_out(root: Path) -> None:
 def _write_sequence(root: Path, *, scene_seed: int, kind: str, trajectory: str, frames: int, size: str, noise: bool,
                     intrinsics: CameraIntrinsics | None, progress: Callable[[int, int], None] | None,
                     image_size: tuple[int, int] | None, fps: float, symmetric: bool,
-                    trajectory_seed: int | None, layout: str = "tum") -> None:
+                    trajectory_seed: int | None, layout: str = "tum", changes: tuple[int, int] = (0, 1)) -> None:
     """Render and write the whole sequence into the folder ``root`` (the staging folder)."""
     scene = generate_scene(scene_seed, kind, size, symmetric=symmetric)
+    if changes[0]:
+        scene, record = change_scene(scene, changes[0], changes[1])
+        write_text_atomic(root / "changes.json", json.dumps(record, indent=1) + "\n")
     poses = make_trajectory(scene, trajectory, int(frames), seed=scene_seed if trajectory_seed is None
                             else trajectory_seed, fps=fps)
     renderer = Renderer(scene, intrinsics, noise=KinectNoise(seed=scene_seed) if noise else False)
