@@ -73,7 +73,23 @@ def seed_files(folder: Path) -> dict[str, bytes]:
     out["labelset"] = json.dumps(m.label_set.to_dict()).encode()
     out["sevenscenes_pose"] = " ".join(f"{v:.6f}" for v in np.eye(4).ravel()).encode()
     out["rosbag"] = _bag_seed(folder / "s.bag")
+    out["scannet_sens"] = _sens_seed(folder / "scan")
+    out["replica_traj"] = "\n".join(" ".join(f"{v:g}" for v in make_pose(np.eye(3), [i, 0, 0]).ravel())
+                                    for i in range(3)).encode()
     return out
+
+
+def _sens_seed(folder: Path) -> bytes:
+    """A ScanNet .sens stream of two 8x6 frames, written by semmap's layout writer."""
+    from semmap.io.benchmark_layouts import write_scannet_scan
+    from semmap.labels import INDOOR_LABELS, NYU40_NAMES, simulator_to_nyu40
+    from semmap.types import CameraIntrinsics, Frame, make_pose
+
+    cam = CameraIntrinsics(8, 6, 5.0, 5.0, 3.5, 2.5)
+    frames = [Frame(i, i / 30, np.zeros((6, 8, 3), np.uint8), np.ones((6, 8), np.float32), cam,
+                    make_pose(np.eye(3), [i, 0, 0])) for i in range(2)]
+    write_scannet_scan(folder, frames, INDOOR_LABELS, simulator_to_nyu40(), NYU40_NAMES, scan="s")
+    return (folder / "s.sens").read_bytes()
 
 
 def _bag_seed(path: Path) -> bytes:
@@ -180,6 +196,23 @@ def target_tum_index(data: bytes, folder: Path) -> None:
         pass
 
 
+def target_scannet_sens(data: bytes, folder: Path) -> None:
+    """A scan folder holding only the .sens stream, every frame read."""
+    from semmap.datasets.scannet import ScanNetDataset
+
+    scan = folder / "scan"
+    scan.mkdir(exist_ok=True)
+    (scan / "x.sens").write_bytes(data)
+    for _ in ScanNetDataset(scan):
+        pass
+
+
+def target_replica_traj(data: bytes, folder: Path) -> None:
+    from semmap.datasets.replica import read_trajectory
+
+    read_trajectory(_write(folder, "traj.txt", data))
+
+
 def target_rosbag(data: bytes, folder: Path) -> None:
     from semmap.datasets import open_dataset
 
@@ -197,6 +230,8 @@ TARGETS: dict[str, Callable[[bytes, Path], None]] = {
     "sevenscenes_pose": target_sevenscenes_pose,
     "tum_index": target_tum_index,
     "rosbag": target_rosbag,
+    "scannet_sens": target_scannet_sens,
+    "replica_traj": target_replica_traj,
 }
 
 

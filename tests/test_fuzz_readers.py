@@ -54,7 +54,7 @@ def damaged(draw, seed: bytes) -> bytes:
 
 
 EXAMPLES = {"octomap": 40, "octomap_bt": 30, "semmap": 30, "ply": 30, "trajectory": 40, "labelset": 30,
-            "sevenscenes_pose": 25, "tum_index": 20, "rosbag": 15}
+            "sevenscenes_pose": 25, "tum_index": 20, "rosbag": 15, "scannet_sens": 30, "replica_traj": 20}
 
 
 def test_every_reader_has_a_fuzz_target():

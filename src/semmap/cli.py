@@ -370,12 +370,18 @@ def simulate(
     trajectory_seed: Annotated[int | None, typer.Option(help="seed of the camera path (default: the scene seed); "
                                                         "another seed gives another path through the same scene")
                                ] = None,
+    format: Annotated[str | None, typer.Option("--format", help="tum (semmap's own; the default) | scannet (a .sens "
+                                               "scan, NYU-40 labels) | replica (NICE-SLAM layout, Semantic-NeRF "
+                                               "labels)")] = None,
+    changes: Annotated[int, typer.Option(help="the same scene a while later: N objects moved, removed or added "
+                                              "(in turn); changes.json records them (for semmap diff)")] = 0,
+    changes_seed: Annotated[int, typer.Option(help="seed of which objects change and where")] = 1,
     memory_budget: _MemoryBudget = None,
 ) -> None:
     """Render a procedural indoor scene to a TUM RGB-D folder with labels, instances, objects and scene.json."""
     _setup_logging(False)
     _budget(memory_budget)
-    from semmap.sim.export import simulate_sequence
+    from semmap.sim.export import LAYOUTS, simulate_sequence
 
     stored = _size(image_size)
     if isinstance(stored, int):
@@ -383,7 +389,8 @@ def simulate(
     with _interruptible(), _ProgressCallback("rendering", frames) as callback:
         root = simulate_sequence(out, scene_seed=scene_seed, kind=kind, size=size, trajectory=trajectory,
                                  frames=frames, noise=noise, progress=callback, image_size=stored, symmetric=symmetric,
-                                 trajectory_seed=trajectory_seed)
+                                 trajectory_seed=trajectory_seed, layout=format or LAYOUTS[0],
+                                 changes=changes, changes_seed=changes_seed)
     _console().print(f"wrote {frames} frames to {root} (map it with: semmap run {root} --out OUT)")
 
 

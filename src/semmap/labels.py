@@ -53,3 +53,34 @@ STUFF_CLASSES: frozenset[str] = frozenset({"wall", "floor", "ceiling"})
 def class_id(name: str) -> int:
     """Id of ``name`` in :data:`INDOOR_LABELS` (raises ConfigError for unknown names)."""
     return INDOOR_LABELS.id_of(name)
+
+
+#: NYU Depth v2's 40 classes (Gupta et al. 2013) as ScanNet maps its labels to them (``nyu40id`` 1-40; 0 unknown).
+NYU40_NAMES: tuple[str, ...] = (
+    "unknown", "wall", "floor", "cabinet", "bed", "chair", "sofa", "table", "door", "window", "bookshelf", "picture",
+    "counter", "blinds", "desk", "shelves", "curtain", "dresser", "pillow", "mirror", "floor mat", "clothes",
+    "ceiling", "books", "refridgerator", "television", "paper", "towel", "shower curtain", "box", "whiteboard",
+    "person", "night stand", "toilet", "sink", "lamp", "bathtub", "bag", "otherstructure", "otherfurniture",
+    "otherprop")
+
+
+def nyu40_labels() -> LabelSet:
+    """NYU-40 with the simulator's colour where a class shares its name, else a distinct colour."""
+    from semmap.types import distinct_colors
+
+    colors = distinct_colors(len(NYU40_NAMES))
+    for i, name in enumerate(NYU40_NAMES):
+        if name in INDOOR_LABELS.names:
+            colors[i] = INDOOR_LABELS.colors[INDOOR_LABELS.names.index(name)]
+    return LabelSet(NYU40_NAMES, colors)
+
+
+#: The simulator's classes as NYU-40 ids (``otherprop`` for small things NYU-40 does not name).
+_SIM_TO_NYU40 = {"shelf": "shelves", "monitor": "television", "book": "books", "nightstand": "night stand",
+                 "refrigerator": "refridgerator", "keyboard": "otherprop", "cup": "otherprop", "bottle": "otherprop",
+                 "plant": "otherprop"}
+
+
+def simulator_to_nyu40() -> np.ndarray:
+    """(K,) NYU-40 id of each simulator class id."""
+    return np.array([NYU40_NAMES.index(_SIM_TO_NYU40.get(name, name)) for name in INDOOR_LABELS.names], np.uint16)

@@ -36,12 +36,29 @@ def simulated_ground_truth(dataset: Path | Dataset) -> GroundTruthFn | None:
         return None
     if scene is None:
         return None
+    to_dataset_classes = _label_space_of(dataset)
 
     def ground_truth(res: float):
         gt = gt_voxels(scene, res)
-        return gt.keys, gt.class_ids
+        return gt.keys, gt.class_ids if to_dataset_classes is None else to_dataset_classes[gt.class_ids]
 
     return ground_truth
+
+
+def _label_space_of(dataset: Path | Dataset):
+    """The simulator-class -> dataset-class table of a simulated folder written in another label space (ScanNet's
+    NYU-40), or None when its labels are the simulator's own."""
+    import json
+
+    from semmap.labels import simulator_to_nyu40
+
+    if not isinstance(dataset, Path | str):
+        return None
+    try:
+        info = json.loads((Path(dataset) / "scene.json").read_text())
+    except (OSError, ValueError):
+        return None
+    return simulator_to_nyu40() if isinstance(info, dict) and info.get("label_space") == "nyu40" else None
 
 
 def run_config(config: RunConfig, *, dataset: Dataset | None = None, progress: Progress | None = None,

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from semmap.datasets import rosbag, sevenscenes, tum
+from semmap.datasets import replica, rosbag, scannet, sevenscenes, tum
 from semmap.datasets.base import (
     Dataset,
     FormatEntry,
@@ -24,8 +24,8 @@ from semmap.io.tum_writer import write_tum_sequence
 from semmap.registry import Registry
 
 #: Every on-disk format, in the order :func:`detect_format` tries them; each reader module declares its ``FORMAT``.
-FORMATS: Registry[FormatEntry] = Registry("dataset format", (rosbag.FORMAT, tum.FORMAT, sevenscenes.FORMAT),
-                                          error=DatasetError)
+FORMATS: Registry[FormatEntry] = Registry("dataset format", (rosbag.FORMAT, tum.FORMAT, sevenscenes.FORMAT,
+                                                            scannet.FORMAT, replica.FORMAT), error=DatasetError)
 #: ``--format`` value that detects the format.
 AUTO = "auto"
 #: The format names and ``auto`` as an enum (the type of ``input.format`` in the run configuration).

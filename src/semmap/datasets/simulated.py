@@ -71,11 +71,14 @@ def scene_of_folder(root) -> Scene | None:
     log = logging.getLogger("semmap")
     from semmap.errors import SemmapError
     from semmap.files.safe import read_text_limited
+    from semmap.sim.changes import change_scene
 
     try:
         info = json.loads(read_text_limited(path, what="scene description"))
         scene = generate_scene(int(info["seed"]), str(info["kind"]), str(info["size"]),
                                symmetric=bool(info.get("symmetric", False)))
+        if info.get("changes"):
+            scene, _ = change_scene(scene, int(info["changes"]), int(info.get("changes_seed", 1)))
     except (SemmapError, ValueError, KeyError, TypeError, AttributeError) as exc:
         log.warning("%s: cannot regenerate the simulated scene (%s); no 3D ground truth", path, exc)
         return None

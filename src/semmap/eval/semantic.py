@@ -40,6 +40,19 @@ class SegmentationScores:
     support: np.ndarray  # ground-truth count per class
     class_accuracy: np.ndarray  # p_ii / sum_j p_ij per class (NaN for classes absent from the ground truth)
 
+    @property
+    def fw_miou(self) -> float:
+        """Frequency-weighted mIoU: each present class's IoU weighted by its share of the ground truth (the
+        benchmarks' "f.w. IoU", e.g. ConceptGraphs' and Kimera-Semantics' evaluations)."""
+        present = ~np.isnan(self.iou)
+        weight = self.support[present].astype(np.float64)
+        return float((self.iou[present] * weight).sum() / weight.sum()) if weight.sum() else float("nan")
+
+    @property
+    def mean_class_accuracy(self) -> float:
+        """Mean of the per-class accuracies (the benchmarks' "mAcc"; the papers' MPA)."""
+        return self.mpa
+
     def per_class(self, labels: LabelSet | None = None) -> dict[str, float]:
         names = labels.names if labels is not None else [str(i) for i in range(len(self.iou))]
         return {names[i]: round(float(v), 4) for i, v in enumerate(self.iou) if not np.isnan(v)}

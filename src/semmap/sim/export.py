@@ -14,7 +14,7 @@ depth, labels and instances by nearest neighbour), with the intrinsics scaled to
 from __future__ import annotations
 
 import json
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterable, Iterator
 from pathlib import Path
 
 import cv2
@@ -24,10 +24,12 @@ from semmap.errors import OutputError, SimulationError
 from semmap.files.atomic import write_text_atomic
 from semmap.files.outputs import OutputKind, check_outputs
 from semmap.interrupt import RunInterrupted
+from semmap.io.benchmark_layouts import write_replica_scene, write_scannet_scan
 from semmap.io.staged_run import StagedRun
 from semmap.io.tum_writer import write_tum_sequence
-from semmap.labels import INDOOR_LABELS
+from semmap.labels import INDOOR_LABELS, NYU40_NAMES, simulator_to_nyu40
 from semmap.limits import check_simulation
+from semmap.sim.changes import change_scene
 from semmap.sim.noise import KinectNoise
 from semmap.sim.render import Renderer
 from semmap.sim.scene import Scene, generate_scene
@@ -53,6 +55,9 @@ def simulate_sequence(
     fps: float = FPS,
     symmetric: bool = False,
     trajectory_seed: int | None = None,
+    layout: str = "tum",
+    changes: int = 0,
+    changes_seed: int = 1,
 ) -> Path:
     """Render ``frames`` frames of a ``trajectory`` through scene (``scene_seed``, ``kind``, ``size``;
     ``symmetric``: see :mod:`semmap.sim.symmetric`) into ``out_dir`` (TUM layout plus ground truth) and return the
@@ -61,6 +66,8 @@ def simulate_sequence(
     if not isinstance(frames, (int, np.integer)) or frames <= 0:
         raise SimulationError(f"frames must be a positive integer, got {frames!r}")
     check_simulation(int(frames), image_size)
+    if layout not in LAYOUTS:
+        raise SimulationError(f"unknown layout {layout!r}; choose one of {', '.join(LAYOUTS)}")
     root = Path(out_dir)
     check_sequence_out(root)
     staged = StagedRun(root)
@@ -68,7 +75,8 @@ def simulate_sequence(
     try:
         _write_sequence(stage, scene_seed=scene_seed, kind=kind, trajectory=trajectory, frames=int(frames), size=size,
                         noise=noise, intrinsics=intrinsics, progress=progress, image_size=image_size, fps=fps,
-                        symmetric=symmetric, trajectory_seed=trajectory_seed)
+                        symmetric=symmetric, trajectory_seed=trajectory_seed, layout=layout,
+                        changes=(changes, changes_seed))
         staged.commit()  # every file is there: the folder becomes ``out_dir`` in one rename
     except KeyboardInterrupt:
         staged.abandon(keep_checkpoint=False)  # Ctrl-C leaves nothing half-written, and says so
@@ -91,9 +99,12 @@ def check_sequence_out(root: Path) -> None:
 def _write_sequence(root: Path, *, scene_seed: int, kind: str, trajectory: str, frames: int, size: str, noise: bool,
                     intrinsics: CameraIntrinsics | None, progress: Callable[[int, int], None] | None,
                     image_size: tuple[int, int] | None, fps: float, symmetric: bool,
-                    trajectory_seed: int | None) -> None:
+                    trajectory_seed: int | None, layout: str = "tum", changes: tuple[int, int] = (0, 1)) -> None:
     """Render and write the whole sequence into the folder ``root`` (the staging folder)."""
     scene = generate_scene(scene_seed, kind, size, symmetric=symmetric)
+    if changes[0]:
+        scene, record = change_scene(scene, changes[0], changes[1])
+        write_text_atomic(root / "changes.json", json.dumps(record, indent=1) + "\n")
     poses = make_trajectory(scene, trajectory, int(frames), seed=scene_seed if trajectory_seed is None
                             else trajectory_seed, fps=fps)
     renderer = Renderer(scene, intrinsics, noise=KinectNoise(seed=scene_seed) if noise else False)
@@ -102,15 +113,31 @@ def _write_sequence(root: Path, *, scene_seed: int, kind: str, trajectory: str, 
     if image_size is not None:
         stored = resized_intrinsics(renderer.intrinsics, image_size)
         frames_out = (reduce_frame(f, stored) for f in frames_out)
-    write_tum_sequence(root, frames_out, depth_scale=DEPTH_SCALE, write_labels=True)
-    INDOOR_LABELS.save(root / "labelset.json")
+    _write_frames(root, frames_out, layout)
     write_text_atomic(root / "objects.json", json.dumps([o.to_dict() for o in scene.objects], indent=1) + "\n")
     info = {**scene.params, "trajectory": trajectory, "frames": int(frames), "fps": fps, "noise": bool(noise),
             "depth_scale": DEPTH_SCALE, "intrinsics": stored.to_dict(),
-            "n_triangles": scene.n_triangles, "n_objects": len(scene.objects)}
+            "n_triangles": scene.n_triangles, "n_objects": len(scene.objects), "layout": layout}
+    if layout == "scannet":
+        info["label_space"] = "nyu40"  # the 3D ground truth's classes are mapped like the frames' labels
     if trajectory_seed is not None:
         info["trajectory_seed"] = int(trajectory_seed)
     write_text_atomic(root / "scene.json", json.dumps(info, indent=1) + "\n")
+
+
+#: Layouts ``semmap simulate --format`` writes: TUM RGB-D (semmap's own), a ScanNet scan, Replica (NICE-SLAM).
+LAYOUTS = ("tum", "scannet", "replica")
+
+
+def _write_frames(root: Path, frames: Iterable[Frame], layout: str) -> None:
+    """The frames and their labels in ``layout``."""
+    if layout == "scannet":
+        write_scannet_scan(root, frames, INDOOR_LABELS, simulator_to_nyu40(), NYU40_NAMES)
+    elif layout == "replica":
+        write_replica_scene(root, frames, INDOOR_LABELS)
+    else:
+        write_tum_sequence(root, frames, depth_scale=DEPTH_SCALE, write_labels=True)
+        INDOOR_LABELS.save(root / "labelset.json")
 
 
 def resized_intrinsics(intrinsics: CameraIntrinsics, size: tuple[int, int]) -> CameraIntrinsics:
