@@ -87,3 +87,32 @@ def test_diff_command(tmp_path):
     save_map(coarse, SemanticOctoMap(0.2, label_set=LABELS))
     r = CliRunner().invoke(app, ["diff", str(a / "map.semmap"), str(coarse), "--out", str(tmp_path / "x")])
     assert r.exit_code != 0 and "different resolutions" in str(r.exception)
+
+
+def test_diff_finds_the_simulated_changes():
+    """Two walks through one simulated room, the second after `simulate --changes`: the moved object's voxels
+    disappear where it stood and appear where it went, as changes.json records."""
+    from semmap.datasets.simulated import SimulatedDataset
+    from semmap.pipeline import Mapper
+    from semmap.sim.changes import change_scene
+    from semmap.sim.scene import generate_scene
+    from semmap.sim.trajectory import make_trajectory
+    from semmap.types import CameraIntrinsics
+
+    camera = CameraIntrinsics(160, 120, 131.25, 131.25, 79.5, 59.5)
+    before = generate_scene(0, "office", "small")
+    after, record = change_scene(before, 1, seed=1)  # one move
+    maps = []
+    for scene in (before, after):
+        m = SemanticOctoMap(0.05, label_set=scene.label_set)
+        mapper = Mapper([m], min_depth=0.1, max_depth=6.0)
+        for f in SimulatedDataset(scene, make_trajectory(before, "orbit", 12, seed=0, fps=1), intrinsics=camera,
+                                  noise=False):
+            mapper.integrate_arrays(f.rgb, f.depth, f.intrinsics, f.T_world_cam, f.labels)
+        maps.append(m)
+    c = voxel_changes(*maps)
+    move = record[0]
+    near_to = np.linalg.norm(c.centers["appeared"][:, :2] - move["to"][:2], axis=1) < 0.5
+    near_from = np.linalg.norm(c.centers["disappeared"][:, :2] - move["from"][:2], axis=1) < 0.5
+    assert near_to.sum() >= 10 and near_from.sum() >= 10
+    assert near_to.mean() > 0.5 and near_from.mean() > 0.5  # most changes are the moved object
