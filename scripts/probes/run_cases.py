@@ -1,0 +1,471 @@
+"""Re-run every case of the bad-input probe (issue 31) in a scratch folder made by build_fixtures.py and classify
+each: ``python scripts/probes/run_cases.py DIR [--cases REGEX] [--jobs N] [--out RESULTS]``. See docs/probes.md.
+
+Per case: exit code, seconds, peak RSS of the process tree (``os.wait4``), a Python traceback or a segfault in the
+output, and the sha256 of every input the command names, before and after (any change is DATA-LOSS)."""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import hashlib
+import json
+import os
+import re
+import resource
+import shutil
+import signal
+import stat
+import subprocess
+import sys
+import time
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+TSV = Path("/work/shared/probes/bad-input-2026-11-25.tsv")
+ROW = re.compile(r"^([^\t]+)\trc=(-?\d+)\t([\d.]+)s\t(\d+)MB\ttb=(\d+)\t([^\t]*)\t?(.*)$")
+SEMMAP = ".venv/bin/semmap"
+#: Options whose value is a path semmap writes (not an input).
+OUTPUT_OPTIONS = {"--out", "-o", "--save", "--plot", "--rerun", "--plot-errors"}
+#: Cases the probe's report lists as DATA-LOSS (D1-D12; a mechanical rule cannot see them in the TSV).
+REPORTED_DATA_LOSS = {"out_is_input", "out_parent_of_input", "view_save_over_input", "et_plot_full",
+                      "track_out_over_gt", "rerun_over_input", "evalseg_out_over_gt", "sim_out_existing_seq",
+                      "sim_out_existing_run", "sim_out_full"}
+MEMORY_MB = 1024
+BIG_FILE = 64 * 2**20
+CLASSES = ("GOOD", "INVALID", "DATA-LOSS", "SEGFAULT", "TRACEBACK", "HANG", "MEMORY", "MULTI-LINE", "UNCLEAR",
+           "NOT-REPRODUCED", "SKIPPED")
+PROGRESS = re.compile(r"━|frames/s|-:--:--|\d+/\d+\s+\d+:\d\d:\d\d")
+ANSI = re.compile(r"\x1b\[[0-9;?]*[a-zA-Z]")
+
+
+@dataclass
+class Case:
+    """One TSV row: the command as recorded and the outcome the probe saw."""
+
+    id: str
+    rc: int
+    seconds: float
+    peak_mb: int
+    tb: int
+    command: str
+    output: str
+
+    @property
+    def name(self) -> str:
+        return self.id.split("#")[0]
+
+    def original_class(self) -> str:
+        """The probe's class of this row, from its rc / traceback flag / peak (DATA-LOSS from the report)."""
+        if self.name in REPORTED_DATA_LOSS:
+            return "DATA-LOSS"
+        if self.rc in (139, -11):
+            return "SEGFAULT"
+        if self.tb:
+            return "TRACEBACK"
+        if self.rc == 124:
+            return "HANG"
+        if self.rc == 137 or (self.peak_mb > MEMORY_MB and self.rc != 0):
+            return "MEMORY"
+        if self.rc == 126:
+            return "INVALID"  # the probe's own command could not start (setpriv as uid 65534)
+        return "GOOD"
+
+
+@dataclass
+class Result:
+    id: str
+    cls: str
+    original: str
+    rc: int | None = None
+    seconds: float = 0.0
+    peak_mb: int = 0
+    reason: str = ""
+    changed: list[str] = field(default_factory=list)
+    command: str = ""
+    excerpt: str = ""
+
+
+def read_cases(path: Path) -> list[Case]:
+    """Every row of the probe's TSV (continuation lines of an output excerpt are joined to their row)."""
+    cases: list[Case] = []
+    seen: dict[str, int] = {}
+    lines = path.read_bytes().decode("utf-8", "surrogateescape").split("\n")[1:]
+    for line in lines:
+        m = ROW.match(line)
+        if not m:
+            if cases and line.strip():
+                cases[-1].output += " " + line.strip()
+            continue
+        name = m.group(1)
+        seen[name] = seen.get(name, 0) + 1
+        cid = name if seen[name] == 1 else f"{name}#{seen[name]}"
+        cases.append(Case(cid, int(m.group(2)), float(m.group(3)), int(m.group(4)), int(m.group(5)), m.group(6),
+                          m.group(7)))
+    return cases
+
+
+# ------------------------------------------------------------------------------------------------ commands
+def split_segments(command: str) -> list[str]:
+    """The command's top-level ``;`` / ``&&`` segments (quotes, ``$'...'`` and ``$(...)`` respected)."""
+    out, cur, i, quote, depth = [], [], 0, "", 0
+    while i < len(command):
+        c = command[i]
+        if quote:
+            if c == "\\" and quote == "$'":
+                cur.append(command[i:i + 2])
+                i += 2
+                continue
+            if c == quote[-1]:
+                quote = ""
+        elif c in "'\"":
+            quote = "$'" if c == "'" and cur and cur[-1] == "$" else c
+        elif command.startswith("$(", i):
+            depth += 1
+        elif c == ")" and depth:
+            depth -= 1
+        elif depth == 0 and (c == ";" or command.startswith("&&", i)):
+            out.append("".join(cur).strip())
+            cur = []
+            i += 1 if c == ";" else 2
+            continue
+        cur.append(c)
+        i += 1
+    out.append("".join(cur).strip())
+    return [s for s in out if s]
+
+
+def plan(case: Case) -> tuple[list[str], str]:
+    """(setup segments, the measured segment: the last one that runs semmap)."""
+    segs = split_segments(case.command)
+    idx = max((i for i, s in enumerate(segs) if SEMMAP in s), default=len(segs) - 1)
+    return segs[:idx], segs[idx]
+
+
+def expand(segment: str, root: Path) -> list[str]:
+    """The words of ``segment`` after bash expansion (run from ``root``; ``$'..'``, ``$(..)`` and braces)."""
+    segment = re.sub(r"\s\d?>&?\s*\S+", " ", segment)  # redirections: the words only
+    proc = subprocess.run(["bash", "-c", f"printf '%s\\0' {segment}"], cwd=root, capture_output=True)
+    return [w.decode("utf-8", "surrogateescape") for w in proc.stdout.split(b"\0")[:-1]]
+
+
+def paths_of(words: list[str]) -> tuple[list[str], list[str]]:
+    """(input paths, output paths) named by a command's words."""
+    inputs, outputs, after_output = [], [], False
+    for w in words:
+        if after_output:
+            outputs.append(w)
+            after_output = False
+            continue
+        if w in OUTPUT_OPTIONS:
+            after_output = True
+            continue
+        if w.startswith("--") and "=" in w:
+            key, w = w.split("=", 1)
+            if key in OUTPUT_OPTIONS:
+                outputs.append(w)
+                continue
+        elif "=" in w and re.match(r"^[A-Z_][A-Z0-9_]*=", w):
+            w = w.split("=", 1)[1]
+        if w.startswith("-") or w.endswith(SEMMAP) or w in ("./capped.sh", "/"):
+            continue
+        inputs.append(w)
+    return inputs, outputs
+
+
+# ------------------------------------------------------------------------------------------------ fingerprints
+def file_digest(path: str) -> str:
+    """sha256 of a regular file (size + first and last MiB for files over 64 MiB: sparse 1 GiB fixtures); the
+    file type for anything else (a device stays a device, a FIFO is never opened)."""
+    try:
+        st = os.lstat(path)
+    except OSError:
+        return "missing"
+    if stat.S_ISLNK(st.st_mode):
+        return "link:" + os.readlink(path)
+    if not stat.S_ISREG(st.st_mode):
+        return f"type:{stat.S_IFMT(st.st_mode):o}"
+    h = hashlib.sha256()
+    try:
+        with open(path, "rb") as f:
+            if st.st_size > BIG_FILE:
+                h.update(f.read(2**20))
+                f.seek(st.st_size - 2**20)
+                h.update(f.read())
+                return f"big:{st.st_size}:{h.hexdigest()}"
+            for chunk in iter(lambda: f.read(2**20), b""):
+                h.update(chunk)
+    except OSError as exc:
+        return f"unreadable:{exc.errno}"
+    return h.hexdigest()
+
+
+def fingerprint(path: str, *, deep: bool) -> dict[str, str]:
+    """{relative path: digest} of a file or a folder tree (only the file type when not ``deep``)."""
+    if not os.path.lexists(path):
+        return {}
+    if not deep or os.path.islink(path) or not os.path.isdir(path):
+        return {".": file_digest(path) if deep else f"type:{stat.S_IFMT(os.lstat(path).st_mode):o}"}
+    out = {".": "dir"}
+    for dirpath, dirnames, filenames in os.walk(path):
+        dirnames[:] = sorted(d for d in dirnames if not (dirpath == path and d == "h" and path.endswith("outputs")))
+        for name in sorted(filenames) + [d for d in dirnames if os.path.islink(os.path.join(dirpath, d))]:
+            full = os.path.join(dirpath, name)
+            out[os.path.relpath(full, path)] = file_digest(full)
+        for d in dirnames:
+            out.setdefault(os.path.relpath(os.path.join(dirpath, d), path), "dir")
+    return out
+
+
+def watched(root: Path, words: list[str]) -> dict[str, bool]:
+    """{path: deep} to fingerprint: inputs inside the scratch folder (deep), special files anywhere and outputs
+    that exist (file type only: a device or a folder must not become a file)."""
+    inputs, outputs = paths_of(words)
+    out: dict[str, bool] = {}
+    for w in inputs:
+        p = w if os.path.isabs(w) else str(root / w)
+        if not os.path.lexists(p):
+            continue
+        inside = os.path.realpath(p).startswith(str(root) + os.sep) or not os.path.isabs(w)
+        if inside:
+            out[w] = True
+        elif not stat.S_ISREG(os.stat(p).st_mode) and not stat.S_ISDIR(os.stat(p).st_mode):
+            out[w] = False
+    for w in outputs:
+        p = w if os.path.isabs(w) else str(root / w)
+        if os.path.lexists(p) and w not in out:
+            out[w] = False
+    return out
+
+
+def snapshot(root: Path, paths: dict[str, bool]) -> dict[str, dict[str, str]]:
+    return {w: fingerprint(w if os.path.isabs(w) else str(root / w), deep=deep) for w, deep in paths.items()}
+
+
+def changes(before: dict, after: dict) -> list[str]:
+    out = []
+    for w, old in before.items():
+        new = after.get(w, {})
+        diff = sorted(k for k in set(old) | set(new) if old.get(k) != new.get(k))
+        if diff:
+            out.append(w if diff == ["."] else f"{w} ({', '.join(diff[:3])}{', ...' if len(diff) > 3 else ''})")
+    return out
+
+
+# ------------------------------------------------------------------------------------------------ running
+def timeout_of(case: Case, default: float) -> float:
+    """The probe's own time-out for a case that hung (its seconds), else ``default``."""
+    return max(case.seconds, default) if case.rc == 124 else default
+
+
+def run_segment(segment: str, root: Path, log: Path, timeout: float, mem_gb: float) -> tuple[int, float, int, bool]:
+    """Run one bash segment in its own process group: (exit code, seconds, peak RSS MiB, timed out)."""
+    def limit() -> None:
+        if mem_gb > 0:
+            cap = int(mem_gb * 2**30)
+            resource.setrlimit(resource.RLIMIT_AS, (cap, cap))
+
+    env = dict(os.environ, COLUMNS="120", PYTHONUNBUFFERED="1")
+    with open(log, "wb") as out:
+        start = time.monotonic()
+        proc = subprocess.Popen(["bash", "-c", segment], cwd=root, stdout=out, stderr=subprocess.STDOUT,
+                                stdin=subprocess.DEVNULL, start_new_session=True, preexec_fn=limit, env=env)
+        timed_out, status, usage = False, None, None
+        while status is None:
+            pid, st, ru = os.wait4(proc.pid, os.WNOHANG)
+            if pid:
+                status, usage = st, ru
+                break
+            if time.monotonic() - start > timeout and not timed_out:
+                timed_out = True
+                _kill_group(proc.pid, signal.SIGTERM)
+                time.sleep(3)
+                _kill_group(proc.pid, signal.SIGKILL)
+            time.sleep(0.05)
+        seconds = time.monotonic() - start
+    _kill_group(proc.pid, signal.SIGKILL)  # leftovers (Ray workers, a viewer)
+    proc.returncode = os.waitstatus_to_exitcode(status)
+    rc = proc.returncode if proc.returncode >= 0 else 128 - proc.returncode
+    return rc, seconds, usage.ru_maxrss // 1024, timed_out
+
+
+def _kill_group(pgid: int, sig: int) -> None:
+    with contextlib.suppress(ProcessLookupError, PermissionError):
+        os.killpg(pgid, sig)
+
+
+def prepare(setup: list[str], root: Path) -> None:
+    """Run a case's setup segments (``cp -r SRC DST`` gets a fresh DST: a copy from an earlier run is removed)."""
+    for seg in setup:
+        words = expand(seg, root) if seg.startswith("cp ") else []
+        if len(words) >= 4 and words[1] == "-r":
+            dst = root / words[-1]
+            if dst.is_dir() and not dst.is_symlink() and str(dst.resolve()).startswith(str(root)):
+                shutil.rmtree(dst, ignore_errors=True)
+    if setup:
+        subprocess.run(["bash", "-c", "; ".join(setup)], cwd=root, capture_output=True, timeout=300)
+
+
+def missing_fixture(case: Case, words: list[str], root: Path, not_built: dict[str, str]) -> str:
+    """Why a case cannot be reproduced here ('' when it can)."""
+    for fixture, why in not_built.items():
+        if re.search(rf"(^|[\s=']){re.escape(fixture)}(/|\s|$|')", case.command):
+            return f"fixture {fixture} not built: {why}"
+    if words and words[0] == "setpriv" and not shutil.which("setpriv"):
+        return "setpriv is not installed"
+    return ""
+
+
+def run_case(case: Case, root: Path, logs: Path, args, not_built: dict[str, str]) -> Result:
+    setup, segment = plan(case)
+    res = Result(case.id, "GOOD", case.original_class(), command=case.command)
+    if args.skip and re.search(args.skip, case.id):
+        res.cls, res.reason = "SKIPPED", "--skip"
+        return res
+    prepare(setup, root)
+    words = expand(segment, root)
+    why = missing_fixture(case, words, root, not_built)
+    if why:
+        res.cls, res.reason = "NOT-REPRODUCED", why
+        return res
+    paths = watched(root, words)
+    before = snapshot(root, paths)
+    log = logs / f"{re.sub(r'[^A-Za-z0-9_.#-]', '_', case.id)}.out"
+    res.rc, res.seconds, res.peak_mb, timed_out = run_segment(segment, root, log, timeout_of(case, args.timeout),
+                                                              args.max_memory_gb)
+    res.changed = changes(before, snapshot(root, paths))
+    text = ANSI.sub("", log.read_bytes().decode("utf-8", "replace")).replace("\r", "\n")
+    res.cls, res.reason = classify(res.rc, res.peak_mb, timed_out, res.changed, text)
+    res.excerpt = " | ".join(x.strip() for x in text.splitlines() if x.strip() and not PROGRESS.search(x))[-600:]
+    return res
+
+
+def classify(rc: int, peak_mb: int, timed_out: bool, changed: list[str], text: str) -> tuple[str, str]:
+    """(class, reason) of one finished case."""
+    if changed:
+        return "DATA-LOSS", "changed: " + "; ".join(changed)
+    if rc in (139, 134) or "Segmentation fault" in text or "Fatal Python error" in text:
+        return "SEGFAULT", f"rc {rc}"
+    if "Traceback (most recent call last)" in text:
+        return "TRACEBACK", text[text.rindex("Traceback"):].strip().splitlines()[-1][:200]
+    if timed_out:
+        return "HANG", f"killed after the time-out ({peak_mb} MB)"
+    if rc == 137 or "MemoryError" in text or "bad_alloc" in text or (rc != 0 and peak_mb > MEMORY_MB):
+        return "MEMORY", f"rc {rc}, peak {peak_mb} MB"
+    if rc in (0, 130):
+        return "GOOD", ""
+    lines = [x.strip() for x in text.splitlines() if x.strip() and not PROGRESS.search(x)]
+    first = next((i for i, x in enumerate(lines) if x.startswith("semmap: error:")), None)
+    if first is None:
+        if rc == 2 and ("Usage:" in text or "Invalid value" in text or "No such option" in text):
+            return "GOOD", "usage error (the option is named)"
+        return "UNCLEAR", f"rc {rc} without a 'semmap: error:' line"
+    extra = [x for x in lines[first + 1:] if not re.match(r"semmap: (WARNING|INFO)", x)]
+    if extra:
+        return "MULTI-LINE", f"{len(extra)} more line(s) after the error: {extra[0][:120]}"
+    return "GOOD", ""
+
+
+# ------------------------------------------------------------------------------------------------ scheduling
+def serial_ids(cases: list[Case], root: Path) -> set[str]:
+    """Cases that must not run beside another: setup steps, full/ and ro/, outputs outside outputs/h, and
+    output paths shared by several cases (locks, resumes)."""
+    counts: dict[str, int] = {}
+    outs: dict[str, list[str]] = {}
+    for c in cases:
+        _, seg = plan(c)
+        _, outs[c.id] = paths_of(seg.split())
+        for o in outs[c.id]:
+            counts[o] = counts.get(o, 0) + 1
+    serial = set()
+    for c in cases:
+        setup, seg = plan(c)
+        shared = any(counts[o] > 1 for o in outs[c.id])
+        foreign = any(not o.startswith("outputs/h/") for o in outs[c.id])
+        if setup or shared or foreign or re.search(r"(^|\s)(full/|ro/|outputs(\s|$))", seg) or "capped" in seg:
+            serial.add(c.id)
+    return serial
+
+
+def run_all(cases: list[Case], root: Path, out: Path, args) -> list[Result]:
+    logs = out / "logs"
+    logs.mkdir(parents=True, exist_ok=True)
+    info = root / "FIXTURES.json"
+    not_built = json.loads(info.read_text())["not_built"] if info.exists() else {}
+    if not args.keep_outputs:
+        shutil.rmtree(root / "outputs" / "h", ignore_errors=True)
+    (root / "outputs" / "h").mkdir(parents=True, exist_ok=True)
+    serial = serial_ids(cases, root)
+    results: dict[str, Result] = {}
+
+    def one(c: Case) -> None:
+        r = run_case(c, root, logs, args, not_built)
+        results[c.id] = r
+        print(f"{len(results):4d}/{len(cases)} {r.cls:14s} {r.seconds:6.1f}s {r.peak_mb:6d}MB {c.id}", flush=True)
+
+    parallel = [c for c in cases if c.id not in serial]
+    with ThreadPoolExecutor(max(1, args.jobs)) as pool:
+        list(pool.map(one, parallel))
+    for c in cases:
+        if c.id in serial:
+            one(c)
+    return [results[c.id] for c in cases]
+
+
+# ------------------------------------------------------------------------------------------------ reports
+def write_reports(results: list[Result], out: Path, wall: float) -> None:
+    cols = ["id", "cls", "original", "rc", "seconds", "peak_mb", "reason", "changed", "command", "excerpt"]
+    with open(out / "results.tsv", "w", encoding="utf-8", errors="surrogateescape") as f:
+        f.write("\t".join(cols) + "\n")
+        for r in results:
+            d = asdict(r)
+            d["changed"] = "; ".join(r.changed)
+            f.write("\t".join(str(d[c]).replace("\t", " ").replace("\n", " ") for c in cols) + "\n")
+    counts = {c: sum(r.cls == c for r in results) for c in CLASSES}
+    same = sum(r.cls == r.original for r in results)
+    lines = [f"# Bad-input probe re-run ({time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())})", "",
+             f"{len(results)} cases in {wall / 60:.1f} min; class equal to the probe's for {same}.", "",
+             "| class | cases |", "|---|---|"]
+    lines += [f"| {c} | {n} |" for c, n in counts.items() if n]
+    moved = {}
+    for r in results:
+        moved[(r.original, r.cls)] = moved.get((r.original, r.cls), 0) + 1
+    lines += ["", "## Probe's class -> now", "", "| probe | now | cases |", "|---|---|---|"]
+    lines += [f"| {a} | {b} | {n} |" for (a, b), n in sorted(moved.items())]
+    lines += ["", "## Cases that are not GOOD", ""]
+    for r in results:
+        if r.cls != "GOOD":
+            lines += [f"### {r.id}: {r.cls} (probe: {r.original})", "", f"`{r.command}`", "",
+                      f"rc {r.rc}, {r.seconds:.1f} s, {r.peak_mb} MB. {r.reason}", "",
+                      "```", r.excerpt[-400:], "```", ""]
+    (out / "summary.md").write_text("\n".join(lines), encoding="utf-8", errors="surrogateescape")
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("dir", type=Path, help="scratch folder built by build_fixtures.py")
+    ap.add_argument("--cases", help="run only cases whose name matches this regex")
+    ap.add_argument("--skip", help="mark cases whose name matches this regex SKIPPED")
+    ap.add_argument("--jobs", type=int, default=1, help="cases at a time (cases that share state run alone)")
+    ap.add_argument("--out", type=Path, default=Path("probe-results"), help="results folder")
+    ap.add_argument("--tsv", type=Path, default=TSV, help="the probe's case table")
+    ap.add_argument("--timeout", type=float, default=120, help="seconds per case (a case that hung in the probe "
+                    "keeps its longer time-out)")
+    ap.add_argument("--max-memory-gb", type=float, default=8, help="address-space limit per case, to protect the "
+                    "machine (0 = none)")
+    ap.add_argument("--keep-outputs", action="store_true", help="keep DIR/outputs/h from an earlier run")
+    args = ap.parse_args()
+    root = args.dir.resolve()
+    cases = [c for c in read_cases(args.tsv) if not args.cases or re.search(args.cases, c.id)]
+    args.out.mkdir(parents=True, exist_ok=True)
+    start = time.monotonic()
+    results = run_all(cases, root, args.out, args)
+    write_reports(results, args.out, time.monotonic() - start)
+    bad = [r for r in results if r.cls != "GOOD"]
+    print(f"{len(results)} cases, {len(bad)} not GOOD; {args.out / 'summary.md'}")
+    sys.exit(0)
+
+
+if __name__ == "__main__":
+    main()
