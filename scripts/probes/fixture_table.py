@@ -3,6 +3,7 @@ fixtures are inferred from their names, the commands and the outputs recorded in
 
 from __future__ import annotations
 
+import copy as copy_module
 import json
 import os
 import shutil
@@ -616,8 +617,6 @@ def train_folder(kind: str, ctx, path: Path) -> None:
 # ------------------------------------------------------------------------------------------------ bags
 def bag(kind: str, ctx, path: Path) -> None:
     """ROS bags: broken copies of bags/rec.bag and of a ROS 2 (sqlite3 / mcap) bag of the same frames."""
-    import dataclasses
-
     import build_fixtures as bf
 
     rec = ctx.p("bags/rec.bag")
@@ -636,15 +635,22 @@ def bag(kind: str, ctx, path: Path) -> None:
     frames = bf.load_frames(ctx, "sim/office", 4)
     path.parent.mkdir(parents=True, exist_ok=True)
     if kind == "nan_info.bag":
-        cam = dataclasses.replace(frames[0].intrinsics, fx=float("nan"))
-        return rh.write_bag(path, [dataclasses.replace(f, intrinsics=cam) for f in frames], poses="pose")
+        cam = _force(frames[0].intrinsics, fx=float("nan"))
+        return rh.write_bag(path, [_force(f, intrinsics=cam) for f in frames], poses="pose")
     if kind == "huge_image.bag":
-        wide = [dataclasses.replace(f, rgb=np.zeros((2, 60000, 3), np.uint8)) for f in frames]
-        return rh.write_bag(path, wide, poses="pose")
+        return rh.write_bag(path, [_force(f, rgb=np.zeros((2, 60000, 3), np.uint8)) for f in frames], poses="pose")
     if kind == "bad_encoding.bag":
         return rh.write_bag(path, frames, poses="pose", depth="yuv422")
     rh.write_bag(path, frames, kind="mcap" if "mcap" in kind else "sqlite3")
     _break_ros2(kind, path)
+
+
+def _force(obj, **fields):
+    """A copy of a (validated, frozen) dataclass with ``fields`` set without its checks: a hostile message."""
+    out = copy_module.copy(obj)
+    for k, v in fields.items():
+        object.__setattr__(out, k, v)
+    return out
 
 
 def _break_ros2(kind: str, path: Path) -> None:

@@ -34,8 +34,8 @@ REPORTED_DATA_LOSS = {"out_is_input", "out_parent_of_input", "view_save_over_inp
                       "sim_out_existing_run", "sim_out_full"}
 MEMORY_MB = 1024
 BIG_FILE = 64 * 2**20
-CLASSES = ("GOOD", "INVALID", "DATA-LOSS", "SEGFAULT", "TRACEBACK", "HANG", "MEMORY", "MULTI-LINE", "UNCLEAR",
-           "NOT-REPRODUCED", "SKIPPED")
+CLASSES = ("GOOD", "INVALID", "DATA-LOSS", "SEGFAULT", "TRACEBACK", "HANG", "MEMORY", "MULTI-LINE", "NO-NAME",
+           "UNCLEAR", "NOT-REPRODUCED", "SKIPPED")
 PROGRESS = re.compile(r"━|frames/s|-:--:--|\d+/\d+\s+\d+:\d\d:\d\d")
 ANSI = re.compile(r"\x1b\[[0-9;?]*[a-zA-Z]")
 
@@ -336,13 +336,29 @@ def run_case(case: Case, root: Path, logs: Path, args, not_built: dict[str, str]
                                                               args.max_memory_gb)
     res.changed = changes(before, snapshot(root, paths))
     text = ANSI.sub("", log.read_bytes().decode("utf-8", "replace")).replace("\r", "\n")
-    res.cls, res.reason = classify(res.rc, res.peak_mb, timed_out, res.changed, text)
+    res.cls, res.reason = classify(res.rc, res.peak_mb, timed_out, res.changed, text, names_of(words))
     res.excerpt = " | ".join(x.strip() for x in text.splitlines() if x.strip() and not PROGRESS.search(x))[-600:]
     return res
 
 
-def classify(rc: int, peak_mb: int, timed_out: bool, changed: list[str], text: str) -> tuple[str, str]:
-    """(class, reason) of one finished case."""
+def names_of(words: list[str]) -> set[str]:
+    """What a good error line may name: the command's paths, options and environment variables."""
+    out = set()
+    for w in words:
+        if w.endswith(SEMMAP) or w == "./capped.sh":
+            continue
+        if re.match(r"^[A-Z_][A-Z0-9_]*=", w):
+            out |= set(w.split("=", 1))
+        elif w.startswith("--"):
+            out.add(w.split("=", 1)[0])
+        elif "/" in w or "." in w:
+            out.add(w)
+    return out
+
+
+def classify(rc: int, peak_mb: int, timed_out: bool, changed: list[str], text: str,
+             names: set[str] | None = None) -> tuple[str, str]:
+    """(class, reason) of one finished case; ``names``: what its error line should name (NO-NAME otherwise)."""
     if changed:
         return "DATA-LOSS", "changed: " + "; ".join(changed)
     if rc in (139, 134) or "Segmentation fault" in text or "Fatal Python error" in text:
@@ -364,6 +380,8 @@ def classify(rc: int, peak_mb: int, timed_out: bool, changed: list[str], text: s
     extra = [x for x in lines[first + 1:] if not re.match(r"semmap: (WARNING|INFO)", x)]
     if extra:
         return "MULTI-LINE", f"{len(extra)} more line(s) after the error: {extra[0][:120]}"
+    if names and not any(n in lines[first] for n in names):
+        return "NO-NAME", "the error names no file or option of the command"
     return "GOOD", ""
 
 
