@@ -17,7 +17,7 @@ import fixtures_lib as fx
 import numpy as np
 
 #: Fixtures rebuilt on every build: victims that a case may overwrite, and the mounts.
-ALWAYS = {"ro", "full", "h/victim.ot", "h/victim_in", "h/v2", "h/v3", "h/evs2", "h/perm"}
+ALWAYS = {".venv/bin/semmap", "ro", "full", "h/victim.ot", "h/victim_in", "h/v2", "h/v3", "h/evs2", "h/perm"}
 #: Fixtures this harness does not rebuild, and why (the cases that need them come out NOT-REPRODUCED).
 NOT_REPRODUCIBLE: dict[str, str] = {}
 
