@@ -456,9 +456,10 @@ def write_reports(results: list[Result], out: Path, wall: float) -> None:
     counts = {c: sum(r.cls == c for r in results) for c in CLASSES}
     same = sum(r.cls == r.original or {r.cls, r.original} <= UNCLEAR_FAMILY for r in results)
     lines = [f"# Bad-input probe re-run ({time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())})", "",
-             f"{len(results)} cases in {wall / 60:.1f} min; the class equals the probe's for {same} (NO-NAME, "
-             "MULTI-LINE and UNCLEAR all count as the probe's UNCLEAR). The probe's class comes from its rc, traceback flag and "
-             "peak memory, and from the report for DATA-LOSS and UNCLEAR; its SILENT-WRONG cases show as GOOD.", "",
+             f"{len(results)} cases in {wall / 60:.1f} min; the class equals the probe's for {same}.", "",
+             "NO-NAME, MULTI-LINE and UNCLEAR all count as the probe's UNCLEAR. The probe's class comes from its rc,",
+             "traceback flag and peak memory, and from the report for DATA-LOSS and UNCLEAR; its SILENT-WRONG cases",
+             "show as GOOD here.", "",
              "| class | cases |", "|---|---|"]
     lines += [f"| {c} | {n} |" for c, n in counts.items() if n]
     moved = {}
