@@ -400,13 +400,16 @@ def classify(rc: int, peak_mb: int, timed_out: bool, changed: list[str], text: s
 
 # ------------------------------------------------------------------------------------------------ scheduling
 def serial_ids(cases: list[Case], root: Path) -> set[str]:
-    """Cases that must not run beside another: setup steps, full/ and ro/, outputs outside outputs/h, and
-    output paths shared by several cases (locks, resumes)."""
+    """Cases that must not run beside another: setup steps, full/ and ro/, outputs outside outputs/h, output
+    paths shared by several cases (locks, resumes), inputs that are an earlier case's output, ./capped.sh."""
     counts: dict[str, int] = {}
     outs: dict[str, list[str]] = {}
+    reads_outputs: set[str] = set()
     for c in cases:
         _, seg = plan(c)
-        _, outs[c.id] = paths_of(seg.split())
+        ins, outs[c.id] = paths_of(seg.split())
+        if any(w.startswith("outputs/h/") for w in ins):
+            reads_outputs.add(c.id)  # an earlier case's output: run after the parallel ones
         for o in outs[c.id]:
             counts[o] = counts.get(o, 0) + 1
     serial = set()
@@ -414,7 +417,8 @@ def serial_ids(cases: list[Case], root: Path) -> set[str]:
         setup, seg = plan(c)
         shared = any(counts[o] > 1 for o in outs[c.id])
         foreign = any(not o.startswith("outputs/h/") for o in outs[c.id])
-        if setup or shared or foreign or re.search(r"(^|\s)(full/|ro/|outputs(\s|$))", seg) or "capped" in seg:
+        mounts = re.search(r"(^|\s)(full/|ro/|outputs(\s|$))", seg)
+        if setup or shared or foreign or mounts or c.id in reads_outputs or "capped" in seg:
             serial.add(c.id)
     return serial
 
