@@ -38,6 +38,10 @@ def test_classify() -> None:
     assert rc.classify(1, 200, False, [], "semmap: error: weights\n Re-running torch.load ...\n")[0] == "MULTI-LINE"
     assert rc.classify(1, 200, False, [], "semmap: error: x\nsemmap: WARNING: y\n")[0] == "GOOD"
     assert rc.classify(1, 200, False, [], "mapping ━━━ 0/3 -:--:--\n")[0] == "UNCLEAR"
+    names = rc.names_of([".venv/bin/semmap", "run", "h/ds/x", "--out", "outputs/h/x", "--input-size", "9"])
+    assert rc.classify(1, 200, False, [], "semmap: error: label 9 is outside the set\n", names)[0] == "NO-NAME"
+    for named in ("h/ds/x/labels/0.png: bad", "invalid option input_size: too big", "--out: exists"):
+        assert rc.classify(1, 200, False, [], f"semmap: error: {named}\n", names)[0] == "GOOD"
 
 
 def test_fingerprint_sees_a_device_replaced_by_a_file(tmp_path: Path) -> None:

@@ -393,7 +393,7 @@ def classify(rc: int, peak_mb: int, timed_out: bool, changed: list[str], text: s
     extra = [x for x in lines[first + 1:] if not re.match(r"semmap: (WARNING|INFO)", x)]
     if extra:
         return "MULTI-LINE", f"{len(extra)} more line(s) after the error: {extra[0][:120]}"
-    if names and not any(n in lines[first] for n in names):
+    if names and not any(re.search(rf"(?<![\w-]){re.escape(n)}(?![\w-])", lines[first]) for n in names):
         return "NO-NAME", "the error names no file or option of the command"
     return "GOOD", ""
 
