@@ -459,8 +459,9 @@ def write_reports(results: list[Result], out: Path, wall: float) -> None:
             f.write("\t".join(str(d[c]).replace("\t", " ").replace("\n", " ") for c in cols) + "\n")
     counts = {c: sum(r.cls == c for r in results) for c in CLASSES}
     same = sum(r.cls == r.original or {r.cls, r.original} <= UNCLEAR_FAMILY for r in results)
+    when = f"in {wall / 60:.1f} min" if wall else "classified again"
     lines = [f"# Bad-input probe re-run ({time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())})", "",
-             f"{len(results)} cases in {wall / 60:.1f} min; the class equals the probe's for {same}.", "",
+             f"{len(results)} cases {when}; the class equals the probe's for {same}.", "",
              "NO-NAME, MULTI-LINE and UNCLEAR all count as the probe's UNCLEAR. The probe's class comes from its rc,",
              "traceback flag and peak memory, and from the report for DATA-LOSS and UNCLEAR; its SILENT-WRONG cases",
              "show as GOOD here.", "",
@@ -480,6 +481,29 @@ def write_reports(results: list[Result], out: Path, wall: float) -> None:
     (out / "summary.md").write_text("\n".join(lines), encoding="utf-8", errors="surrogateescape")
 
 
+def reclassify(out: Path, cases: list[Case], root: Path) -> list[Result]:
+    """The results of an earlier run (RESULTS/results.tsv and logs/) classified again with this code."""
+    by_id = {c.id: c for c in cases}
+    results = []
+    with open(out / "results.tsv", encoding="utf-8", errors="surrogateescape") as f:
+        cols = f.readline().rstrip("\n").split("\t")
+        for line in f:
+            d = dict(zip(cols, line.rstrip("\n").split("\t"), strict=True))
+            case = by_id.get(d["id"])
+            log = out / "logs" / f"{re.sub(r'[^A-Za-z0-9_.#-]', '_', d['id'])}.out"
+            if case is None or not log.exists() or d["rc"] == "None":
+                continue
+            r = Result(d["id"], d["cls"], case.original_class(), int(d["rc"]), float(d["seconds"]),
+                       int(d["peak_mb"]), d["reason"], [x for x in d["changed"].split("; ") if x], case.command,
+                       d["excerpt"])
+            text = ANSI.sub("", log.read_bytes().decode("utf-8", "replace")).replace("\r", "\n")
+            timed_out = r.cls == "HANG"
+            r.cls, r.reason = classify(r.rc, r.peak_mb, timed_out, r.changed, text,
+                                       names_of(expand(plan(case)[1], root)))
+            results.append(r)
+    return results
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("dir", type=Path, help="scratch folder built by build_fixtures.py")
@@ -493,13 +517,14 @@ def main() -> None:
     ap.add_argument("--max-memory-gb", type=float, default=8, help="address-space limit per case, to protect the "
                     "machine (0 = none)")
     ap.add_argument("--keep-outputs", action="store_true", help="keep DIR/outputs/h from an earlier run")
+    ap.add_argument("--reclassify", action="store_true", help="classify the results in --out again (no run)")
     args = ap.parse_args()
     root = args.dir.resolve()
     cases = [c for c in read_cases(args.tsv) if not args.cases or re.search(args.cases, c.id)]
     args.out.mkdir(parents=True, exist_ok=True)
     start = time.monotonic()
-    results = run_all(cases, root, args.out, args)
-    write_reports(results, args.out, time.monotonic() - start)
+    results = reclassify(args.out, cases, root) if args.reclassify else run_all(cases, root, args.out, args)
+    write_reports(results, args.out, 0.0 if args.reclassify else time.monotonic() - start)
     bad = [r for r in results if r.cls != "GOOD"]
     print(f"{len(results)} cases, {len(bad)} not GOOD; {args.out / 'summary.md'}")
     sys.exit(0)
