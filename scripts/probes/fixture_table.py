@@ -251,7 +251,7 @@ def static_seq(ctx, path: Path) -> None:
     pose = np.loadtxt(src / "groundtruth.txt", ndmin=2)[0, 1:]
     for name, sub in (("rgb.txt", "rgb"), ("depth.txt", "depth")):
         fx.write(path / name, "".join(f"{i / 30:.6f} {sub}/{i / 30:.6f}.png\n" for i in range(10)))
-    fx.write(path / "groundtruth.txt", "".join(f"{i / 30:.6f} " + " ".join(map(repr, pose)) + "\n"
+    fx.write(path / "groundtruth.txt", "".join(f"{i / 30:.6f} " + " ".join(repr(float(x)) for x in pose) + "\n"
                                                for i in range(10)))
 
 
@@ -374,7 +374,8 @@ def pose_of(i: int, fn):
     def edit(seq: Path) -> None:
         p = seq / f"frame-{i:06d}.pose.txt"
         out = fn(np.loadtxt(p))
-        fx.write(p, out if isinstance(out, (str, bytes)) else "\n".join(" ".join(map(repr, r)) for r in out) + "\n")
+        rows = out if isinstance(out, (str, bytes)) else "\n".join(" ".join(repr(float(x)) for x in r) for r in out)
+        fx.write(p, rows if isinstance(rows, bytes) or not rows else rows + "\n")
     return edit
 
 
