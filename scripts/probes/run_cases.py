@@ -12,7 +12,6 @@ import hashlib
 import json
 import os
 import re
-import resource
 import shutil
 import signal
 import stat
@@ -42,6 +41,7 @@ REPORTED_UNCLEAR = {"run_tum_dup_ts", "static_odometry", "runposes_static", "sta
 UNCLEAR_FAMILY = {"NO-NAME", "MULTI-LINE", "UNCLEAR"}
 MEMORY_MB = 1024
 BIG_FILE = 64 * 2**20
+PAGE = os.sysconf("SC_PAGE_SIZE")
 CLASSES = ("GOOD", "INVALID", "DATA-LOSS", "SEGFAULT", "TRACEBACK", "HANG", "MEMORY", "MULTI-LINE", "NO-NAME",
            "UNCLEAR", "NOT-REPRODUCED", "SKIPPED")
 PROGRESS = re.compile(r"━|frames/s|-:--:--|\d+/\d+\s+\d+:\d\d:\d\d")
@@ -269,35 +269,51 @@ def timeout_of(case: Case, default: float) -> float:
     return max(case.seconds, default) if case.rc == 124 else default
 
 
-def run_segment(segment: str, root: Path, log: Path, timeout: float, mem_gb: float) -> tuple[int, float, int, bool]:
-    """Run one bash segment in its own process group: (exit code, seconds, peak RSS MiB, timed out)."""
-    def limit() -> None:
-        if mem_gb > 0:
-            cap = int(mem_gb * 2**30)
-            resource.setrlimit(resource.RLIMIT_AS, (cap, cap))
+def group_rss_mb(pgid: int) -> int:
+    """Resident memory of every process in process group ``pgid`` (MiB), from /proc."""
+    total = 0
+    for d in os.listdir("/proc"):
+        if not d.isdigit():
+            continue
+        try:
+            with open(f"/proc/{d}/stat", "rb") as f:
+                fields = f.read().rsplit(b")", 1)[1].split()
+        except OSError:
+            continue
+        if int(fields[2]) == pgid:
+            total += int(fields[21]) * PAGE
+    return total // 2**20
 
+
+def run_segment(segment: str, root: Path, log: Path, timeout: float, mem_gb: float) -> tuple[int, float, int, str]:
+    """Run one bash segment in its own process group: (exit code, seconds, peak RSS MiB, '' or why it was
+    killed: 'timeout' / 'memory'). A watchdog kills the group above ``mem_gb`` GiB resident (0: no watchdog)."""
     env = dict(os.environ, COLUMNS="120", PYTHONUNBUFFERED="1")
     with open(log, "wb") as out:
         start = time.monotonic()
         proc = subprocess.Popen(["bash", "-c", segment], cwd=root, stdout=out, stderr=subprocess.STDOUT,
-                                stdin=subprocess.DEVNULL, start_new_session=True, preexec_fn=limit, env=env)
-        timed_out, status, usage = False, None, None
+                                stdin=subprocess.DEVNULL, start_new_session=True, env=env)
+        killed, status, usage, tick = "", None, None, 0
         while status is None:
             pid, st, ru = os.wait4(proc.pid, os.WNOHANG)
             if pid:
                 status, usage = st, ru
                 break
-            if time.monotonic() - start > timeout and not timed_out:
-                timed_out = True
+            tick += 1
+            if not killed and time.monotonic() - start > timeout:
+                killed = "timeout"
                 _kill_group(proc.pid, signal.SIGTERM)
                 time.sleep(3)
+                _kill_group(proc.pid, signal.SIGKILL)
+            elif not killed and mem_gb > 0 and tick % 10 == 0 and group_rss_mb(proc.pid) > mem_gb * 1024:
+                killed = "memory"
                 _kill_group(proc.pid, signal.SIGKILL)
             time.sleep(0.05)
         seconds = time.monotonic() - start
     _kill_group(proc.pid, signal.SIGKILL)  # leftovers (Ray workers, a viewer)
     proc.returncode = os.waitstatus_to_exitcode(status)
     rc = proc.returncode if proc.returncode >= 0 else 128 - proc.returncode
-    return rc, seconds, usage.ru_maxrss // 1024, timed_out
+    return rc, seconds, usage.ru_maxrss // 1024, killed
 
 
 def _kill_group(pgid: int, sig: int) -> None:
@@ -342,11 +358,14 @@ def run_case(case: Case, root: Path, logs: Path, args, not_built: dict[str, str]
     paths = watched(root, words)
     before = snapshot(root, paths)
     log = logs / f"{re.sub(r'[^A-Za-z0-9_.#-]', '_', case.id)}.out"
-    res.rc, res.seconds, res.peak_mb, timed_out = run_segment(segment, root, log, timeout_of(case, args.timeout),
-                                                              args.max_memory_gb)
+    res.rc, res.seconds, res.peak_mb, killed = run_segment(segment, root, log, timeout_of(case, args.timeout),
+                                                           args.max_memory_gb)
     res.changed = changes(before, snapshot(root, paths))
     text = ANSI.sub("", log.read_bytes().decode("utf-8", "replace")).replace("\r", "\n")
-    res.cls, res.reason = classify(res.rc, res.peak_mb, timed_out, res.changed, text, names_of(words))
+    if killed == "memory":
+        res.peak_mb = max(res.peak_mb, int(args.max_memory_gb * 1024))
+        text += f"\n[killed by the harness above {args.max_memory_gb} GB]\n"
+    res.cls, res.reason = classify(res.rc, res.peak_mb, killed == "timeout", res.changed, text, names_of(words))
     res.excerpt = " | ".join(x.strip() for x in text.splitlines() if x.strip() and not PROGRESS.search(x))[-600:]
     return res
 
@@ -378,7 +397,8 @@ def classify(rc: int, peak_mb: int, timed_out: bool, changed: list[str], text: s
         return "TRACEBACK", text[text.rindex("Traceback"):].strip().splitlines()[-1][:200]
     if timed_out:
         return "HANG", f"killed after the time-out ({peak_mb} MB)"
-    if rc == 137 or "MemoryError" in text or "bad_alloc" in text or (rc != 0 and peak_mb > MEMORY_MB):
+    memory_words = ("killed by the harness above", "MemoryError", "bad_alloc")
+    if rc == 137 or any(w in text for w in memory_words) or (rc != 0 and peak_mb > MEMORY_MB):
         return "MEMORY", f"rc {rc}, peak {peak_mb} MB"
     if rc in (0, 130):
         return "GOOD", ""
@@ -514,8 +534,8 @@ def main() -> None:
     ap.add_argument("--tsv", type=Path, default=TSV, help="the probe's case table")
     ap.add_argument("--timeout", type=float, default=120, help="seconds per case (a case that hung in the probe "
                     "keeps its longer time-out)")
-    ap.add_argument("--max-memory-gb", type=float, default=8, help="address-space limit per case, to protect the "
-                    "machine (0 = none)")
+    ap.add_argument("--max-memory-gb", type=float, default=8, help="kill a case whose processes hold more than this "
+                    "resident, to protect the machine (0 = never); it is then MEMORY")
     ap.add_argument("--keep-outputs", action="store_true", help="keep DIR/outputs/h from an earlier run")
     ap.add_argument("--reclassify", action="store_true", help="classify the results in --out again (no run)")
     args = ap.parse_args()
