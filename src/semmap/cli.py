@@ -6,6 +6,7 @@ Known errors (bad input, bad files) print one clear line and exit with code 1; t
 from __future__ import annotations
 
 import contextlib
+import functools
 import json
 import logging
 import sys
@@ -728,6 +729,32 @@ def view(
 
     n = view_map(path, save=save, spawn=save is None)
     _console().print(f"{path}: {n:,} occupied voxels" + (f" written to {save}" if save else " sent to rerun"))
+
+
+def _numbers_checked(command: str, callback):
+    """``callback`` of ``command`` with every numeric option checked against ``semmap.limits`` first, so a bad
+    number is refused in one line naming the option before any work (the library checks them again)."""
+
+    @functools.wraps(callback)
+    def checked(**kwargs):
+        from semmap import limits
+
+        names = _long_options(command)
+        limits.check_options(command, {names.get(name, name): value for name, value in kwargs.items()})
+        return callback(**kwargs)
+
+    return checked
+
+
+@functools.cache
+def _long_options(command: str) -> dict[str, str]:
+    """Parameter name -> ``--option`` of one command."""
+    params = typer.main.get_command(app).commands[command].params
+    return {p.name: next((o for o in p.opts if o.startswith("--")), p.name) for p in params}
+
+
+for _info in app.registered_commands:  # every command, present and future
+    _info.callback = _numbers_checked(_info.name or _info.callback.__name__.replace("_", "-"), _info.callback)
 
 
 def main() -> None:

@@ -27,7 +27,7 @@ from semmap.interrupt import RunInterrupted
 from semmap.io.staged_run import StagedRun
 from semmap.io.tum_writer import write_tum_sequence
 from semmap.labels import INDOOR_LABELS
-from semmap.limits import check_simulation
+from semmap.limits import check, check_simulation
 from semmap.sim.noise import KinectNoise
 from semmap.sim.render import Renderer
 from semmap.sim.scene import Scene, generate_scene
@@ -61,6 +61,8 @@ def simulate_sequence(
     if not isinstance(frames, (int, np.integer)) or frames <= 0:
         raise SimulationError(f"frames must be a positive integer, got {frames!r}")
     check_simulation(int(frames), image_size)
+    check("seed", scene_seed, "--scene-seed")
+    check("seed", trajectory_seed, "--trajectory-seed")
     root = Path(out_dir)
     check_sequence_out(root)
     staged = StagedRun(root)
