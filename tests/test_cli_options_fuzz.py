@@ -370,6 +370,7 @@ def test_the_commands_library_functions_check_their_numbers(tmp_path) -> None:
     cases = [
         (lambda: open_dataset(tmp_path, stride=0), "--stride"),
         (lambda: open_dataset(tmp_path, max_frames=math.nan), "--max-frames"),
+        (lambda: open_dataset(tmp_path, max_frames=-1), "--max-frames"),
         (lambda: evaluate_label_folders(tmp_path, tmp_path, 1), "--num-classes"),
         (lambda: evaluate_label_folders(tmp_path, tmp_path, 2, ignore=70000), "--ignore"),
         (lambda: evaluate_trajectories(tmp_path / "gt", [tmp_path / "e"], max_time_diff=math.inf), "--max-time-diff"),

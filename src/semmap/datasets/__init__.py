@@ -10,6 +10,7 @@ from semmap.datasets.base import (
     FormatEntry,
     SkippedFrame,
     UnreadableFileError,
+    check_selection,
     ensure_folder,
     read_color,
     read_depth,
@@ -21,7 +22,6 @@ from semmap.datasets.sevenscenes import SevenScenesDataset
 from semmap.datasets.tum import TumDataset
 from semmap.errors import DatasetError
 from semmap.io.tum_writer import write_tum_sequence
-from semmap.limits import check
 from semmap.registry import Registry
 
 #: Every on-disk format, in the order :func:`detect_format` tries them; each reader module declares its ``FORMAT``.
@@ -68,8 +68,7 @@ def open_dataset(
     reader (e.g. ``depth_scale`` for TUM); ``ros`` holds the ROS bag reader's topic and frame options (ignored
     by the other readers); ``strict`` stops at the first frame that cannot be used instead of skipping it.
     """
-    check("stride", stride, "--stride")
-    check("max_frames", max_frames, "--max-frames")
+    check_selection(stride, max_frames)  # before a bag is read
     name = detect_format(path) if format == AUTO else format
     if name not in FORMATS or FORMATS[name].folder:
         path = ensure_folder(path)
