@@ -344,7 +344,7 @@ def _train_settings(tmp_path: Path, **kwargs):
 @pytest.mark.parametrize("kwargs, option", [
     ({"height": 1e6}, "--height"), ({"pitch_deg": 720.0}, "--pitch-deg"), ({"motion_noise": 1e300}, "--motion-noise"),
     ({"points": 10**9}, "--points"), ({"stride": 0}, "--stride"), ({"max_frames": -1}, "--max-frames"),
-    ({"seed": -1}, "--seed"),
+    ({"seed": -1}, "--seed"), ({"init_pose": np.diag([1.0, 1.0, 1.0, 1.0]) + np.eye(4, k=3) * 1e6}, "--init-pose"),
 ])
 def test_localize_options_take_the_table(kwargs, option) -> None:
     with pytest.raises(ConfigError, match=f"^{option} must be "):

@@ -15,7 +15,7 @@ import numpy as np
 
 from semmap.errors import ConfigError
 from semmap.files.outputs import OutputKind, check_outputs
-from semmap.limits import check_option
+from semmap.limits import check, check_option
 from semmap.localization.filter import FilterSettings
 from semmap.localization.motion import (
     GroundTilt,
@@ -74,6 +74,8 @@ def _check_pose(pose: np.ndarray) -> None:
     if T.shape != (4, 4) or not np.isfinite(T).all():
         raise ConfigError("--init-pose must be finite numbers 'tx ty tz qx qy qz qw' with a non-zero quaternion, "
                           f"got a pose with {'NaN or infinite values' if T.shape == (4, 4) else f'shape {T.shape}'}")
+    for value in T[:3, 3]:  # a position within the table's range
+        check("pose_number", value, "--init-pose")
     R = T[:3, :3]
     if not np.allclose(R @ R.T, np.eye(3), atol=1e-4) or np.linalg.det(R) < 0:
         raise ConfigError("--init-pose: the rotation is not a proper rotation (give a unit quaternion qx qy qz qw)")
