@@ -11,6 +11,7 @@ from __future__ import annotations
 import math
 import re
 import sys
+import types
 import typing
 from pathlib import Path
 from unittest import mock
@@ -53,7 +54,7 @@ REQUIRED = {
 def _base_type(annotation: object) -> object:
     """``int`` of ``int | None``; ``list`` of ``list[Path]``."""
     args = [a for a in typing.get_args(annotation) if a is not type(None)]
-    if typing.get_origin(annotation) in (typing.Union, __import__("types").UnionType) and len(args) == 1:
+    if typing.get_origin(annotation) in (typing.Union, types.UnionType) and len(args) == 1:
         return _base_type(args[0])
     return typing.get_origin(annotation) or annotation
 

@@ -157,13 +157,13 @@ def check_option(option: str, value: object, command: str | None = None) -> obje
     if rule.form == POSE:
         lim = LIMITS[rule.limit]
         try:
-            numbers = str(value).replace(",", " ").split()
-            if len(numbers) != 7:
-                raise ConfigError
-            return tuple(float(check(rule.limit, n, option)) for n in numbers)
+            numbers = tuple(float(check(rule.limit, n, option)) for n in str(value).replace(",", " ").split())
         except ConfigError:
+            numbers = ()
+        if len(numbers) != 7:
             raise ConfigError(f"{option} must be finite numbers 'tx ty tz qx qy qz qw' from {_num(lim.lo)} to "
-                              f"{_num(lim.hi)}, got {_shown(value)}") from None
+                              f"{_num(lim.hi)}, got {_shown(value)}")
+        return numbers
     sides = parse_sides(str(value), option, short_side=rule.form == SIDE_OR_SIZE)
     for side in sides if isinstance(sides, tuple) else (sides,):
         check(rule.limit, side, option)
