@@ -136,7 +136,7 @@ def label_folders(tmp_path):
 
 def test_eval_seg_refuses_sizes_ids_and_class_counts_it_cannot_score(label_folders, caplog):
     pred, gt = label_folders
-    with pytest.raises(ConfigError, match=r"--num-classes must be in 2\.\.65535"):
+    with pytest.raises(ConfigError, match=r"--num-classes must be a whole number from 2 to 65,535"):
         evaluate_label_folders(pred, gt, 70000)
     write_png(pred / "a.png", np.full((4, 6), 7, np.uint8))
     with pytest.raises(DatasetError, match=r"a\.png: predicted class id 7 is not below --num-classes 2"):

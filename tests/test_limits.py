@@ -9,7 +9,6 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from pydantic import ValidationError
 from typer.testing import CliRunner
 
 from semmap import limits
@@ -33,7 +32,7 @@ def small_budget(monkeypatch):
 # ---------------------------------------------------------------------------------------------- one table
 @pytest.mark.parametrize("value", [math.nan, math.inf, -math.inf, 0.0, 11.0, "x"])
 def test_a_limit_refuses_nan_inf_and_out_of_range_in_one_line_naming_the_option(value) -> None:
-    with pytest.raises(ConfigError, match=r"--resolution must be a number"):
+    with pytest.raises(ConfigError, match=r"--resolution must be a (finite )?number"):
         limits.check("resolution", value)
 
 
@@ -55,7 +54,7 @@ def test_a_limit_passes_good_values_and_none() -> None:
 ])
 def test_the_configuration_takes_its_bounds_from_the_table(section, field, value) -> None:
     kwargs = {"dataset": Path("x")} if section is InputConfig else {}
-    with pytest.raises(ValidationError):
+    with pytest.raises(ConfigError, match=rf"{section.section}\.{field}\)? must be "):  # semmap's line, not pydantic's
         section(**kwargs, **{field: value})
 
 

@@ -6,6 +6,7 @@ Known errors (bad input, bad files) print one clear line and exit with code 1; t
 from __future__ import annotations
 
 import contextlib
+import functools
 import json
 import logging
 import sys
@@ -862,6 +863,39 @@ def export_esdf_command(
     n = s["size_voxels"]
     typer.echo(f"{out}: {n[0]}x{n[1]}x{n[2]} voxels at {s['resolution']} m in {s['ms']:.0f} ms; largest distance "
                f"{s['max_distance_m']} m")
+def _numbers_checked(command: str, callback):
+    """``callback`` of ``command`` with every numeric option checked against ``semmap.limits`` first, so a bad
+    number is refused in one line naming the option before any work (the library checks them again)."""
+
+    @functools.wraps(callback)
+    def checked(**kwargs):
+        from semmap import limits
+
+        names = _long_options(command)
+        limits.check_options(command, {names.get(name, name): value for name, value in kwargs.items()})
+        return callback(**kwargs)
+
+    return checked
+
+
+@functools.cache
+def _long_options(command: str) -> dict[str, str]:
+    """Parameter name -> ``--option`` of one command (``export grid``: a command of a sub-app)."""
+    group = typer.main.get_command(app)
+    for word in command.split():
+        group = group.commands[word]
+    return {p.name: next((o for o in p.opts if o.startswith("--")), p.name) for p in group.params}
+
+
+def _command_name(info) -> str:
+    return info.name or info.callback.__name__.replace("_", "-")
+
+
+for _info in app.registered_commands:  # every command, present and future
+    _info.callback = _numbers_checked(_command_name(_info), _info.callback)
+for _group in app.registered_groups:  # and every command of a sub-app (semmap export ...)
+    for _info in _group.typer_instance.registered_commands:
+        _info.callback = _numbers_checked(f"{_group.name} {_command_name(_info)}", _info.callback)
 
 
 def main() -> None:

@@ -9,11 +9,11 @@ from __future__ import annotations
 
 from enum import Enum
 from pathlib import Path
+from typing import ClassVar
 
 from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 
 from semmap.datasets import AUTO, FORMATS, DatasetFormat
-from semmap.errors import ConfigError
 from semmap.fusion.rules import FusionRule
 from semmap.fusion.topk_bayes import DEFAULT_LAMBDA, DEFAULT_MAX_CONFIDENCE
 from semmap.geometry import DEFAULT_MAX_DEPTH, DEFAULT_MIN_DEPTH
@@ -50,11 +50,33 @@ class LoopMode(str, Enum):
 
 class _Section(BaseModel):
     model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)  # NaN never reaches a kernel
+    #: Where the section sits in a :class:`RunConfig` (``mapping``, ``input.ros``), for messages.
+    section: ClassVar[str] = ""
+
+    @model_validator(mode="before")
+    @classmethod
+    def _within_limits(cls, data: object) -> object:
+        """Every field with a limit checked against ``semmap.limits`` before pydantic sees it: one
+        :class:`ConfigError` naming the command-line option and the field (``--top-k (semantics.k) must be ...``)."""
+        if isinstance(data, dict):
+            for name, value in data.items():
+                field = cls.model_fields.get(name)
+                extra = field.json_schema_extra if field is not None else None
+                if isinstance(extra, dict) and "limit" in extra:
+                    check(str(extra["limit"]), value, _label(cls.section, name, extra.get("option")))
+        return data
+
+
+def _label(section: str, field: str, option: object) -> str:
+    """``--option (section.field)``, or ``section.field`` for a field no option sets."""
+    where = f"{section}.{field}" if section else field
+    return f"{option} ({where})" if option else where
 
 
 class RosConfig(_Section):
     """Topics and frames of a ROS bag (``datasets/rosbag.py``); None = found automatically where unambiguous."""
 
+    section: ClassVar[str] = "input.ros"
     rgb_topic: str | None = None
     depth_topic: str | None = None
     camera_info_topic: str | None = None
@@ -70,11 +92,13 @@ class RosConfig(_Section):
 
 
 class InputConfig(_Section):
+    section: ClassVar[str] = "input"
+
     dataset: Path
     format: DatasetFormat = Field(DatasetFormat(AUTO), description=f"{FORMATS.choices((AUTO,))}")
     labels: Path | None = None
-    stride: int = Field(1, **field_bounds("stride"))
-    max_frames: int | None = Field(None, **field_bounds("max_frames"))
+    stride: int = Field(1, **field_bounds("stride", "--stride"))
+    max_frames: int | None = Field(None, **field_bounds("max_frames", "--max-frames"))
     raw_color: bool = Field(False, description="keep colour unregistered (7-Scenes colour is registered to depth)")
     ros: RosConfig = RosConfig()
     strict: bool = Field(False, description="stop at the first frame that cannot be used instead of skipping it")
@@ -86,12 +110,15 @@ class InputConfig(_Section):
 
 
 class MappingConfig(_Section):
-    resolution: float = Field(0.05, **field_bounds("resolution"), description="finest voxel size (m)")
-    min_depth: float = Field(DEFAULT_MIN_DEPTH, **field_bounds("min_depth"))
-    max_depth: float = Field(DEFAULT_MAX_DEPTH, **field_bounds("max_depth"))
-    max_range: float = Field(-1.0, **field_bounds("max_range"),
+    section: ClassVar[str] = "mapping"
+
+    resolution: float = Field(0.05, **field_bounds("resolution", "--resolution"), description="finest voxel size (m)")
+    min_depth: float = Field(DEFAULT_MIN_DEPTH, **field_bounds("min_depth", "--min-depth"))
+    max_depth: float = Field(DEFAULT_MAX_DEPTH, **field_bounds("max_depth", "--max-depth"))
+    max_range: float = Field(-1.0, **field_bounds("max_range", "--max-range"),
                              description="OctoMap max range (m); readings beyond only clear space; -1 = none")
-    pixel_stride: int = Field(1, **field_bounds("pixel_stride"), description="use every k-th pixel row and column")
+    pixel_stride: int = Field(1, **field_bounds("pixel_stride", "--pixel-stride"),
+                              description="use every k-th pixel row and column")
     prob_hit: float = Field(0.7, **field_bounds("probability"))
     prob_miss: float = Field(0.4, **field_bounds("probability"))
     clamp_min: float = Field(0.1192, **field_bounds("probability"))
@@ -102,7 +129,7 @@ class MappingConfig(_Section):
                                     description="per-class numbers of the voxel grid / point map (None: float32 / "
                                                 "float16)")
     free_space: bool = Field(False, description="voxel grid: also ray-cast free space (occupancy OctoMap)")
-    point_resolution: float = Field(0.01, **field_bounds("point_resolution"),
+    point_resolution: float = Field(0.01, **field_bounds("point_resolution", "--point-resolution"),
                                     description="filter cell of the point map (m)")
 
     @field_validator("maps", mode="before")
@@ -129,20 +156,24 @@ class MappingConfig(_Section):
 
 
 class SemanticsConfig(_Section):
+    section: ClassVar[str] = "semantics"
+
     source: SemanticSource = SemanticSource.AUTO
-    k: int = Field(3, **field_bounds("k"), description="classes kept per voxel")
-    lam: float = Field(DEFAULT_LAMBDA, **field_bounds("lam"), description="penalty λ of Algorithm 1")
-    max_confidence: float = Field(DEFAULT_MAX_CONFIDENCE, **field_bounds("confidence"))
-    label_confidence: float = Field(0.9, **field_bounds("confidence"), description="confidence given to hard labels")
+    k: int = Field(3, **field_bounds("k", "--top-k"), description="classes kept per voxel")
+    lam: float = Field(DEFAULT_LAMBDA, **field_bounds("lam", "--lambda"), description="penalty λ of Algorithm 1")
+    max_confidence: float = Field(DEFAULT_MAX_CONFIDENCE, **field_bounds("confidence", "--max-confidence"))
+    label_confidence: float = Field(0.9, **field_bounds("confidence", "--label-confidence"),
+                                    description="confidence given to hard labels")
     oracle_preset: str = "cnn-like"
-    seed: int = 0
+    seed: int = Field(0, **field_bounds("seed"))
     segmenter: SegmenterName | None = Field(None, description=f"{SEGMENTERS.choices()} (None: from source)")
     weights: Path | None = Field(None, description="network weights, or the folder of precomputed predictions")
     trust_weights: bool = Field(False, description="use shipped weights whose sha256 differs from weights/manifest.json"
                                                    " (with a warning) instead of refusing them")
-    segment_every: int = Field(1, **field_bounds("segment_every"), description="segment every k-th frame")
+    segment_every: int = Field(1, **field_bounds("segment_every", "--segment-every"),
+                               description="segment every k-th frame")
     keyframes: bool = Field(False, description="segment only frames where the camera moved enough")
-    batch_size: int = Field(1, **field_bounds("batch_size"), description="frames per network batch")
+    batch_size: int = Field(1, **field_bounds("batch_size", "--batch-size"), description="frames per network batch")
     backend: str = Field("torch", pattern="^(torch|onnx)$", description="network runtime")
     fusion: FusionRule | None = Field(None, description=f"{' | '.join(r.value for r in FusionRule)} for every map "
                                                         f"(None: each map's own: {own_rules()})")
@@ -151,14 +182,11 @@ class SemanticsConfig(_Section):
         None, description="network input: (width, height), or the short side keeping the aspect ratio; None = the "
                     "segmenter's default (espnetv2: 320)")
 
-    @field_validator("input_size")
+    @field_validator("input_size", mode="before")
     @classmethod
-    def _input_in_limits(cls, v: tuple[int, int] | int | None) -> tuple[int, int] | int | None:
-        try:
-            for side in (v if isinstance(v, tuple) else (v,)):
-                check("input_side", side, "--input-size")
-        except ConfigError as exc:
-            raise ValueError(str(exc)) from None
+    def _input_in_limits(cls, v: object) -> object:
+        for side in (v if isinstance(v, list | tuple) else (v,)):
+            check("input_side", side, _label(cls.section, "input_size", "--input-size"))
         return v
 
     @field_validator("segmenter", mode="before")
@@ -175,6 +203,8 @@ class SemanticsConfig(_Section):
 
 
 class PosesConfig(_Section):
+    section: ClassVar[str] = "poses"
+
     source: PoseSource | Path = Field(PoseSource(GROUND_TRUTH), union_mode="left_to_right",
                                       description=f"{' | '.join(POSE_SOURCES)} | path of a TUM trajectory file")
     max_time_diff: float = Field(0.02, **field_bounds("time_diff"),
@@ -184,6 +214,7 @@ class PosesConfig(_Section):
 class OnlineConfig(_Section):
     """Bounds of an online run's frame loop (``mode = online``)."""
 
+    section: ClassVar[str] = "online"
     max_pending: int = Field(8, **field_bounds("queue"),
                              description="frames waiting behind a frame still being segmented before "
                                          "tracking waits too")
@@ -194,7 +225,7 @@ class OnlineConfig(_Section):
                                        description="numba threads of the segmentation thread's kernels")
     read_ahead: int = Field(2, **field_bounds("queue"),
                             description="frames read (decoded, colour registered) ahead on a thread")
-    rate: float | None = Field(None, **field_bounds("rate"),
+    rate: float | None = Field(None, **field_bounds("rate", "--rate"),
                                description="replay the frames at this many per second, as a live camera "
                                            "delivers them (latency counts from each frame's due time); "
                                            "None: as fast as the loop takes them")
@@ -203,29 +234,34 @@ class OnlineConfig(_Section):
 class CrfConfig(_Section):
     """3D dense CRF over each map after integration (and every ``every`` keyframes while mapping)."""
 
+    section: ClassVar[str] = "crf"
     enabled: bool = False
-    every: int = Field(0, **field_bounds("every"),
+    every: int = Field(0, **field_bounds("every", "--crf-every"),
                        description="also refine every N keyframes during mapping (0: only at the end)")
     iterations: int = Field(5, **field_bounds("crf_iterations"))
 
 
 class OutputConfig(_Section):
+    section: ClassVar[str] = "output"
+
     out: Path
     color_mode: ColorMode = ColorMode.CLASS
     preview: bool = True
     plots: bool = Field(True, description="draw the report's plots (trajectory, IoU, storage, timings)")
     rerun: Path | None = Field(None, description="log the run to this rerun recording (.rrd)")
     rerun_spawn: bool = Field(False, description="stream the run to a rerun viewer")
-    rerun_map_every: int = Field(10, **field_bounds("every_positive"),
+    rerun_map_every: int = Field(10, **field_bounds("every_positive", "--rerun-map-every"),
                                  description="frames between two logs of the whole map")
 
 
 class ObjectsConfig(_Section):
+    section: ClassVar[str] = "objects"
+
     instances: InstanceSourceName | None = Field(None, description=f"{INSTANCE_SOURCES.choices()}: build the object "
                                                                    "map (None: no)")
     weights: Path | None = Field(None, description="Mask R-CNN state dict (--instances maskrcnn)")
     errors: str = Field("maskrcnn-like", description="oracle instances' error preset: exact | maskrcnn-like | noisy")
-    seed: int = 0
+    seed: int = Field(0, **field_bounds("seed"))
 
     @field_validator("instances", mode="before")
     @classmethod

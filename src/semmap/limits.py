@@ -75,13 +75,135 @@ LIMITS: dict[str, Limit] = {
     "learning_rate": Limit(1e-9, 10.0, "learning rate"),
     "time_diff": Limit(1e-6, 3600.0, "seconds"),
     "timeout": Limit(0.1, 7 * 24 * 3600.0, "seconds"),
+    "seed": Limit(0, 2**32 - 1, "random seed", integer=True),  # numpy's legacy generators stop at 2^32 - 1
+    "width": Limit(0.001, 4.0, "width multiplier"),
+    "resnet_depth": Limit(18, 50, "ResNet depth 18 | 34 | 50", integer=True),
+    "num_classes": Limit(2, 65535, "classes; label images hold 16-bit ids", integer=True),
+    "label_id": Limit(-1, 65535, "16-bit label id, -1 = none", integer=True),
+    "rotation_frames": Limit(1, 1_000_000, "frames", integer=True),
+    "pose_number": Limit(-1e5, 1e5, "metres or quaternion component"),
+    "memory": Limit(1 << 20, 1 << 50, "bytes of memory"),
+    "changes": Limit(0, 50, "objects changed", integer=True),
+    "distance": Limit(1e-3, 100.0, "distance (m)"),
+    "coordinate": Limit(-1e4, 1e4, "coordinate (m)"),
+    "inflation": Limit(0.0, 10.0, "radius (m)"),
+}
+
+# ------------------------------------------------------------------------------------ command-line options
+#: Forms of an option's text: one number, ``WIDTHxHEIGHT``, a short side ``N`` or ``WIDTHxHEIGHT``, a TUM pose
+#: ``tx ty tz qx qy qz qw``, a memory size (``4G``).
+NUMBER, SIZE, SIDE_OR_SIZE, POSE, BYTES = "number", "size", "side-or-size", "pose", "bytes"
+
+
+@dataclass(frozen=True)
+class OptionRule:
+    """How one command-line option's text holds numbers, and the limit (a key of :data:`LIMITS`) of each."""
+
+    limit: str
+    form: str = NUMBER
+
+
+#: Every numeric command-line option of every command, by ``--option`` (or ``COMMAND --option`` where one
+#: command's option of that name differs). ``tests/test_cli_options_fuzz.py`` fails for a numeric option missing
+#: here, and fuzzes each one.
+OPTIONS: dict[str, OptionRule] = {
+    # the frames of a sequence
+    "--stride": OptionRule("stride"), "--max-frames": OptionRule("max_frames"), "--frames": OptionRule("frames"),
+    # mapping
+    "--resolution": OptionRule("resolution"), "--point-resolution": OptionRule("point_resolution"),
+    "--min-depth": OptionRule("min_depth"), "--max-depth": OptionRule("max_depth"),
+    "--max-range": OptionRule("max_range"), "--pixel-stride": OptionRule("pixel_stride"),
+    "--top-k": OptionRule("k"), "--lambda": OptionRule("lam"), "--max-confidence": OptionRule("confidence"),
+    "--label-confidence": OptionRule("confidence"), "--crf-every": OptionRule("every"),
+    # segmentation
+    "--segment-every": OptionRule("segment_every"), "--batch-size": OptionRule("batch_size"),
+    "--input-size": OptionRule("input_side", SIDE_OR_SIZE), "train --input-size": OptionRule("input_side", SIZE),
+    # the run's loop and outputs
+    "--rate": OptionRule("rate"), "--rerun-map-every": OptionRule("every_positive"),
+    "--checkpoint-every": OptionRule("every"), "--memory-budget": OptionRule("memory", BYTES),
+    # simulate
+    "--image-size": OptionRule("image_side", SIZE), "--scene-seed": OptionRule("seed"),
+    "--trajectory-seed": OptionRule("seed"), "--seed": OptionRule("seed"),
+    # train
+    "--epochs": OptionRule("epochs"), "--iterations": OptionRule("iterations"), "--batch": OptionRule("batch"),
+    "--lr": OptionRule("learning_rate"), "--width": OptionRule("width"), "--resnet-depth": OptionRule("resnet_depth"),
+    "--threads": OptionRule("threads"), "--eval-every": OptionRule("every_positive"),
+    "--depth-scale": OptionRule("depth_scale"),
+    # localize
+    "--particles": OptionRule("particles"), "--points": OptionRule("scan_points"),
+    "--init-pose": OptionRule("pose_number", POSE), "--motion-noise": OptionRule("noise"),
+    "--height": OptionRule("height"), "--pitch-deg": OptionRule("angle_deg"), "--roll-deg": OptionRule("angle_deg"),
+    # evaluation
+    "--max-time-diff": OptionRule("time_diff"), "--rotation-frames": OptionRule("rotation_frames"),
+    "--num-classes": OptionRule("num_classes"), "--ignore": OptionRule("label_id"),
+    # batch
+    "--workers": OptionRule("workers"), "--cpus-per-run": OptionRule("cpus_per_run"),
+    # simulate --changes, diff, export
+    "--changes": OptionRule("changes"), "--changes-seed": OptionRule("seed"),
+    "--match-radius": OptionRule("distance"), "--move-threshold": OptionRule("distance"),
+    "--z-min": OptionRule("coordinate"), "--z-max": OptionRule("coordinate"), "--floor": OptionRule("coordinate"),
+    "--slice-z": OptionRule("coordinate"), "--inflation": OptionRule("inflation"), "--near": OptionRule("distance"),
+    "--door-width": OptionRule("distance"),
 }
 
 
-def field_bounds(name: str) -> dict:
-    """``ge`` / ``le`` keyword arguments of a pydantic ``Field`` for the limit ``name``."""
+def option_rule(option: str, command: str | None = None) -> OptionRule | None:
+    """The rule of ``option`` of ``command`` (None: not a numeric option)."""
+    return OPTIONS.get(f"{command} {option}") or OPTIONS.get(option)
+
+
+def check_option(option: str, value: object, command: str | None = None) -> object:
+    """``value`` of the numeric command-line ``option`` parsed (a number, ``(width, height)``, a short side or 7
+    pose numbers) and checked against its limit; one :class:`ConfigError` line naming the option otherwise."""
+    rule = option_rule(option, command)
+    if rule is None:
+        raise KeyError(f"{option} has no entry in semmap.limits.OPTIONS")
+    if value is None:
+        return None
+    if rule.form == NUMBER:
+        return check(rule.limit, value, option)
+    if rule.form == BYTES:
+        return parse_size(value, option)
+    if rule.form == POSE:
+        lim = LIMITS[rule.limit]
+        try:
+            numbers = tuple(float(check(rule.limit, n, option)) for n in str(value).replace(",", " ").split())
+        except ConfigError:
+            numbers = ()
+        if len(numbers) != 7:
+            raise ConfigError(f"{option} must be finite numbers 'tx ty tz qx qy qz qw' from {_num(lim.lo)} to "
+                              f"{_num(lim.hi)}, got {_shown(value)}")
+        return numbers
+    sides = parse_sides(str(value), option, short_side=rule.form == SIDE_OR_SIZE)
+    for side in sides if isinstance(sides, tuple) else (sides,):
+        check(rule.limit, side, option)
+    return sides
+
+
+def check_options(command: str, values: dict[str, object]) -> None:
+    """Check every numeric option among ``values`` (``--option``: value, as given to ``command``) in order."""
+    for option, value in values.items():
+        if option_rule(option, command) is not None:
+            check_option(option, value, command)
+
+
+def parse_sides(text: str, option: str = "--input-size", *, short_side: bool = True) -> tuple[int, int] | int:
+    """``"512x384"`` -> (512, 384); ``"384"`` -> 384 (a short side, where ``short_side``); unchecked sizes."""
+    try:
+        if short_side and "x" not in text.lower():
+            return int(text)
+        w, h = (int(v) for v in text.lower().split("x"))
+    except ValueError:
+        example = "a short side like 384 or a size like 512x384" if short_side else "WIDTHxHEIGHT like 160x120"
+        raise ConfigError(f"{option} must be {example}, got {text!r}") from None
+    return w, h
+
+
+def field_bounds(name: str, option: str | None = None) -> dict:
+    """Keyword arguments of a pydantic ``Field`` for the limit ``name``: ``ge`` / ``le`` for the schema, and the
+    limit's and the command-line ``option``'s names, which the configuration checks first (see ``config.py``)."""
     lim = LIMITS[name]
-    return {"ge": lim.lo, "le": lim.hi}
+    return {"ge": lim.lo, "le": lim.hi, "json_schema_extra": {"limit": name, "option": option}}
 
 
 def check(name: str, value: float | int | None, option: str | None = None) -> float | int | None:
@@ -93,12 +215,21 @@ def check(name: str, value: float | int | None, option: str | None = None) -> fl
     label = option or "--" + name.replace("_", "-")
     try:
         number = float(value)
+    except OverflowError:  # an integer beyond any float
+        number = math.inf
     except (TypeError, ValueError):
-        raise ConfigError(f"{label} must be a number, got {value!r}") from None
-    kind = "a whole number" if lim.integer else "a number"
+        raise ConfigError(f"{label} must be a number, got {_shown(value)}") from None
+    kind = "a whole number" if lim.integer else "a finite number" if not math.isfinite(number) else "a number"
     if not math.isfinite(number) or (lim.integer and number != int(number)) or not lim.lo <= number <= lim.hi:
-        raise ConfigError(f"{label} must be {kind} from {_num(lim.lo)} to {_num(lim.hi)} ({lim.what}), got {value!r}")
+        raise ConfigError(f"{label} must be {kind} from {_num(lim.lo)} to {_num(lim.hi)} ({lim.what}), "
+                          f"got {_shown(value)}")
     return value
+
+
+def _shown(value: object) -> str:
+    """``value`` for a one-line message (a huge integer or text cut short)."""
+    text = repr(value)
+    return text if len(text) <= 40 else text[:37] + "..."
 
 
 def _num(x: float) -> str:
@@ -114,11 +245,19 @@ def parse_size(text: str | int | float, what: str = "--memory-budget") -> int:
     """Bytes from ``"4G"``, ``"512M"``, ``"1.5GB"``, ``"1000000"``; a :class:`ConfigError` naming ``what``."""
     m = re.fullmatch(r"\s*([0-9]*\.?[0-9]+(?:e[0-9]+)?)\s*([KMGT]?)(?:i?B)?\s*", str(text), re.IGNORECASE)
     if not m:
-        raise ConfigError(f"{what} must be a size like 4G, 512M or a number of bytes, got {text!r}")
+        raise ConfigError(f"{what} must be a size like 4G, 512M or a number of bytes, got {_shown(text)}")
     size = float(m.group(1)) * _UNITS[m.group(2).upper()]
-    if not math.isfinite(size) or size < 1 << 20:
-        raise ConfigError(f"{what} must be at least 1M, got {text!r}")
+    lim = LIMITS["memory"]
+    if not (math.isfinite(size) and lim.lo <= size <= lim.hi):
+        raise ConfigError(f"{what} must be a size from {_size_text(lim.lo)} to {_size_text(lim.hi)}, "
+                          f"got {_shown(text)}")
     return int(size)
+
+
+def _size_text(n: float) -> str:
+    """``1M``-style text of a whole number of bytes."""
+    unit = next(u for u in "TGMK" if n % _UNITS[u] == 0)
+    return f"{int(n) // _UNITS[unit]}{unit}"
 
 
 def set_memory_budget(budget: str | int | None) -> None:

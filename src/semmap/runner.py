@@ -14,6 +14,7 @@ from semmap.config import InputConfig, MappingConfig, OutputConfig, RunConfig, S
 from semmap.datasets import Dataset
 from semmap.eval.run_report import GroundTruthFn
 from semmap.factories import instance_source_for, segmenter_for
+from semmap.limits import check
 from semmap.pipeline import Pipeline, RunResult
 from semmap.poses.base import Progress
 from semmap.run.paths import check_run_paths
@@ -67,6 +68,7 @@ def run_config(config: RunConfig, *, dataset: Dataset | None = None, progress: P
     """Map ``config.input.dataset`` (or an already open ``dataset``, e.g. the simulator's) into
     ``config.output.out`` exactly as ``semmap run`` does (``checkpoint_every`` frames a checkpoint; ``resume``
     continues from the last one). The outputs are checked against the inputs before anything is loaded."""
+    check("every", checkpoint_every, "--checkpoint-every")
     check_run_paths(config)
     segmenter = segmenter_for(config, dataset)
     return Pipeline(config, segmenter=segmenter, dataset=dataset, progress=progress, track_progress=track_progress,
@@ -100,6 +102,8 @@ def run_demo(*, out: Path, frames: int = 300, resolution: float | None = None, s
     simulator's ground truth (``out`` and ``rerun`` checked before the scene is built)."""
     from semmap.files.outputs import OutputKind, check_outputs
 
+    check("frames", frames, "--frames")
+    check("seed", scene_seed, "--scene-seed")
     check_outputs([("--out", out, OutputKind.FOLDER), ("--rerun", rerun, OutputKind.FILE)], [])
     config, dataset = demo_config(out=out, frames=frames, resolution=resolution, scene_seed=scene_seed,
                                   rerun=rerun, oracle=oracle)
@@ -210,6 +214,8 @@ def evaluate_trajectories(gt: Path, est: list[Path], *, max_time_diff: float = 0
     )
     from semmap.files.outputs import OutputKind, check_outputs
 
+    check("time_diff", max_time_diff, "--max-time-diff")
+    check("rotation_frames", rotation_frames, "--rotation-frames")
     check_outputs([("--plot", plot, OutputKind.FILE), ("--plot-errors", plot_errors, OutputKind.FILE)],
                   [("GT", gt), *(("EST", p) for p in est), ("--reference2", reference2)])
     reference = reference_trajectory(gt)

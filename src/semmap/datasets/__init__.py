@@ -10,6 +10,7 @@ from semmap.datasets.base import (
     FormatEntry,
     SkippedFrame,
     UnreadableFileError,
+    check_selection,
     ensure_folder,
     read_color,
     read_depth,
@@ -67,6 +68,7 @@ def open_dataset(
     reader (e.g. ``depth_scale`` for TUM); ``ros`` holds the ROS bag reader's topic and frame options (ignored
     by the other readers); ``strict`` stops at the first frame that cannot be used instead of skipping it.
     """
+    check_selection(stride, max_frames)  # before a bag is read
     name = detect_format(path) if format == AUTO else format
     if name not in FORMATS or FORMATS[name].folder:
         path = ensure_folder(path)

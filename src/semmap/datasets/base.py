@@ -18,8 +18,9 @@ from typing import Generic, Protocol, TypeVar, runtime_checkable
 import cv2
 import numpy as np
 
-from semmap.errors import ConfigError, DatasetError
+from semmap.errors import DatasetError
 from semmap.files.safe import MAX_IMAGE_BYTES, read_bytes_limited
+from semmap.limits import check
 from semmap.types import CameraIntrinsics, Frame, LabelSet
 
 LOG = logging.getLogger("semmap")
@@ -191,12 +192,16 @@ def skip_frame(name: str, path: str, reason: str, skipped: list[SkippedFrame], *
 T = TypeVar("T")
 
 
+def check_selection(stride: int, max_frames: int | None) -> None:
+    """``stride`` and ``max_frames`` within their limits (``semmap.limits``); ``max_frames`` 0 selects nothing."""
+    check("stride", stride, "--stride")
+    if max_frames != 0:
+        check("max_frames", max_frames, "--max-frames")
+
+
 def select_frames(items: Sequence[T], stride: int, max_frames: int | None) -> list[T]:
     """Every ``stride``-th item, at most ``max_frames`` of them."""
-    if int(stride) != stride or stride < 1:
-        raise ConfigError(f"stride must be a positive integer, got {stride}")
-    if max_frames is not None and (int(max_frames) != max_frames or max_frames < 0):
-        raise ConfigError(f"max_frames must be a non-negative integer or None, got {max_frames}")
+    check_selection(stride, max_frames)
     chosen = list(items[:: int(stride)])
     return chosen if max_frames is None else chosen[: int(max_frames)]
 

@@ -27,6 +27,7 @@ from semmap.errors import ConfigError, DatasetError
 from semmap.eval.semantic import SegmentationScores, confusion, scores, scores_from_counts
 from semmap.files.atomic import write_text_atomic
 from semmap.files.outputs import OutputKind, check_outputs
+from semmap.limits import LIMITS, check
 from semmap.types import LabelSet
 
 LOG = logging.getLogger("semmap")
@@ -36,7 +37,7 @@ LABEL_SUFFIXES = (".png",)
 
 
 #: Largest class count of label images (16-bit ids).
-MAX_CLASSES = 65535
+MAX_CLASSES = int(LIMITS["num_classes"].hi)
 #: Up to this many classes the confusion matrix is kept (and written) dense; above it only its non-zero cells.
 DENSE_CONFUSION_LIMIT = 1024
 
@@ -113,9 +114,8 @@ def evaluate_label_folders(pred_dir: str | Path, gt_dir: str | Path, num_classes
     written there as JSON (checked against both folders before any image is read).
     """
     check_outputs([("--out", out, OutputKind.FILE)], [("PRED_DIR", pred_dir), ("GT_DIR", gt_dir)])
-    if not 2 <= num_classes <= MAX_CLASSES:
-        raise ConfigError(f"--num-classes must be in 2..{MAX_CLASSES} (label images hold 16-bit ids), "
-                          f"got {num_classes}")
+    check("num_classes", num_classes, "--num-classes")
+    check("label_id", ignore, "--ignore")
     codes = np.zeros(0, np.int64)
     counts = np.zeros(0, np.int64)
     missing: list[str] = []

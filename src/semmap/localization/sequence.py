@@ -15,6 +15,7 @@ import numpy as np
 
 from semmap.errors import ConfigError
 from semmap.files.outputs import OutputKind, check_outputs
+from semmap.limits import check, check_option
 from semmap.localization.filter import FilterSettings
 from semmap.localization.motion import (
     GroundTilt,
@@ -56,16 +57,13 @@ class LocalizeOptions:
     gif: bool = False
 
     def __post_init__(self) -> None:
-        """Refuse NaN, infinite or meaningless numbers here, in one line, before any numba kernel sees them."""
+        """Refuse NaN, infinite or meaningless numbers here (the table of ``semmap.limits``), in one line, before
+        any numba kernel sees them."""
         for option, value in (("--height", self.height), ("--pitch-deg", self.pitch_deg),
-                              ("--roll-deg", self.roll_deg), ("--motion-noise", self.motion_noise)):
-            if value is not None and not np.isfinite(value):
-                raise ConfigError(f"{option} must be a finite number, got {value}")
-        if self.motion_noise < 0:
-            raise ConfigError(f"--motion-noise must be at least 0, got {self.motion_noise}")
-        for option, count in (("--particles", self.settings.particles), ("--points", self.points)):
-            if isinstance(count, bool) or not isinstance(count, int | np.integer) or count < 1:
-                raise ConfigError(f"{option} must be a whole number of at least 1, got {count}")
+                              ("--roll-deg", self.roll_deg), ("--motion-noise", self.motion_noise),
+                              ("--particles", self.settings.particles), ("--points", self.points),
+                              ("--stride", self.stride), ("--max-frames", self.max_frames), ("--seed", self.seed)):
+            check_option(option, value)
         if self.init_pose is not None:
             _check_pose(self.init_pose)
 
@@ -76,6 +74,8 @@ def _check_pose(pose: np.ndarray) -> None:
     if T.shape != (4, 4) or not np.isfinite(T).all():
         raise ConfigError("--init-pose must be finite numbers 'tx ty tz qx qy qz qw' with a non-zero quaternion, "
                           f"got a pose with {'NaN or infinite values' if T.shape == (4, 4) else f'shape {T.shape}'}")
+    for value in T[:3, 3]:  # a position within the table's range
+        check("pose_number", value, "--init-pose")
     R = T[:3, :3]
     if not np.allclose(R @ R.T, np.eye(3), atol=1e-4) or np.linalg.det(R) < 0:
         raise ConfigError("--init-pose: the rotation is not a proper rotation (give a unit quaternion qx qy qz qw)")

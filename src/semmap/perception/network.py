@@ -22,7 +22,7 @@ import numpy as np
 
 from semmap.errors import ConfigError
 from semmap.geometry import onto_depth_grid
-from semmap.limits import check_network_input
+from semmap.limits import check_network_input, parse_sides
 from semmap.types import EMPTY_LABEL, Frame, LabelSet, TopKProbs
 
 log = logging.getLogger("semmap")
@@ -91,15 +91,7 @@ class NetworkInput:
 
 def parse_input_size(text: str | None) -> tuple[int, int] | int | None:
     """Network input from the command line: ``"512x384"`` -> (512, 384); ``"384"`` -> 384 (the short side)."""
-    if text is None:
-        return None
-    try:
-        if "x" not in text.lower():
-            return int(text)
-        w, h = (int(v) for v in text.lower().split("x"))
-    except ValueError:
-        raise ConfigError(f"--input-size must be a short side like 384 or a size like 512x384, got {text!r}") from None
-    return w, h
+    return None if text is None else parse_sides(text, "--input-size", short_side=True)
 
 
 def _check_input_budget(net_input: NetworkInput, batch: int) -> None:

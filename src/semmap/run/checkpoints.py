@@ -19,6 +19,7 @@ from semmap.errors import ConfigError, FormatError
 from semmap.eval.run_report import RunRecord
 from semmap.io.staged_run import StagedRun
 from semmap.io.state import prefixed, read_checkpoint, section, write_checkpoint
+from semmap.limits import check
 from semmap.perception.schedule import SegmentationSchedule
 from semmap.poses.frame_poses import FramePoses
 from semmap.types import Frame
@@ -28,8 +29,7 @@ log = logging.getLogger("semmap")
 
 def check_checkpoint_options(every: int, resume: bool, *, online: bool, objects: bool, batched: bool) -> None:
     """Refuse checkpoint options a run cannot honour, before anything is read."""
-    if every < 0:
-        raise ConfigError(f"--checkpoint-every must be 0 (off) or a number of frames, got {every}")
+    check("every", every, "--checkpoint-every")
     if not (every or resume):
         return
     if online:

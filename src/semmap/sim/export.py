@@ -28,7 +28,7 @@ from semmap.io.benchmark_layouts import write_replica_scene, write_scannet_scan
 from semmap.io.staged_run import StagedRun
 from semmap.io.tum_writer import write_tum_sequence
 from semmap.labels import INDOOR_LABELS, NYU40_NAMES, simulator_to_nyu40
-from semmap.limits import check_simulation
+from semmap.limits import check, check_simulation
 from semmap.sim.changes import change_scene
 from semmap.sim.noise import KinectNoise
 from semmap.sim.render import Renderer
@@ -68,6 +68,9 @@ def simulate_sequence(
     check_simulation(int(frames), image_size)
     if layout not in LAYOUTS:
         raise SimulationError(f"unknown layout {layout!r}; choose one of {', '.join(LAYOUTS)}")
+    check("seed", scene_seed, "--scene-seed")
+    check("seed", trajectory_seed, "--trajectory-seed")
+    check("seed", changes_seed, "--changes-seed")
     root = Path(out_dir)
     check_sequence_out(root)
     staged = StagedRun(root)

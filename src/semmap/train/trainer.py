@@ -41,6 +41,7 @@ from semmap.perception.networks.registry import (
     read_torch_file,
     save_weights,
 )
+from semmap.perception.networks.resnet import LAYOUTS
 from semmap.train.augment import Augmentation, augment
 from semmap.train.class_weights import IGNORE, median_frequency_weights
 from semmap.train.data import DEPTH_MM, TrainingSet, gather
@@ -90,10 +91,6 @@ class TrainSettings:
     def __post_init__(self) -> None:
         if not self.data:
             raise ConfigError("training needs at least one data folder (--data)")
-        if self.batch < 1 or self.eval_every < 1 or (self.iterations is not None and self.iterations < 1):
-            raise ConfigError("batch, iterations and eval interval must be positive")
-        if not (self.lr > 0 and self.epochs > 0):
-            raise ConfigError("learning rate and epochs must be positive")
         if min(self.input_size) < 16:
             raise ConfigError(f"training input must be at least 16x16, got {self.input_size}")
         if self.device not in ("cpu", "cuda") and not self.device.startswith("cuda:"):
@@ -103,6 +100,13 @@ class TrainSettings:
         check("epochs", self.epochs)
         check("depth_scale", self.depth_scale)
         check("learning_rate", self.lr, "--lr")
+        check("width", self.width, "--width")
+        check("threads", self.threads)
+        check("every_positive", self.eval_every, "--eval-every")
+        check("seed", self.seed)
+        if self.depth not in LAYOUTS:
+            raise ConfigError(f"--resnet-depth must be one of {' | '.join(map(str, sorted(LAYOUTS)))}, "
+                              f"got {self.depth}")
         if self.device == "cpu":  # one step's activations and gradients, in this machine's memory
             check_network_input(*self.input_size, self.batch, training=True)
 
