@@ -32,7 +32,7 @@ TEXT_OPTIONS = frozenset({
     "--format", "--rgb-topic", "--depth-topic", "--camera-info-topic", "--pose-topic", "--world-frame",
     "--camera-frame", "--semantics", "--segmenter", "--backend", "--poses", "--color-mode", "--maps", "--fusion",
     "--state-dtype", "--instances", "--instance-errors", "--kind", "--size", "--trajectory", "--model", "--backbone",
-    "--device", "--method", "--init", "--mode", "--motion", "--address",
+    "--device", "--method", "--init", "--mode", "--motion", "--address", "--no-go",
 })
 #: The required arguments of each command: paths that are never opened (the numbers are checked first).
 NOWHERE = "/nonexistent/semmap-fuzz"
@@ -48,6 +48,10 @@ REQUIRED = {
     "info": [f"{NOWHERE}/map.ot"],
     "batch": [f"{NOWHERE}/seq", "--out", f"{NOWHERE}/out"],
     "view": [f"{NOWHERE}/map.ot"],
+    "diff": [f"{NOWHERE}/a.semmap", f"{NOWHERE}/b.semmap", "--out", f"{NOWHERE}/out"],
+    "export grid": [f"{NOWHERE}/map.semmap", "--out", f"{NOWHERE}/out"],
+    "export esdf": [f"{NOWHERE}/map.semmap", "--out", f"{NOWHERE}/out"],
+    "export scene-graph": [f"{NOWHERE}/run", "--out", f"{NOWHERE}/out"],
 }
 
 
@@ -63,10 +67,19 @@ def _base_type(annotation: object) -> object:
 COMMANDS = typer.main.get_command(cli.app)
 
 
+def _commands() -> list[tuple[str, object]]:
+    """(name, click command) of every command, sub-apps' commands as ``export grid``."""
+    out = []
+    for name, command in COMMANDS.commands.items():
+        subs = getattr(command, "commands", None)
+        out += [(f"{name} {sub}", c) for sub, c in subs.items()] if subs else [(name, command)]
+    return out
+
+
 def _options() -> list[tuple[str, str, object, object]]:
     """(command, --option, base type, default) of every option of every command."""
     rows = []
-    for name, command in COMMANDS.commands.items():
+    for name, command in _commands():
         for p in command.params:
             if p.opts[0].startswith("-") and not p.is_flag:
                 long = next(o for o in p.opts if o.startswith("--"))
@@ -146,9 +159,9 @@ def _valid(rule: limits.OptionRule, value: object) -> bool:
     if rule.form == limits.NUMBER:
         return _within(rule.limit, value)
     text = str(value)
-    if rule.form == limits.POSE:
+    if rule.form in limits.NUMBER_LISTS:
         parts = text.replace(",", " ").split()
-        return len(parts) == 7 and all(_within(rule.limit, p) for p in parts)
+        return len(parts) == limits.NUMBER_LISTS[rule.form][0] and all(_within(rule.limit, p) for p in parts)
     if rule.form == limits.BYTES:
         m = re.fullmatch(r"\s*(\d*\.?\d+(?:e\d+)?)\s*([KMGT]?)(?:i?B)?\s*", text, re.IGNORECASE)
         return m is not None and _within(rule.limit, float(m.group(1)) * 1024 ** " KMGT".index(m.group(2).upper()
@@ -190,11 +203,12 @@ def _texts(rule: limits.OptionRule, kind: object) -> st.SearchStrategy[str]:
         return st.one_of(st.tuples(side, side).map("x".join), st.sampled_from([*SPECIAL, "x", "16x", "nanx16"]))
     if rule.form == limits.SIDE_OR_SIZE:
         return st.one_of(side, st.tuples(side, side).map("x".join), st.sampled_from(["x", "16x", "16x16x16"]))
-    if rule.form == limits.POSE:
+    if rule.form in limits.NUMBER_LISTS:
+        n = limits.NUMBER_LISTS[rule.form][0]
         unit = st.sampled_from(["0", "0.5", "1", "-2.5", "1e3"])
-        return st.one_of(st.lists(unit, min_size=7, max_size=7).map(" ".join),
-                         st.lists(number, min_size=7, max_size=7).map(" ".join),
-                         st.lists(unit, min_size=0, max_size=9).map(" ".join), st.sampled_from(SPECIAL))
+        return st.one_of(st.lists(unit, min_size=n, max_size=n).map(" ".join),
+                         st.lists(number, min_size=n, max_size=n).map(" ".join),
+                         st.lists(unit, min_size=0, max_size=n + 2).map(" ".join), st.sampled_from(SPECIAL))
     sizes = st.tuples(st.sampled_from(["0", "1", "512", "1.5", "4", "1023", "1e400", "-1", "nan", ""]),
                       st.sampled_from(["", "K", "M", "G", "T", "GB", "X"])).map("".join)
     return st.one_of(sizes, st.sampled_from(SPECIAL))
@@ -236,7 +250,7 @@ def invoke(args: list[str]) -> tuple[int | None, str, dict | None]:
 
 
 def _assert_one_outcome(command: str, option: str, rule: limits.OptionRule, text: str) -> None:
-    code, output, values = invoke([command, *REQUIRED[command], f"{option}={text}"])
+    code, output, values = invoke([*command.split(), *REQUIRED[command], f"{option}={text}"])
     if values is not None:  # accepted: what the command received lies within the limit
         assert _valid(rule, values[option]), (option, text, values[option])
         return

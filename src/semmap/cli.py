@@ -770,17 +770,9 @@ _Region = Annotated[str | None, typer.Option(help="bounded region 'xmin ymin zmi
 
 
 def _region(text: str | None) -> tuple[float, ...] | None:
-    if text is None:
-        return None
-    from semmap.errors import ConfigError
+    from semmap.limits import check_option
 
-    try:
-        values = tuple(float(v) for v in text.replace(",", " ").split())
-    except ValueError:
-        values = ()
-    if len(values) != 6:
-        raise ConfigError(f"--region must be 6 numbers 'xmin ymin zmin xmax ymax zmax', got {text!r}")
-    return values
+    return check_option("--region", text)
 
 
 def _class_costs(items: list[str]) -> dict[str, int]:

@@ -93,6 +93,9 @@ LIMITS: dict[str, Limit] = {
 #: Forms of an option's text: one number, ``WIDTHxHEIGHT``, a short side ``N`` or ``WIDTHxHEIGHT``, a TUM pose
 #: ``tx ty tz qx qy qz qw``, a memory size (``4G``).
 NUMBER, SIZE, SIDE_OR_SIZE, POSE, BYTES = "number", "size", "side-or-size", "pose", "bytes"
+#: ... or a box ``xmin ymin zmin xmax ymax zmax``; the forms made of several numbers, with their count and shape.
+REGION = "region"
+NUMBER_LISTS = {POSE: (7, "tx ty tz qx qy qz qw"), REGION: (6, "xmin ymin zmin xmax ymax zmax")}
 
 
 @dataclass(frozen=True)
@@ -143,7 +146,7 @@ OPTIONS: dict[str, OptionRule] = {
     "--match-radius": OptionRule("distance"), "--move-threshold": OptionRule("distance"),
     "--z-min": OptionRule("coordinate"), "--z-max": OptionRule("coordinate"), "--floor": OptionRule("coordinate"),
     "--slice-z": OptionRule("coordinate"), "--inflation": OptionRule("inflation"), "--near": OptionRule("distance"),
-    "--door-width": OptionRule("distance"),
+    "--door-width": OptionRule("distance"), "--region": OptionRule("coordinate", REGION),
 }
 
 
@@ -164,14 +167,15 @@ def check_option(option: str, value: object, command: str | None = None) -> obje
         return check(rule.limit, value, option)
     if rule.form == BYTES:
         return parse_size(value, option)
-    if rule.form == POSE:
+    if rule.form in NUMBER_LISTS:
+        count, names = NUMBER_LISTS[rule.form]
         lim = LIMITS[rule.limit]
         try:
             numbers = tuple(float(check(rule.limit, n, option)) for n in str(value).replace(",", " ").split())
         except ConfigError:
             numbers = ()
-        if len(numbers) != 7:
-            raise ConfigError(f"{option} must be finite numbers 'tx ty tz qx qy qz qw' from {_num(lim.lo)} to "
+        if len(numbers) != count:
+            raise ConfigError(f"{option} must be {count} finite numbers '{names}' from {_num(lim.lo)} to "
                               f"{_num(lim.hi)}, got {_shown(value)}")
         return numbers
     sides = parse_sides(str(value), option, short_side=rule.form == SIDE_OR_SIZE)
