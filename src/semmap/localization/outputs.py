@@ -96,15 +96,15 @@ def _convergence_lines(report: dict) -> list[str]:
     particle cluster, no ground truth), first and at the last update; and whether it converged *on the true pose*
     (its error after that first convergence, against ground truth)."""
     s, c, last = report["summary"], report["settings"], report["updates"][-1] if report["updates"] else None
-    rule = (f"The filter reports convergence when its strongest particle cluster holds at least "
+    rule = (f"the filter's own test, without ground truth: its strongest particle cluster holds at least "
             f"{100 * c['converged_mass']:.0f} % of the weight within {100 * c['converged_m']:.0f} cm and "
             f"{c['converged_deg']:g}° (spread) and {100 * c['converged_fit']:.0f} % of the scan lies on the map at "
-            f"its pose; it needs no ground truth.")
+            f"its pose.")
     if s["frames_to_converge"] is None:
-        lines = [f"{rule} It **never** reported convergence."]
+        lines = [f"The filter did **not** converge by {rule}"]
     else:
-        lines = [f"{rule} It first reported convergence after **{s['frames_to_converge']} updates** "
-                 f"({s['seconds_to_converge']} s of the sequence)."]
+        lines = [f"Converged after **{s['frames_to_converge']} updates** ({s['seconds_to_converge']} s of the "
+                 f"sequence) by {rule}"]
     if last is not None:
         lines[0] += (" At the last update it still did." if last["converged"] else
                      f" At the last update it did not (cluster of {100 * last['cluster_mass']:.0f} % of the weight, "
