@@ -92,8 +92,10 @@ def test_the_semantics_source_names_the_segmenter_the_label_folder_or_none(tmp_p
     assert semantics_source(_config(tmp_path), SimpleNamespace(name="pspnet"), labels) == "segmenter pspnet"
     oracle = semantics_source(_config(tmp_path, source=SemanticSource.ORACLE), SimpleNamespace(name="oracle"), labels)
     assert oracle.startswith("segmenter oracle") and "ground-truth" in oracle
-    assert semantics_source(_config(tmp_path), None, labels) == GROUND_TRUTH_LABELS
-    assert semantics_source(_config(tmp_path, source=SemanticSource.NONE), None, labels) == NO_SEMANTICS
+    assert semantics_source(_config(tmp_path), None, labels, labels) == GROUND_TRUTH_LABELS
+    no_labels = semantics_source(_config(tmp_path, source=SemanticSource.LABELS), None, labels, None)
+    assert no_labels.startswith(NO_SEMANTICS) and "no label images" in no_labels  # asked for, none there
+    assert semantics_source(_config(tmp_path, source=SemanticSource.NONE), None, labels, labels) == NO_SEMANTICS
     assert semantics_source(_config(tmp_path), None, None) == NO_SEMANTICS
     folder = RunConfig(input=InputConfig(dataset=tmp_path / "seq", labels=tmp_path / "mine"),
                        output=OutputConfig(out=tmp_path / "out"))

@@ -257,7 +257,7 @@ class Pipeline:
                           files=files, out_dir=stage, online=c.mode == LoopMode.ONLINE,
                           segmenter=None if self.segmenter is None else self.segmenter.name, startup_s=startup_s,
                           segmenter_startup_s=segmenter_s, crf=crf,
-                          semantics=semantics_source(c, self.segmenter, label_set),
+                          semantics=semantics_source(c, self.segmenter, label_set, dataset.label_set),
                           objects=None if self._objects is None else self._objects.report(mapper.keyframes))
 
     def _write(self, outcome: RunOutcome) -> dict:

@@ -220,8 +220,10 @@ def _draw(ax, result: LocalizationResult, k: int, img: np.ndarray, extent) -> No
     ax.plot(*est[-1, :2], marker="o", color="tab:red", ms=5)
     state = "converged" if e.converged else f"cluster of {e.cluster_mass:.0%}, spread {100 * e.spread_m:.0f} cm"
     ax.set_title(f"update {k}: {state}", fontsize=9)
-    ax.set_xlim(extent[0], extent[1])
-    ax.set_ylim(extent[2], extent[3])
+    # the map's extent, widened to the camera's path where it leaves the mapped part (a map of another walk)
+    seen = np.concatenate([est[:, :2], gt[:, :2]]) if len(gt) else est[:, :2]
+    ax.set_xlim(min(extent[0], seen[:, 0].min() - 0.2), max(extent[1], seen[:, 0].max() + 0.2))
+    ax.set_ylim(min(extent[2], seen[:, 1].min() - 0.2), max(extent[3], seen[:, 1].max() + 0.2))
     ax.set_aspect("equal")
     ax.tick_params(labelsize=7)
 

@@ -52,9 +52,11 @@ GROUND_TRUTH_LABELS = "ground-truth labels from the dataset (not a segmenter)"
 NO_SEMANTICS = "none (geometry and colour only)"
 
 
-def semantics_source(config: RunConfig, segmenter: Segmenter | None, label_set: LabelSet | None) -> str:
+def semantics_source(config: RunConfig, segmenter: Segmenter | None, label_set: LabelSet | None,
+                     dataset_labels: LabelSet | None = None) -> str:
     """Where the map's classes came from, in words for the report: the segmenter by name, the dataset's own label
-    images (a simulated sequence's are its ground truth: a map fused from them is not a segmenter's), or none."""
+    images (a simulated sequence's are its ground truth: a map fused from them is not a segmenter's; the dataset
+    names them in ``dataset_labels``), or none."""
     if segmenter is not None:
         if segmenter.name == "oracle":
             return "segmenter oracle (simulated from the ground-truth labels, with CNN-like errors)"
@@ -65,6 +67,8 @@ def semantics_source(config: RunConfig, segmenter: Segmenter | None, label_set: 
         return NO_SEMANTICS
     if config.input.labels is not None:
         return f"label images from {config.input.labels} (not a segmenter)"
+    if dataset_labels is None:  # --semantics labels on a dataset without any
+        return f"{NO_SEMANTICS}: the dataset has no label images"
     return GROUND_TRUTH_LABELS
 
 
