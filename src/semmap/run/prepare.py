@@ -58,10 +58,12 @@ def semantics_source(config: RunConfig, segmenter: Segmenter | None, label_set: 
     images (a simulated sequence's are its ground truth: a map fused from them is not a segmenter's; the dataset
     names them in ``dataset_labels``), or none."""
     if segmenter is not None:
-        if segmenter.name == "oracle":
-            return "segmenter oracle (simulated from the ground-truth labels, with CNN-like errors)"
-        if segmenter.name == "precomputed" and config.semantics.weights is not None:
-            return f"segmenter precomputed (predictions in {config.semantics.weights})"
+        from semmap.perception.registry import SegmenterName
+
+        if segmenter.name == SegmenterName.ORACLE:
+            return f"segmenter {segmenter.name} (simulated from the ground-truth labels, with CNN-like errors)"
+        if segmenter.name == SegmenterName.PRECOMPUTED and config.semantics.weights is not None:
+            return f"segmenter {segmenter.name} (predictions in {config.semantics.weights})"
         return f"segmenter {segmenter.name}"
     if label_set is None or config.semantics.source == SemanticSource.NONE:
         return NO_SEMANTICS
