@@ -6,7 +6,7 @@ offset of the colour camera (tx, ty) that put the outlines measured in depth ont
 minimising the mean distance from each projected depth outline pixel to the nearest colour edge (Canny, capped
 at 8 px) over frames spread through the sequence. The result is semmap's ``SEVEN_SCENES_COLOR_CAMERA``.
 
-    python scripts/calibrate_7scenes_color.py [../shared/data/7scenes-redkitchen] [--every 15]
+    .venv/bin/python scripts/calibrate_7scenes_color.py [../shared/data/7scenes-redkitchen] [--every 15]
 """
 
 from __future__ import annotations

@@ -3,9 +3,9 @@ read back; anything but a result or a ``semmap.errors.SemmapError`` (a traceback
 rosbags, ...) is a crash that atheris reports with the input that caused it.
 
     pip install -e '.[dev]'                  # atheris is a dev extra
-    python scripts/fuzz_readers.py --list
-    python scripts/fuzz_readers.py octomap --runs 20000 [--corpus DIR]
-    python scripts/fuzz_readers.py all --runs 2000           # every reader in turn, one process each
+    .venv/bin/python scripts/fuzz_readers.py --list
+    .venv/bin/python scripts/fuzz_readers.py octomap --runs 20000 [--corpus DIR]
+    .venv/bin/python scripts/fuzz_readers.py all --runs 2000           # every reader in turn, one process each
 
 Seeds are valid files written by semmap itself (a small map, trajectory, sequence index, bag), so mutations start
 from the real formats. Prints one JSON line per reader: inputs run, seconds, and whether it crashed. The same

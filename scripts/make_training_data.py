@@ -10,9 +10,12 @@ Seeds are disjoint from every scene the tests, benchmarks and the demo use (scen
   fly by benchmarks/bench_networks.py at 640x480 and never written here.
 
 Frames are rendered at 640x480 and stored at the training input size (default 160x120), reduced as the
-segmenter reduces camera images.  Deterministic: same arguments, same bytes.
+segmenter reduces camera images.  Deterministic: same arguments, same bytes.  The full set takes a while
+(2,120 frames); ``--scenes`` and ``--frames`` make a small one for a first try (the first scenes of each plan,
+fewer frames each):
 
-    python scripts/make_training_data.py --out outputs/train-data [--image-size 160x120]
+    .venv/bin/python scripts/make_training_data.py --out outputs/train-data [--image-size 160x120]
+    .venv/bin/python scripts/make_training_data.py --out outputs/train-tiny --scenes 4 --frames 5   # 30 frames
 """
 
 from __future__ import annotations
@@ -63,14 +66,25 @@ def render(out: Path, plan, frames: int, image_size: tuple[int, int]) -> None:
         print(f"{folder.name}: {frames} frames in {time.perf_counter() - t0:.1f} s", flush=True)
 
 
-def main() -> None:
+def main(argv: list[str] | None = None) -> None:
+    """Render the training and validation scenes into ``--out`` (scenes already there are kept)."""
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--out", type=Path, required=True)
     parser.add_argument("--image-size", default="160x120", help="stored frame size WIDTHxHEIGHT")
-    args = parser.parse_args()
+    parser.add_argument("--scenes", type=int, default=None,
+                        help=f"training scenes (the first of {len(TRAIN_SEEDS)}; validation gets half as many, "
+                             f"at least 1; default all)")
+    parser.add_argument("--frames", type=int, default=None,
+                        help=f"frames per scene (default {TRAIN_FRAMES} for training, {VAL_FRAMES} for validation)")
+    args = parser.parse_args(argv)
     w, h = (int(v) for v in args.image_size.lower().split("x"))
-    render(args.out / "train", train_plan(), TRAIN_FRAMES, (w, h))
-    render(args.out / "val", val_plan(), VAL_FRAMES, (w, h))
+    if (args.scenes is not None and args.scenes < 1) or (args.frames is not None and args.frames < 1):
+        parser.error("--scenes and --frames must be at least 1")
+    train, val = train_plan(), val_plan()
+    if args.scenes is not None:
+        train, val = train[: args.scenes], val[: max(1, args.scenes // 2)]
+    render(args.out / "train", train, args.frames or TRAIN_FRAMES, (w, h))
+    render(args.out / "val", val, args.frames or VAL_FRAMES, (w, h))
 
 
 if __name__ == "__main__":

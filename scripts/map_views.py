@@ -7,7 +7,7 @@ label set's palette (PASCAL VOC by default); grey voxels are background / unclas
 colour is itself grey, VOC's car, is not counted). The world's up
 direction comes from ``trajectory.txt`` beside the map when present. Writes the PNG and prints JSON counts.
 
-    python scripts/map_views.py outputs/kitchen/map.ot [--out docs/images/kitchen_map.png] [--labels voc]
+    .venv/bin/python scripts/map_views.py outputs/kitchen/map.ot [--out docs/images/kitchen_map.png] [--labels voc]
 """
 
 from __future__ import annotations

@@ -1,9 +1,11 @@
 """Picture of a run's object map: the semantic OctoMap from above, dimmed, and every object on it in its own colour
-with its upright box and ``id class`` label (what ``docs/images/objects_7scenes.png`` shows).
+with its upright box and ``id class`` label where it overprints no other (what ``docs/images/objects_7scenes.png``
+shows). From the checkout's root; ``../shared/data/7scenes-redkitchen`` is the shared 7-Scenes copy beside it
+(substitute your own sequence, docs/FIRST_STEPS.md), W the ESPNetv2 weights:
 
-    semmap run ../shared/data/7scenes-redkitchen --out OUT --segmenter espnetv2 --weights W --segment-every 3 \\
-        --backend onnx --instances components
-    python scripts/objects_picture.py OUT --out docs/images/objects_7scenes.png [--classes chair,diningtable]
+    .venv/bin/semmap run ../shared/data/7scenes-redkitchen --out OUT --segmenter espnetv2 --weights W \\
+        --segment-every 3 --backend onnx --instances components
+    .venv/bin/python scripts/objects_picture.py OUT --out docs/images/objects_7scenes.png [--classes chair,diningtable]
 
 Also prints, per class, how many objects the map holds and, for the class named by ``--near``, how far each of its
 objects lies from the nearest object of the ``--near-to`` class (chairs around the table).

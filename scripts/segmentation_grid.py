@@ -5,7 +5,7 @@ tinted in its class colour and each class named at its largest region.  Prints, 
 pixels, the mean confidence (top-1 probability) on its pixels and the frames it appears in; writes the grid PNG
 and the same summary as JSON beside it.
 
-    python scripts/segmentation_grid.py [--dataset ../shared/data/7scenes-redkitchen] [--frames 0 100 ...]
+    .venv/bin/python scripts/segmentation_grid.py [--dataset ../shared/data/7scenes-redkitchen] [--frames 0 100 ...]
         [--segmenter espnetv2 --weights ../shared/weights/espnetv2/espnetv2_s_2.0_pascal_384x384.pth]
         [--out docs/images/espnetv2_7scenes.png]
 """

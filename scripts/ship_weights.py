@@ -5,7 +5,7 @@ seeds of scripts/make_training_data.py), the validation scores of the kept check
 of benchmarks/bench_networks.py (--bench), the held-out test scores and timings.  With --bench the manifest also
 names the demo's network: the best test MIoU per millisecond (ONNX Runtime, 640x480 frame).
 
-    python scripts/ship_weights.py --runs outputs/train-runs [--bench outputs/bench-networks.json]
+    .venv/bin/python scripts/ship_weights.py --runs outputs/train-runs [--bench outputs/bench-networks.json]
 """
 
 from __future__ import annotations

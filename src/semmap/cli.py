@@ -335,7 +335,7 @@ def _print_summary(report: dict, out_dir: Path) -> None:
 
     t = Table(title=f"semmap: {out_dir}", show_header=False)
     for key in ("frames_used", "frames_skipped", "occupied_voxels", "free_voxels", "occupied_leaves",
-                "free_leaves", "bytes_in_memory", "miou_3d",
+                "free_leaves", "bytes_in_memory", "semantics", "miou_3d",
                 *(k for k in report if k.endswith("_miou_2d")), "frames_segmented"):
         if key in report:
             t.add_row(key, str(report[key]))

@@ -102,6 +102,8 @@ class ObjectStage:
         for o in real:
             per_class[names[o.class_id]] += 1
         out = {"instance_source": self.source.name, "objects": len(real), "candidates": len(m.objects) - len(real),
+               # the rule of ObjectMap.real_objects, in the table's columns: frames_seen and sightings (keyframes)
+               "kept_if_at_least": {"frames_seen": m.params.min_sightings, "sightings": m.params.min_keyframes},
                "per_class": dict(sorted(per_class.items(), key=lambda kv: -kv[1])),
                "points_in_masks": m.points_in, "points_after_outlier_removal": m.points_after_sor,
                "points_in_objects": sum(len(o) for o in real),

@@ -51,6 +51,7 @@ from semmap.run.prepare import (
     pose_source_for,
     pose_source_to_resume,
     prepare_segmenter,
+    semantics_source,
     warm_tracker,
 )
 from semmap.types import CameraIntrinsics, Frame, LabelSet, Observation, TopKProbs
@@ -256,6 +257,7 @@ class Pipeline:
                           files=files, out_dir=stage, online=c.mode == LoopMode.ONLINE,
                           segmenter=None if self.segmenter is None else self.segmenter.name, startup_s=startup_s,
                           segmenter_startup_s=segmenter_s, crf=crf,
+                          semantics=semantics_source(c, self.segmenter, label_set, dataset.label_set),
                           objects=None if self._objects is None else self._objects.report(mapper.keyframes))
 
     def _write(self, outcome: RunOutcome) -> dict:

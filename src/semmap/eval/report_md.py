@@ -22,27 +22,16 @@ def render_report_md(report: dict, *, title: str = "semmap run", plots: dict[str
     """Markdown for a report dict as written by the pipeline; ``plots`` names the pictures of
     :func:`semmap.eval.report_plots.write_report_plots` by section."""
     lines = [f"# {title}", "", f"Dataset: `{report.get('dataset', '?')}`  ", f"Resolution: {report['resolution']} m  ",
+             *([f"Semantics: {report['semantics']}  "] if "semantics" in report else []),
              f"Frames used: {report['frames_used']} (skipped: {report['frames_skipped']})", ""]
     if "miou_3d" in report:
         seg = next((k[: -len("_miou_2d")] for k in report if k.endswith("_miou_2d")), None)
-        lines += ["## Semantic accuracy", "",
-                  f"| measure | fused 3D map | single-frame segmentation ({seg}) |", "|---|---|---|",
-                  f"| mIoU | **{report['miou_3d']:.3f}** | {report.get(f'{seg}_miou_2d', float('nan')):.3f} |",
-                  f"| accuracy (voxels / pixels) | {report['voxel_accuracy_3d']:.3f} | "
-                  f"{report.get(f'{seg}_pixel_accuracy_2d', float('nan')):.3f} |",
-                  f"| MPA | {report['mpa_3d']:.3f} | {report.get(f'{seg}_mpa_2d', float('nan')):.3f} |", "",
+        measures, per_class = _accuracy_tables(report, seg)
+        lines += ["## Semantic accuracy", "", *measures, "",
                   f"3D: occupied voxels matched to ground-truth surface voxels within one voxel; "
                   f"geometric precision {report['geometric_precision_3d']:.3f} (occupied voxels on a true surface), "
                   f"coverage {report['gt_coverage_3d']:.3f} of the {report['gt_voxels']:,} ground-truth surface "
-                  f"voxels.", "", *_alignment_lines(report)]
-        per3 = report.get("per_class_iou_3d", {})
-        per2 = report.get(f"{seg}_per_class_iou_2d", {}) if seg else {}
-        lines += ["| class | IoU 3D | IoU 2D |", "|---|---|---|"]
-        for name in sorted(set(per3) | set(per2), key=lambda n: -per3.get(n, 0.0)):
-            a = f"{per3[name]:.3f}" if name in per3 else "–"
-            b = f"{per2[name]:.3f}" if name in per2 else "–"
-            lines.append(f"| {name} | {a} | {b} |")
-        lines.append("")
+                  f"voxels.", "", *_alignment_lines(report), *per_class, ""]
     else:
         lines += _alignment_lines(report)
     lines += _plot(plots, "iou", "IoU per class")
@@ -73,6 +62,36 @@ def render_report_md(report: dict, *, title: str = "semmap run", plots: dict[str
     if "maps" in report:
         lines.append("")
     return "\n".join(lines)
+
+
+def _accuracy_tables(report: dict, seg: str | None) -> tuple[list[str], list[str]]:
+    """The fused map's accuracy and its IoU per class, beside the single-frame segmentation's; without a segmenter
+    the map's column alone, after what its classes were (ground-truth labels score fusion and geometry only)."""
+    rows = (("mIoU", "miou_3d", "miou_2d"), ("accuracy (voxels / pixels)", "voxel_accuracy_3d", "pixel_accuracy_2d"),
+            ("MPA", "mpa_3d", "mpa_2d"))
+    per3 = report.get("per_class_iou_3d", {})
+    if seg is None:
+        measures = ([f"No segmenter ran (semantics: {report['semantics']}): these scores measure the fusion and the "
+                     "geometry, not a segmenter.", ""] if "semantics" in report else [])
+        measures += ["| measure | fused 3D map |", "|---|---|",
+                     *(f"| {name} | {_cell(report[k3], k3)} |" for name, k3, _ in rows)]
+        return measures, ["| class | IoU 3D |", "|---|---|",
+                          *(f"| {name} | {iou:.3f} |" for name, iou in sorted(per3.items(), key=lambda kv: -kv[1]))]
+    measures = [f"| measure | fused 3D map | single-frame segmentation ({seg}) |", "|---|---|---|",
+                *(f"| {name} | {_cell(report[k3], k3)} | {report.get(f'{seg}_{k2}', float('nan')):.3f} |"
+                  for name, k3, k2 in rows)]
+    per2 = report.get(f"{seg}_per_class_iou_2d", {})
+    per_class = ["| class | IoU 3D | IoU 2D |", "|---|---|---|"]
+    for name in sorted(set(per3) | set(per2), key=lambda n: -per3.get(n, 0.0)):
+        a = f"{per3[name]:.3f}" if name in per3 else "–"
+        b = f"{per2[name]:.3f}" if name in per2 else "–"
+        per_class.append(f"| {name} | {a} | {b} |")
+    return measures, per_class
+
+
+def _cell(value: float, key: str) -> str:
+    """A score to three places, the map's mIoU in bold."""
+    return f"**{value:.3f}**" if key == "miou_3d" else f"{value:.3f}"
 
 
 _FILES = (("map.bt", "OctoMap .bt (occupancy only)"), ("map.ot", "semantic OctoMap .ot (ColorOcTree)"),
@@ -110,10 +129,13 @@ def _counts_line(report: dict) -> str:
 
 def _objects_section(o: dict) -> list[str]:
     """The object map: counts, its accuracy when there was ground truth, and a table of the objects."""
+    rule = o.get("kept_if_at_least", {"frames_seen": 3, "sightings": 2})
     lines = ["## Objects", "",
-             f"{o['objects']} objects (seen in at least 3 keyframes; {o['candidates']} candidates seen less) from "
-             f"`{o['instance_source']}` instances over {o['keyframes']} keyframes: "
-             + ", ".join(f"{n} {c}" for c, n in o["per_class"].items()) + ".", "",
+             f"{o['objects']} objects, each tracked in at least {rule['frames_seen']} frames and mapped from at least "
+             f"{rule['sightings']} keyframes ({o['candidates']} candidates seen less), from `{o['instance_source']}` "
+             f"instances over {o['keyframes']} keyframes"
+             + "".join(f"{': ' if i == 0 else ', '}{n} {c}" for i, (c, n) in enumerate(o["per_class"].items())) + ".",
+             "",
              f"Points: {o['points_in_masks']:,} in the masks, {o['points_after_outlier_removal']:,} after outlier "
              f"removal, {o['points_in_objects']:,} in the objects after the voxel filter. Tracking "
              f"{o['ms_per_frame']['tracking']:.1f} ms per frame, the object map {o['ms_per_keyframe']:.1f} ms per "
@@ -122,12 +144,13 @@ def _objects_section(o: dict) -> list[str]:
         lines += [f"Against ground truth: object count error {100 * o['count_error']:.1f} % over all classes "
                   f"({o['objects_ground_truth']} objects visible; eq. 24 on the totals "
                   f"{100 * o['count_error_eq24']:.1f} %), {o['id_switches']} identity switches.", ""]
-    lines += ["| id | class | confidence | centroid (m) | points | sightings |", "|---|---|---|---|---|---|"]
+    lines += ["| id | class | confidence | centroid (m) | points | frames tracked | keyframes |",
+              "|---|---|---|---|---|---|---|"]
     lines += [f"| {r['id']} | {r['class']} | {r['confidence']:.2f} | "
-              f"{', '.join(f'{c:.2f}' for c in r['centroid'])} | {r['points']:,} | {r['sightings']} |"
-              for r in o["table"]]
+              f"{', '.join(f'{c:.2f}' for c in r['centroid'])} | {r['points']:,} | "
+              f"{r.get('frames_seen', r['sightings'])} | {r['sightings']} |" for r in o["table"]]
     if len(o["table"]) < o["objects"]:
-        lines.append(f"| … | {o['objects'] - len(o['table'])} more in objects.json | | | | |")
+        lines.append(f"| … | {o['objects'] - len(o['table'])} more in objects.json | | | | | |")
     return [*lines, ""]
 
 

@@ -40,22 +40,25 @@ def _save(fig, path: Path) -> Path:
     return write_bytes_atomic(path, buffer.getvalue())
 
 
-def _plane_axes(up: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Two unit vectors spanning the horizontal plane (perpendicular to ``up``), right-handed with it."""
-    helper = np.array([1.0, 0.0, 0.0]) if abs(up[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
-    a = np.cross(helper, up)
-    a /= np.linalg.norm(a)
-    return a, np.cross(up, a)
+def axis_label(direction: np.ndarray) -> str:
+    """An axis of a plot from above named by the world axis it runs along (``x (m)``, ``−z (m)``), or by its
+    direction when it runs along none."""
+    d = np.asarray(direction, float)
+    i = int(np.argmax(np.abs(d)))
+    if abs(d[i]) > 0.999:
+        return f"{'−' if d[i] < 0 else ''}{'xyz'[i]} (m)"
+    return f"m along ({d[0]:.2f}, {d[1]:.2f}, {d[2]:.2f})"
 
 
 def plot_trajectory(path: Path, used: Trajectory, ground_truth: Trajectory | None, *, cloud: MapCloud | None = None,
                     up: np.ndarray | None = None, label: str = "poses used", ate_m: float | None = None) -> Path:
     """The camera path from above over the map (occupied voxels counted per column, grey), and the ground truth when
-    it differs from the poses used (all in one frame: the caller moves estimated poses and their map onto it)."""
-    from semmap.viz.preview import up_vector
+    it differs from the poses used (all in one frame: the caller moves estimated poses and their map onto it); the
+    axes are preview.png's and named by the world axes they run along."""
+    from semmap.viz.preview import _horizontal_axes, up_vector
 
     up = up_vector(used.poses) if up is None else np.asarray(up, float)
-    a, b = _plane_axes(up)
+    a, b = _horizontal_axes(up)  # the axes of preview.png's top-down views: the two pictures show the same view
     fig = _figure(7.5, 6.5)
     ax = fig.add_subplot(1, 1, 1)
     if cloud is not None and len(cloud):
@@ -77,9 +80,9 @@ def plot_trajectory(path: Path, used: Trajectory, ground_truth: Trajectory | Non
     ax.plot(p @ a, p @ b, color="tab:orange", lw=1.3, label=name)
     ax.plot(p[:1] @ a, p[:1] @ b, "o", color="tab:green", ms=6, label="start")
     ax.set_aspect("equal", adjustable="datalim")
-    ax.set_xlabel("metres")
-    ax.set_ylabel("metres")
-    ax.set_title("camera trajectory, seen from above")
+    ax.set_xlabel(axis_label(a))
+    ax.set_ylabel(axis_label(b))
+    ax.set_title("camera trajectory, seen from above (as in preview.png)")
     ax.grid(alpha=0.3)
     fig.legend(fontsize=8, loc="outside lower center", ncol=2)
     return _save(fig, path)

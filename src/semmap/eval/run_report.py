@@ -271,6 +271,7 @@ class RunOutcome:
     segmenter_startup_s: float = 0.0
     crf: dict[MapKind, dict] = field(default_factory=dict)
     objects: dict | None = None
+    semantics: str | None = None  # where the classes came from, in words (``run.prepare.semantics_source``)
 
 
 def _frames_report(o: RunOutcome) -> dict:
@@ -294,6 +295,7 @@ def _frames_report(o: RunOutcome) -> dict:
         "points_integrated": o.points_integrated,
         "ms_per_frame": ms,
         "label_set": None if primary.label_set is None else len(primary.label_set),
+        **({} if o.semantics is None else {"semantics": o.semantics}),
         **semantics_summary(primary, o.segmenter, o.record.segmented),
     }
 

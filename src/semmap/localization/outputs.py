@@ -17,7 +17,8 @@ import numpy as np
 from semmap.files.atomic import write_atomic, write_bytes_atomic, write_text_atomic
 from semmap.io.trajectory import write_trajectory
 from semmap.localization.prior import PriorMap
-from semmap.localization.run import LocalizationResult
+from semmap.localization.run import TRUE_CONVERGENCE_DEG, TRUE_CONVERGENCE_M, LocalizationResult
+from semmap.viz.preview import classes_present
 
 #: Voxels this far below the ceiling and higher are left out of the top-down view (ceiling, lights).
 CEILING_CUT_M = 0.3
@@ -60,19 +61,14 @@ def render_report_md(report: dict, *, title: str = "semmap localize") -> str:
     lines = [f"# {title}", "", f"Model: **{s['model']}**, {s['particles']} particles, {s['mode']} poses, "
              f"{s['init']} initialisation, motion from {s['motion']}; {s['updates']} updates "
              f"({s['frames_skipped']} frames skipped).", ""]
-    if s["frames_to_converge"] is None:
-        lines.append("The filter did **not** converge.")
-    else:
-        lines.append(f"Converged after **{s['frames_to_converge']} updates** ({s['seconds_to_converge']} s of the "
-                     f"sequence); converged at the end: {s['converged_at_end']}.")
+    lines += _convergence_lines(report)
     if "pos_err_m_after_convergence" in s:
         p, r = s["pos_err_m_after_convergence"], s["rot_err_deg_after_convergence"]
-        lines += ["", "| error after convergence | median | mean | max |", "|---|---|---|---|",
+        lines += ["", "| error after the first convergence | median | mean | max |", "|---|---|---|---|",
                   f"| position (cm) | {100 * p['median']:.1f} | {100 * p['mean']:.1f} | {100 * p['max']:.1f} |",
                   f"| rotation (°) | {r['median']:.2f} | {r['mean']:.2f} | {r['max']:.2f} |"]
     if "pos_err_m_final" in s:
-        lines += ["", f"Final error {100 * s['pos_err_m_final']:.1f} cm, {s['rot_err_deg_final']:.2f}°; on the true "
-                  f"pose: {s.get('converged_to_truth')}."]
+        lines += ["", f"Error at the last update: {100 * s['pos_err_m_final']:.1f} cm, {s['rot_err_deg_final']:.2f}°."]
     ms = s["ms_per_update"]
     if ms:
         lines += ["", "| ms per update | mean | median | p95 |", "|---|---|---|---|",
@@ -81,7 +77,8 @@ def render_report_md(report: dict, *, title: str = "semmap localize") -> str:
                   f"{s['ms_per_scan']['median']} | {s['ms_per_scan']['p95']} |"]
     with_err = [u for u in report["updates"] if u["pos_err_m"] is not None]
     if with_err:
-        lines += ["", "## Error over time", "", "| update | t (s) | converged | spread (cm) | error (cm) | error (°) |",
+        lines += ["", "## Error over time", "",
+                  "| update | t (s) | filter converged | spread (cm) | error (cm) | error (°) |",
                   "|---|---|---|---|---|---|"]
         picks = sorted(set(np.linspace(0, len(with_err) - 1, min(12, len(with_err))).astype(int).tolist()))
         t0 = report["updates"][0]["t"]
@@ -92,6 +89,37 @@ def render_report_md(report: dict, *, title: str = "semmap localize") -> str:
         lines += ["", "![errors](errors.png)"]
     lines += ["", "![particles](particles.png)", ""]
     return "\n".join(lines)
+
+
+def _convergence_lines(report: dict) -> list[str]:
+    """Two different things, each with its criterion: whether the filter *reports* convergence (its own test on the
+    particle cluster, no ground truth), first and at the last update; and whether it converged *on the true pose*
+    (its error after that first convergence, against ground truth)."""
+    s, c, last = report["summary"], report["settings"], report["updates"][-1] if report["updates"] else None
+    rule = (f"the filter's own test, without ground truth: its strongest particle cluster holds at least "
+            f"{100 * c['converged_mass']:.0f} % of the weight within {100 * c['converged_m']:.0f} cm and "
+            f"{c['converged_deg']:g}° (spread) and {100 * c['converged_fit']:.0f} % of the scan lies on the map at "
+            f"its pose.")
+    if s["frames_to_converge"] is None:
+        lines = [f"The filter did **not** converge by {rule}"]
+    else:
+        lines = [f"Converged after **{s['frames_to_converge']} updates** ({s['seconds_to_converge']} s of the "
+                 f"sequence) by {rule}"]
+    if last is not None:
+        lines[0] += (" At the last update it still did." if last["converged"] else
+                     f" At the last update it did not (cluster of {100 * last['cluster_mass']:.0f} % of the weight, "
+                     f"spread {100 * last['spread_m']:.1f} cm and {last['spread_deg']:.1f}°, "
+                     f"{100 * last['fit']:.0f} % of the scan on the map).")
+    if "converged_to_truth" in s:
+        if "pos_err_m_after_convergence" in s:
+            p, r = s["pos_err_m_after_convergence"], s["rot_err_deg_after_convergence"]
+            err = f"the median error after the first convergence is {100 * p['median']:.1f} cm and {r['median']:.2f}°"
+        else:
+            err = "it never reported convergence"
+        lines += ["", f"On the true pose (against ground truth: the median error after the first convergence within "
+                      f"{100 * TRUE_CONVERGENCE_M:.0f} cm and {TRUE_CONVERGENCE_DEG:g}°): "
+                      f"**{'yes' if s['converged_to_truth'] else 'no'}**; {err}."]
+    return lines
 
 
 def write_outputs(out_dir: str | Path, result: LocalizationResult, prior: PriorMap, *, gif: bool = False,
@@ -122,26 +150,53 @@ def write_outputs(out_dir: str | Path, result: LocalizationResult, prior: PriorM
 
 
 # ---------------------------------------------------------------------------------------------- pictures
+def _map_below_ceiling(prior: PriorMap) -> tuple[np.ndarray, np.ndarray | None]:
+    """The occupied voxel centres a top-down view shows (those below the ceiling cut) and their most probable
+    class (None for a map without classes)."""
+    c = prior.centers.astype(np.float64)
+    keep = c[:, 2] < prior.ceiling_z - CEILING_CUT_M
+    if not keep.any():
+        keep[:] = True
+    if prior.class_probs is None or prior.label_set is None:
+        return c[keep], None
+    return c[keep], prior.class_probs[keep].argmax(axis=1)
+
+
 def map_image(prior: PriorMap) -> tuple[np.ndarray, tuple[float, float, float, float]]:
     """Top-down RGB image of the map's occupied voxels below the ceiling (class colours where the map has classes,
     grey by height otherwise) and its extent (x0, x1, y0, y1) in metres."""
-    c = prior.centers.astype(np.float64)
-    keep = c[:, 2] < prior.ceiling_z - CEILING_CUT_M
-    c = c[keep] if keep.any() else c
+    c, cls = _map_below_ceiling(prior)
     res = prior.resolution
     lo = c[:, :2].min(axis=0) - res
     ij = np.round((c[:, :2] - lo) / res).astype(np.int64)  # centres lie on the lattice: round, not floor
     w, h = ij.max(axis=0) + 2
     img = np.full((h, w, 3), 245, np.uint8)
     order = np.argsort(c[:, 2], kind="stable")  # higher voxels drawn last
-    if prior.class_probs is not None and prior.label_set is not None:
-        cls = prior.class_probs[keep].argmax(axis=1) if keep.any() else prior.class_probs.argmax(axis=1)
+    if cls is not None:
         colors = prior.label_set.colors[cls]
     else:
         z = (c[:, 2] - c[:, 2].min()) / max(np.ptp(c[:, 2]), 1e-6)
         colors = np.repeat((90 + 120 * z)[:, None], 3, axis=1).astype(np.uint8)
     img[ij[order, 1], ij[order, 0]] = colors[order]
     return img[::-1], (float(lo[0]), float(lo[0] + w * res), float(lo[1]), float(lo[1] + h * res))
+
+
+def add_class_legend(fig, prior: PriorMap) -> None:
+    """Below the panels, the colour of every class the map image shows (most voxels first; none for a map
+    without classes), so that the particles can be read against the furniture."""
+    from matplotlib.patches import Patch
+
+    _, cls = _map_below_ceiling(prior)
+    if cls is None:
+        return
+    ids, more = classes_present(cls, prior.label_set)
+    handles = [Patch(facecolor=prior.label_set.colors[i] / 255.0, edgecolor="0.4", label=prior.label_set.names[i])
+               for i in ids]
+    if more:
+        handles.append(Patch(facecolor="none", edgecolor="none", label=f"+{more} more"))
+    if handles:
+        fig.legend(handles=handles, loc="outside lower center", ncol=min(len(handles), 8), fontsize=8,
+                   frameon=False, title="map classes", title_fontsize=8)
 
 
 def _moments(result: LocalizationResult, panels: int = PLOT_PANELS) -> list[int]:
@@ -165,20 +220,31 @@ def _draw(ax, result: LocalizationResult, k: int, img: np.ndarray, extent) -> No
     ax.plot(*est[-1, :2], marker="o", color="tab:red", ms=5)
     state = "converged" if e.converged else f"cluster of {e.cluster_mass:.0%}, spread {100 * e.spread_m:.0f} cm"
     ax.set_title(f"update {k}: {state}", fontsize=9)
-    ax.set_xlim(extent[0], extent[1])
-    ax.set_ylim(extent[2], extent[3])
+    # the map's extent, widened to the camera's path where it leaves the mapped part (a map of another walk)
+    seen = np.concatenate([est[:, :2], gt[:, :2]]) if len(gt) else est[:, :2]
+    ax.set_xlim(min(extent[0], seen[:, 0].min() - 0.2), max(extent[1], seen[:, 0].max() + 0.2))
+    ax.set_ylim(min(extent[2], seen[:, 1].min() - 0.2), max(extent[3], seen[:, 1].max() + 0.2))
     ax.set_aspect("equal")
     ax.tick_params(labelsize=7)
 
 
 def particles_png(result: LocalizationResult, prior: PriorMap) -> bytes:
-    """PNG: particles, ground truth and estimate over the map's top-down view at a few moments."""
+    """PNG of :func:`particles_figure`."""
+    buf = io.BytesIO()
+    particles_figure(result, prior).savefig(buf, format="png")
+    return buf.getvalue()
+
+
+def particles_figure(result: LocalizationResult, prior: PriorMap):
+    """Particles, ground truth and estimate over the map's top-down view at a few moments, the map's classes in a
+    legend below (a matplotlib Figure)."""
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
 
     img, extent = map_image(prior)
     moments = _moments(result)
-    fig = Figure(figsize=(4.2 * len(moments), 4.4), dpi=100)
+    fig = Figure(figsize=(4.2 * len(moments), 4.4 + (0.5 if prior.class_probs is not None else 0.0)), dpi=100,
+                 layout="constrained")
     FigureCanvasAgg(fig)
     axes = fig.subplots(1, len(moments), squeeze=False)[0]
     for ax, k in zip(axes, moments, strict=True):
@@ -186,10 +252,8 @@ def particles_png(result: LocalizationResult, prior: PriorMap) -> bytes:
     axes[0].legend(fontsize=7, loc="upper right")
     s = result.settings
     fig.suptitle(f"{s.model.value} model, {s.particles} particles, {result.init.value} initialisation", fontsize=10)
-    fig.tight_layout()
-    buf = io.BytesIO()
-    fig.savefig(buf, format="png")
-    return buf.getvalue()
+    add_class_legend(fig, prior)
+    return fig
 
 
 def errors_png(result: LocalizationResult) -> bytes:

@@ -16,7 +16,7 @@ from semmap.keys import TREE_MAX_VAL
 from semmap.maps.base import SemanticMap
 from semmap.maps.registry import MapKind
 from semmap.object_stage import ObjectStage
-from semmap.viz.preview import render_preview, side_by_side, up_vector, write_png
+from semmap.viz.preview import render_preview, side_by_side, up_vector, with_class_legend, write_png
 
 log = logging.getLogger("semmap")
 
@@ -37,10 +37,13 @@ def write_outputs(out: Path, maps: list[SemanticMap], poses: list[np.ndarray], c
         for i, m in enumerate(maps):
             name = "preview.png" if i == 0 else f"preview_{m.kind.value}.png"
             files[name] = out / name
-            image = render_preview(m.cloud(), m.label_set, poses)
-            if i == 0 and objects is not None:  # the objects with their ids beside it
+            cloud = m.cloud()
+            beside = i == 0 and objects is not None  # the objects with their ids beside it, the legend below both
+            image = render_preview(cloud, m.label_set, poses, legend=not beside)
+            if beside:
                 panel = objects.panel(up_vector(poses), size=image.shape[0] - 28)
                 image = side_by_side([image, panel], ["", "objects (top-down): id class"])
+                image = with_class_legend(image, cloud.labels, m.label_set)
             sizes[name] = write_png(files[name], image)
     write_text_atomic(out / "config.json", config.to_json())
     files["config"] = out / "config.json"

@@ -46,6 +46,34 @@ def label_set_for(config: RunConfig, dataset: Dataset, segmenter: Segmenter | No
     return None
 
 
+#: How report.md, report.json and the run's summary name semantics taken from the frames' own label images.
+GROUND_TRUTH_LABELS = "ground-truth labels from the dataset (not a segmenter)"
+#: ... and a run without classes.
+NO_SEMANTICS = "none (geometry and colour only)"
+
+
+def semantics_source(config: RunConfig, segmenter: Segmenter | None, label_set: LabelSet | None,
+                     dataset_labels: LabelSet | None = None) -> str:
+    """Where the map's classes came from, in words for the report: the segmenter by name, the dataset's own label
+    images (a simulated sequence's are its ground truth: a map fused from them is not a segmenter's; the dataset
+    names them in ``dataset_labels``), or none."""
+    if segmenter is not None:
+        from semmap.perception.registry import SegmenterName
+
+        if segmenter.name == SegmenterName.ORACLE:
+            return f"segmenter {segmenter.name} (simulated from the ground-truth labels, with CNN-like errors)"
+        if segmenter.name == SegmenterName.PRECOMPUTED and config.semantics.weights is not None:
+            return f"segmenter {segmenter.name} (predictions in {config.semantics.weights})"
+        return f"segmenter {segmenter.name}"
+    if label_set is None or config.semantics.source == SemanticSource.NONE:
+        return NO_SEMANTICS
+    if config.input.labels is not None:
+        return f"label images from {config.input.labels} (not a segmenter)"
+    if dataset_labels is None:  # --semantics labels on a dataset without any
+        return f"{NO_SEMANTICS}: the dataset has no label images"
+    return GROUND_TRUTH_LABELS
+
+
 def prepare_segmenter(segmenter: Segmenter | None, first: FirstFrame) -> float:
     """Let a segmenter with a start-up cost pay it on the dataset's first frame; returns the seconds."""
     if not isinstance(segmenter, Preparable) or first.frame is None:

@@ -14,6 +14,8 @@ from semmap.types import LabelSet, MapCloud, muted_grey
 
 #: Voxels higher than the highest camera by more than this are cut away (ceilings, top cabinets).
 CEILING_MARGIN = 0.6
+#: Most classes a picture's legend names, the most frequent first (the rest are counted as "+N more").
+LEGEND_MAX_CLASSES = 16
 
 
 def up_vector(poses: list[np.ndarray] | np.ndarray) -> np.ndarray:
@@ -144,6 +146,53 @@ def side_by_side(images: list[np.ndarray], titles: list[str], gap: int = 8) -> n
     return canvas
 
 
+def classes_present(labels: np.ndarray, label_set: LabelSet, *, max_classes: int = LEGEND_MAX_CLASSES,
+                    ) -> tuple[list[int], int]:
+    """The classes a class-coloured view shows (ids in the label set, unknown 0 aside), most frequent first, at
+    most ``max_classes`` of them; and how many more there are."""
+    ids = np.asarray(labels).ravel().astype(np.int64)
+    ids = ids[(ids > 0) & (ids < len(label_set))]
+    counts = np.bincount(ids, minlength=len(label_set))
+    order = [int(i) for i in np.argsort(-counts, kind="stable") if counts[i] > 0]
+    return order[:max_classes], len(order) - len(order[:max_classes])
+
+
+def legend_strip(entries: list[tuple[str, np.ndarray]], width: int, *, more: int = 0) -> np.ndarray:
+    """A class-colour legend as an RGB image ``width`` wide: a swatch and the name of each entry, in rows, and
+    "+N more" when ``more`` classes were left out."""
+    font, scale, pad, row_h, swatch = cv2.FONT_HERSHEY_SIMPLEX, 0.45, 8, 22, 14
+    items = [(name, tuple(int(c) for c in color)) for name, color in entries]
+    if more:
+        items.append((f"+{more} more", None))
+    placed, x, y = [], pad, 0
+    for name, color in items:
+        w = (swatch + 5 if color is not None else 0) + cv2.getTextSize(name, font, scale, 1)[0][0] + 3 * pad
+        if x + w > width and x > pad:
+            x, y = pad, y + row_h
+        placed.append((name, color, x, y))
+        x += w
+    img = np.full((y + row_h + pad, width, 3), 245, np.uint8)
+    for name, color, x, y in placed:
+        if color is not None:
+            cv2.rectangle(img, (x, y + 5), (x + swatch, y + 5 + swatch), color, -1)
+            cv2.rectangle(img, (x, y + 5), (x + swatch, y + 5 + swatch), (90, 90, 90), 1)
+            x += swatch + 5
+        cv2.putText(img, name, (x, y + 17), font, scale, (20, 20, 20), 1, cv2.LINE_AA)
+    return img
+
+
+def with_class_legend(image: np.ndarray, labels: np.ndarray, label_set: LabelSet | None) -> np.ndarray:
+    """``image`` with the legend of the classes ``labels`` shows below it (unchanged without a label set or
+    classes)."""
+    if label_set is None:
+        return image
+    ids, more = classes_present(labels, label_set)
+    if not ids:
+        return image
+    strip = legend_strip([(label_set.names[i], label_set.colors[i]) for i in ids], image.shape[1], more=more)
+    return np.concatenate([image, strip], axis=0)
+
+
 def write_png(path: str | Path, rgb: np.ndarray) -> int:
     """Write an RGB image as PNG atomically; returns its size in bytes."""
     ok, buf = cv2.imencode(".png", cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR))
@@ -153,8 +202,10 @@ def write_png(path: str | Path, rgb: np.ndarray) -> int:
     return len(buf)
 
 
-def render_preview(cloud: MapCloud, label_set: LabelSet | None, poses: list[np.ndarray]) -> np.ndarray:
-    """Top-down views of a map's voxels or points: class colours (grey where unclassified) and observed RGB."""
+def render_preview(cloud: MapCloud, label_set: LabelSet | None, poses: list[np.ndarray], *,
+                   legend: bool = True) -> np.ndarray:
+    """Top-down views of a map's voxels or points: class colours (grey where unclassified) and observed RGB, with
+    the legend of the classes shown below (``legend``; :func:`with_class_legend` adds it to a larger picture)."""
     up = up_vector(poses)
     cam_h = max(float(np.asarray(T)[:3, 3] @ up) for T in poses) if poses else None
     cut = None if cam_h is None else cam_h + CEILING_MARGIN
@@ -175,4 +226,5 @@ def render_preview(cloud: MapCloud, label_set: LabelSet | None, poses: list[np.n
         views.append(perspective(cloud.centers, cloud.colors, res, up=up, max_height=cut,
                                  width=views[0].shape[1], height=views[0].shape[0]))
         titles.append("colour (perspective)")
-    return side_by_side(views, titles)
+    canvas = side_by_side(views, titles)
+    return with_class_legend(canvas, cloud.labels, label_set) if legend else canvas
