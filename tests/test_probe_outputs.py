@@ -135,6 +135,21 @@ def test_t3_a_checkpoint_on_a_full_disk_is_one_line(inputs, tmp_path, capsys, mo
     assert not (tmp_path / "ck").exists()
 
 
+@pytest.mark.parametrize("error, line", [
+    ((errno.ENOSPC, "No space left on device", "full/.run.partial/map.ot"),
+     "cannot write full/run/map.ot: No space left on device; free some space or write elsewhere (nothing was "
+     "replaced)"),
+    ((errno.EROFS, "Read-only file system", "ro/.x.png.ebc0tc02.tmp"),
+     "cannot write ro/x.png: Read-only file system; write elsewhere (nothing was replaced)"),
+    ((errno.EACCES, "Permission denied", "h/x.txt"),  # (a read could meet it too: no "cannot write")
+     "h/x.txt: Permission denied; check the permissions, or choose another path"),
+    ((errno.ENAMETOOLONG, "File name too long", "o/" + "z" * 250), "choose a shorter name")])
+def test_a_refused_write_is_one_line_naming_the_output_the_user_gave(error, line):
+    from semmap.files.outputs import write_failure
+
+    assert line in str(write_failure(OSError(*error)))
+
+
 def test_a_staging_folder_the_disk_refuses_is_named_and_removed(tmp_path, monkeypatch):
     from semmap.files.outputs import write_failure
     from semmap.io.staged_run import StagedRun, staging_folder

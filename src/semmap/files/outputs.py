@@ -30,13 +30,15 @@ WRITE_ERRNOS = frozenset({errno.ENOSPC, errno.EDQUOT, errno.EROFS, errno.EACCES,
                           errno.EISDIR, errno.ENOTDIR, errno.EEXIST, errno.EFBIG, errno.EIO, errno.ENOTEMPTY})
 #: Free bytes below which an output's folder counts as full: refused before any work (a full disk fails fast).
 MIN_FREE_BYTES = 1 << 20
-#: What to do about each write failure of :data:`WRITE_ERRNOS`.
-_WHAT_TO_DO = {errno.ENOSPC: "free some space or write elsewhere", errno.EDQUOT: "free some space or write elsewhere",
-               errno.EFBIG: "write it to another file system", errno.EROFS: "write elsewhere",
-               errno.EACCES: "write in a folder you may write to", errno.EPERM: "write in a folder you may write to",
-               errno.ENAMETOOLONG: "choose a shorter name", errno.EISDIR: "choose another name",
-               errno.ENOTDIR: "choose another path", errno.EEXIST: "choose another name",
-               errno.ENOTEMPTY: "choose another name", errno.EIO: "check the disk, or write elsewhere"}
+#: What to do about each failure of :data:`WRITE_ERRNOS`.
+_SPACE, _ELSEWHERE = "free some space or write elsewhere", "choose another path"
+_PERMISSION = "check the permissions, or " + _ELSEWHERE
+_WHAT_TO_DO = {errno.ENOSPC: _SPACE, errno.EDQUOT: _SPACE, errno.EFBIG: "write it to another file system",
+               errno.EROFS: "write elsewhere", errno.EACCES: _PERMISSION, errno.EPERM: _PERMISSION,
+               errno.ENAMETOOLONG: "choose a shorter name", errno.EISDIR: _ELSEWHERE, errno.ENOTDIR: _ELSEWHERE,
+               errno.EEXIST: _ELSEWHERE, errno.ENOTEMPTY: _ELSEWHERE, errno.EIO: "check the disk, or " + _ELSEWHERE}
+#: Failures only a write meets (the others, a permission or a path, may come from reading too).
+_ONLY_WRITES = frozenset({errno.ENOSPC, errno.EDQUOT, errno.EFBIG, errno.EROFS, errno.EEXIST, errno.ENOTEMPTY})
 #: Names semmap writes on the way to an output: a staging folder ``.OUT.partial`` and a temporary file
 #: ``.NAME.XXXXXXXX.tmp`` (``tempfile.mkstemp``), shown to the user as the output they stand for.
 _ON_THE_WAY = (re.compile(r"^\.(?P<name>.+)\.partial$"), re.compile(r"^\.(?P<name>.+)\.[a-z0-9_]{8}\.tmp$"))
@@ -185,11 +187,12 @@ def shown_path(path: str | Path) -> str:
 def write_failure(exc: OSError, what: str | Path = "") -> OutputError | None:
     """One line naming the file and what to do for a write the disk or the system refused (full, read-only,
     permissions, name too long, something in the way), or None when ``exc`` is something else (a bug to show in
-    full). ``what`` names the file when the error does not."""
+    full). ``what`` names the file when the error does not; "cannot write" only where a write it must have been."""
     if exc.errno not in WRITE_ERRNOS:
         return None
     given = exc.filename if isinstance(exc.filename, str | bytes | os.PathLike) and exc.filename else what
     where = shown_path(os.fsdecode(given)) if given else "an output"
     kept = " (nothing was replaced)" if given and where != os.fsdecode(given) else ""  # (a staging folder's file)
     reason = exc.strerror or os.strerror(exc.errno)
-    return OutputError(f"cannot write {where}: {reason}; {_WHAT_TO_DO[exc.errno]}{kept}")
+    what_failed = f"cannot write {where}" if exc.errno in _ONLY_WRITES or kept else where
+    return OutputError(f"{what_failed}: {reason}; {_WHAT_TO_DO[exc.errno]}{kept}")

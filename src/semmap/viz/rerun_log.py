@@ -108,12 +108,12 @@ def recording_failure(exc: Exception, save: str | Path | None) -> SemmapError:
     reason = (str(exc).splitlines() or [type(exc).__name__])[0]
     if save is None:
         return ConfigError(f"rerun viewer unreachable: {reason}")
-    folder = Path(save).parent
-    with contextlib.suppress(OSError):
-        if (free := shutil.disk_usage(folder).free) < MIN_RECORDING_SPACE:
-            reason = f"no space left on the device ({free / 2**20:.1f} MB free in {folder})"
-    return OutputError(f"cannot write the rerun recording {shown_path(save)}: {reason}; free some space or write it "
-                       f"elsewhere")
+    folder, advice = Path(save).parent, "write it elsewhere"
+    if _nearly_full(folder):
+        free = shutil.disk_usage(folder).free
+        reason = f"no space left on the device ({free / 2**20:.1f} MB free in {folder})"
+        advice = "free some space or write it elsewhere"
+    return OutputError(f"cannot write the rerun recording {shown_path(save)}: {reason}; {advice}")
 
 
 def close_recording(rec, save: str | Path | None = None) -> None:
@@ -140,7 +140,8 @@ def _flush(rec, save: str | Path | None) -> None:
         except RuntimeError as exc:
             if "timed out" not in str(exc).lower():
                 raise
-            grown, size = _file_size(save) != size, _file_size(save)
+            now = _file_size(save)
+            grown, size = now != size, now
             if time.monotonic() > deadline or (save is not None and not grown and _nearly_full(Path(save).parent)):
                 raise RuntimeError(f"rerun's writer stopped ({exc})") from None
 
