@@ -171,7 +171,8 @@ def test_wrong_type_too_long_and_non_utf8_outputs_are_one_line(tmp_path, seq):
 
 def test_read_only_and_full_disk_are_one_line(tmp_path, monkeypatch):
     error = write_failure(OSError(errno.ENOSPC, "No space left on device", str(tmp_path / "x")))
-    assert isinstance(error, OutputError) and str(error) == f"cannot write {tmp_path / 'x'}: No space left on device"
+    assert isinstance(error, OutputError) and str(error) == (f"cannot write {tmp_path / 'x'}: No space left on device; "
+                                                             f"free some space or write elsewhere")
     assert write_failure(OSError(errno.EROFS, "Read-only file system", "ro/x")) is not None
     assert write_failure(OSError(errno.EBADF, "Bad file descriptor")) is None  # a bug stays a traceback
     monkeypatch.setattr("semmap.files.outputs.os.access", lambda path, mode: False)

@@ -382,11 +382,12 @@ def simulate(
     """Render a procedural indoor scene to a TUM RGB-D folder with labels, instances, objects and scene.json."""
     _setup_logging(False)
     _budget(memory_budget)
-    from semmap.sim.export import LAYOUTS, simulate_sequence
+    from semmap.sim.export import LAYOUTS, check_sequence_out, simulate_sequence
 
     stored = _size(image_size)
     if isinstance(stored, int):
         raise SemmapError(f"--image-size must be WIDTHxHEIGHT, got {image_size!r}")
+    check_sequence_out(out)  # (before the progress bar: a refusal is one line)
     with _interruptible(), _ProgressCallback("rendering", frames) as callback:
         root = simulate_sequence(out, scene_seed=scene_seed, kind=kind, size=size, trajectory=trajectory,
                                  frames=frames, noise=noise, progress=callback, image_size=stored, symmetric=symmetric,

@@ -12,6 +12,7 @@ import numpy as np
 from semmap.config import InputConfig, LoopMode, RunConfig, SemanticSource
 from semmap.datasets import Dataset
 from semmap.errors import ConfigError
+from semmap.files.safe import read_text_limited
 from semmap.fusion.rules import FusionParams, FusionRule, fusion_rule
 from semmap.maps.base import SemanticMap
 from semmap.maps.registry import DEFAULT_FUSION, MAPS, SUPPORTED_FUSION, MapKind
@@ -34,9 +35,10 @@ def get_fusion(kind: MapKind, config: RunConfig, label_set: LabelSet | None) -> 
 
 def read_class_prior(path: Path, label_set: LabelSet) -> np.ndarray:
     """Class frequencies (K,) from a JSON object ``{class name: frequency}`` (classes not named get 0)."""
+    text = read_text_limited(path, what="class prior", error=lambda reason: ConfigError(f"{path}: {reason}"))
     try:
-        d = json.loads(Path(path).read_text())
-    except (OSError, json.JSONDecodeError) as exc:
+        d = json.loads(text)
+    except json.JSONDecodeError as exc:
         raise ConfigError(f"{path}: cannot read the class prior ({exc})") from None
     if not isinstance(d, dict) or not all(isinstance(v, int | float) for v in d.values()):
         raise ConfigError(f"{path}: the class prior must be a JSON object of class name -> frequency")

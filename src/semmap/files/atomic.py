@@ -17,12 +17,16 @@ def write_atomic(path: str | Path, write: Callable[[BinaryIO], None]) -> Path:
     """Call ``write(fileobj)`` on a temporary file and move it to ``path`` only when it succeeded.
 
     A crash or an exception leaves any earlier file at ``path`` untouched; only a regular file is ever replaced (a
-    device such as ``/dev/full``, a FIFO or a folder there is refused before anything is written).
+    device such as ``/dev/full``, a FIFO or a folder there is refused before anything is written). A write the disk
+    refuses (full, read-only) raises an ``OSError`` naming ``path``, which the OS does not do for ``write()``.
     """
     path = Path(path)
     _refuse_non_regular(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    except OSError as exc:
+        raise _naming(exc, path) from None
     try:
         os.chmod(tmp, 0o666 & ~_umask())
         with os.fdopen(fd, "wb") as f:
@@ -30,11 +34,20 @@ def write_atomic(path: str | Path, write: Callable[[BinaryIO], None]) -> Path:
             f.flush()
             os.fsync(f.fileno())
         os.replace(tmp, path)
-    except BaseException:
+    except BaseException as exc:
         with contextlib.suppress(FileNotFoundError):
             os.unlink(tmp)
+        if isinstance(exc, OSError) and exc.errno is not None and not exc.filename:
+            raise _naming(exc, path) from exc
         raise
     return path
+
+
+def _naming(exc: OSError, path: Path) -> OSError:
+    """``exc`` with ``path`` as its file name (an ``OSError`` of the same errno, and so of the same subclass)."""
+    if exc.errno is None or (exc.filename and exc.filename != os.fspath(path.parent)):
+        return exc
+    return OSError(exc.errno, exc.strerror or os.strerror(exc.errno), os.fspath(path))
 
 
 def _refuse_non_regular(path: Path) -> None:

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import errno
 import os
+import re
 import stat
 from collections.abc import Iterable, Sequence
 from enum import Enum
@@ -27,6 +28,20 @@ PATH_MAX = 4096 - NAME_SLACK
 #: errno values of a write that failed for a reason outside semmap (the disk, the permissions, the name).
 WRITE_ERRNOS = frozenset({errno.ENOSPC, errno.EDQUOT, errno.EROFS, errno.EACCES, errno.EPERM, errno.ENAMETOOLONG,
                           errno.EISDIR, errno.ENOTDIR, errno.EEXIST, errno.EFBIG, errno.EIO, errno.ENOTEMPTY})
+#: Free bytes below which an output's folder counts as full: refused before any work (a full disk fails fast).
+MIN_FREE_BYTES = 1 << 20
+#: What to do about each failure of :data:`WRITE_ERRNOS`.
+_SPACE, _ELSEWHERE = "free some space or write elsewhere", "choose another path"
+_PERMISSION = "check the permissions, or " + _ELSEWHERE
+_WHAT_TO_DO = {errno.ENOSPC: _SPACE, errno.EDQUOT: _SPACE, errno.EFBIG: "write it to another file system",
+               errno.EROFS: "write elsewhere", errno.EACCES: _PERMISSION, errno.EPERM: _PERMISSION,
+               errno.ENAMETOOLONG: "choose a shorter name", errno.EISDIR: _ELSEWHERE, errno.ENOTDIR: _ELSEWHERE,
+               errno.EEXIST: _ELSEWHERE, errno.ENOTEMPTY: _ELSEWHERE, errno.EIO: "check the disk, or " + _ELSEWHERE}
+#: Failures only a write meets (the others, a permission or a path, may come from reading too).
+_ONLY_WRITES = frozenset({errno.ENOSPC, errno.EDQUOT, errno.EFBIG, errno.EROFS, errno.EEXIST, errno.ENOTEMPTY})
+#: Names semmap writes on the way to an output: a staging folder ``.OUT.partial`` and a temporary file
+#: ``.NAME.XXXXXXXX.tmp`` (``tempfile.mkstemp``), shown to the user as the output they stand for.
+_ON_THE_WAY = (re.compile(r"^\.(?P<name>.+)\.partial$"), re.compile(r"^\.(?P<name>.+)\.[a-z0-9_]{8}\.tmp$"))
 
 Named = tuple[str, "str | Path | None"]
 
@@ -104,6 +119,10 @@ def check_type(path: str | Path, option: str, kind: OutputKind) -> None:
             if not os.access(where, os.W_OK | os.X_OK):
                 why = "read-only file system" if _read_only(where) else "permission denied"
                 raise OutputError(f"{option} {path}: cannot write in {where} ({why})")
+            free = free_bytes(where)
+            if free is not None and free < MIN_FREE_BYTES:
+                raise OutputError(f"{option} {path}: no space left on the device of {where} ({free // 1024} KB "
+                                  f"free); free some space or choose another {option} (nothing was written)")
             return
 
 
@@ -112,6 +131,17 @@ def _read_only(folder: Path) -> bool:
         return bool(os.statvfs(folder).f_flag & os.ST_RDONLY)
     except OSError:
         return False
+
+
+def free_bytes(folder: str | Path) -> int | None:
+    """Bytes this process may still write in ``folder``'s file system (root also the reserved blocks), or None
+    when the system does not say."""
+    try:
+        st = os.statvfs(folder)
+    except OSError:
+        return None
+    blocks = st.f_bfree if hasattr(os, "geteuid") and os.geteuid() == 0 else st.f_bavail
+    return int(blocks) * int(st.f_frsize)
 
 
 def check_not_input(path: str | Path, option: str, inputs: Iterable[Named]) -> None:
@@ -147,10 +177,22 @@ def check_outputs(outputs: Sequence[tuple[str, str | Path | None, OutputKind]], 
                 raise OutputError(f"{option} and {other} name the same path {path}; give each its own")
 
 
-def write_failure(exc: OSError, what: str = "") -> OutputError | None:
-    """One line for a write the disk or the system refused (full, read-only, permissions, name too long), or None
-    when ``exc`` is something else (a bug to show in full)."""
+def shown_path(path: str | Path) -> str:
+    """``path`` as the user named it: a staging folder ``.OUT.partial`` or a temporary ``.NAME.XXXXXXXX.tmp`` in it
+    is shown as the output it stands for (``full/.run.partial/map.ot`` -> ``full/run/map.ot``)."""
+    parts = [next((m["name"] for rx in _ON_THE_WAY if (m := rx.match(part))), part) for part in Path(path).parts]
+    return str(Path(*parts)) if parts else os.fspath(path)
+
+
+def write_failure(exc: OSError, what: str | Path = "") -> OutputError | None:
+    """One line naming the file and what to do for a write the disk or the system refused (full, read-only,
+    permissions, name too long, something in the way), or None when ``exc`` is something else (a bug to show in
+    full). ``what`` names the file when the error does not; "cannot write" only where a write it must have been."""
     if exc.errno not in WRITE_ERRNOS:
         return None
-    where = exc.filename or what
-    return OutputError(f"cannot write {where}: {exc.strerror or exc}")
+    given = exc.filename if isinstance(exc.filename, str | bytes | os.PathLike) and exc.filename else what
+    where = shown_path(os.fsdecode(given)) if given else "an output"
+    kept = " (nothing was replaced)" if given and where != os.fsdecode(given) else ""  # (a staging folder's file)
+    reason = exc.strerror or os.strerror(exc.errno)
+    what_failed = f"cannot write {where}" if exc.errno in _ONLY_WRITES or kept else where
+    return OutputError(f"{what_failed}: {reason}; {_WHAT_TO_DO[exc.errno]}{kept}")

@@ -12,6 +12,7 @@ import contextlib
 import logging
 import os
 import shutil
+from collections.abc import Callable
 from pathlib import Path
 
 from semmap.errors import ConfigError
@@ -68,8 +69,16 @@ class StagedRun:
                 raise ConfigError(f"--out {self.out}: another semmap run (pid {pid}) is writing there now")
         if self.stage.exists() and not self.resume:
             shutil.rmtree(self.stage)  # what a crashed run left behind; only --resume picks it up
-        self.stage.mkdir(parents=True, exist_ok=True)
-        owner.write_text(str(os.getpid()))
+        created = not self.stage.exists()
+        try:
+            self.stage.mkdir(parents=True, exist_ok=True)
+            owner.write_text(str(os.getpid()))
+        except OSError as exc:  # a full disk: no empty staging folder left behind, and the output named
+            if created:
+                shutil.rmtree(self.stage, ignore_errors=True)
+            if exc.errno is None:
+                raise
+            raise OSError(exc.errno, exc.strerror, os.fspath(self.out)) from None
         return self.stage
 
     # ------------------------------------------------------------------ checkpoints
@@ -106,3 +115,18 @@ class StagedRun:
             return f"{self.out} untouched; checkpoint kept in {self.stage} (continue with --resume)"
         shutil.rmtree(self.stage, ignore_errors=True)
         return "nothing written"
+
+
+def write_staged(out: Path, write: Callable[[Path], dict[str, Path]]) -> dict[str, Path]:
+    """A folder of outputs written like a run's: ``write(stage)`` fills the staging folder, which replaces ``out``
+    as a whole once complete; a failure (a full disk) or Ctrl-C leaves ``out`` as it was. Returns ``write``'s
+    ``{name: path}`` with the paths in ``out``."""
+    staged = StagedRun(Path(out))
+    stage = staged.open()
+    try:
+        files = write(stage)
+        staged.commit()
+    except BaseException:
+        staged.abandon(keep_checkpoint=False)
+        raise
+    return {name: staged.out / Path(path).relative_to(stage) for name, path in files.items()}

@@ -15,6 +15,7 @@ import numpy as np
 
 from semmap.errors import ConfigError
 from semmap.files.outputs import OutputKind, check_outputs
+from semmap.io.staged_run import write_staged
 from semmap.limits import check, check_option
 from semmap.localization.filter import FilterSettings
 from semmap.localization.motion import (
@@ -156,5 +157,6 @@ def localize_sequence(map_path: Path, seq_path: Path, out_dir: Path, options: Lo
                       seed=options.seed, progress=progress, total=len(dataset))
     sources = {"map": str(map_path), "sequence": str(seq_path), "motion": motion.name,
                "segmenter": None if segment is None else options.segmenter}
-    files = write_outputs(out_dir, result, prior, gif=options.gif, sources=sources)
+    files = write_staged(Path(out_dir), lambda stage: write_outputs(stage, result, prior, gif=options.gif,
+                                                                     sources=sources))  # all files, or none
     return result, files

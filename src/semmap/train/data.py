@@ -246,7 +246,13 @@ def gather(folders: list[Path], size: tuple[int, int], *, label_set: LabelSet | 
         found = found or ls
     target = label_set or found
     if target is None:
-        top = max(int(read_label_image(s.label).max(initial=0)) for s in samples if s.label.is_file())
+        labelled = [s for s in samples if s.label.is_file()]
+        if not labelled:
+            where = ", ".join(str(f) for f in folders)
+            raise DatasetError(f"{where}: none of the {len(samples)} training images has a label image "
+                               f"(labels/<image name>.png); add them, or train on a folder written by semmap "
+                               f"simulate")
+        top = max(int(read_label_image(s.label).max(initial=0)) for s in labelled)
         target = LabelSet.generic(top + 1)
         log.info("no %s in the data; training %d generic classes", LABELSET_FILE, top + 1)
     class_map = ClassMap.load(class_map_path, target) if class_map_path is not None else None

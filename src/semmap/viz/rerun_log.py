@@ -8,18 +8,22 @@ Entity layout: ``world/camera`` (pose, pinhole), ``world/camera/image/{rgb,depth
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import os
 import shutil
 import sys
+import threading
+import time
+import weakref
 from collections.abc import Callable
 from pathlib import Path
 from typing import Protocol
 
 import numpy as np
 
-from semmap.errors import ConfigError, FormatError
-from semmap.files.outputs import OutputKind, check_outputs
+from semmap.errors import ConfigError, FormatError, OutputError, SemmapError
+from semmap.files.outputs import OutputKind, check_outputs, shown_path
 from semmap.types import EMPTY_LABEL, Frame, LabelSet, MapCloud, TopKProbs, muted_grey
 
 LOG = logging.getLogger("semmap")
@@ -77,21 +81,114 @@ def viewer_executable() -> str | None:
 #: Free space a recording's folder needs before rerun's file writer starts (it blocks, or deadlocks, on a full
 #: disk instead of failing).
 MIN_RECORDING_SPACE = 64 << 20
+#: Seconds of one wait for rerun's flush, and the most all waits may take: rerun's own flush waits forever, and
+#: on a full disk its file writer stops (a flush then never ends, and closing the stream hangs too).
+FLUSH_STEP_S, FLUSH_TIMEOUT_S = 1.0, 120.0
+#: Seconds closing a recording stream may take before its writer counts as stuck.
+DISCONNECT_TIMEOUT_S = 5.0
 
 
-def check_recording_space(path: Path) -> None:
-    """Refuse, in one line before logging starts, a recording whose folder is not writable or nearly full."""
-    folder = path.parent
+def check_recording_space(path: Path, *, needed: int | None = None) -> None:
+    """Refuse, in one line before logging starts, a recording whose folder is not writable or nearly full (and
+    stop one whose disk fills up while it is written, with ``needed`` the space left to keep)."""
+    folder, needed = path.parent, MIN_RECORDING_SPACE if needed is None else needed
     if not os.access(folder, os.W_OK | os.X_OK):
-        raise ConfigError(f"{path}: cannot write the rerun recording, {folder} is not writable")
+        raise ConfigError(f"cannot write the rerun recording {shown_path(path)}: {folder} is not writable; write it "
+                          f"elsewhere")
     free = shutil.disk_usage(folder).free
-    if free < MIN_RECORDING_SPACE:
-        raise ConfigError(f"{path}: only {free / 2**20:.1f} MB free in {folder}; a rerun recording needs at least "
-                          f"{MIN_RECORDING_SPACE >> 20} MB (rerun would hang on a full disk)")
+    if free < needed:
+        raise ConfigError(f"cannot write the rerun recording {shown_path(path)}: only {free / 2**20:.1f} MB free in "
+                          f"{folder}; a recording needs at least {needed >> 20} MB (rerun would hang on a full "
+                          f"disk); free some space or write it elsewhere")
+
+
+def recording_failure(exc: Exception, save: str | Path | None) -> SemmapError:
+    """One line for rerun's error while writing or sending a recording: the file named when there is one (a full
+    disk says so), the viewer only when there is no file."""
+    reason = (str(exc).splitlines() or [type(exc).__name__])[0]
+    if save is None:
+        return ConfigError(f"rerun viewer unreachable: {reason}")
+    folder, advice = Path(save).parent, "write it elsewhere"
+    if _nearly_full(folder):
+        free = shutil.disk_usage(folder).free
+        reason = f"no space left on the device ({free / 2**20:.1f} MB free in {folder})"
+        advice = "free some space or write it elsewhere"
+    return OutputError(f"cannot write the rerun recording {shown_path(save)}: {reason}; {advice}")
+
+
+def close_recording(rec, save: str | Path | None = None) -> None:
+    """Flush and close, never hanging: a recording file the disk refused, or a viewer that went away, is one line
+    naming it, not a traceback or a wait without end."""
+    try:
+        _flush(rec, save)
+    except RuntimeError as exc:
+        _disconnect(rec)
+        raise recording_failure(exc, save) from None
+    if not _disconnect(rec):
+        raise recording_failure(RuntimeError("rerun did not close the recording"), save)
+
+
+def _flush(rec, save: str | Path | None) -> None:
+    """``rec.flush()`` in short waits: given up when the recording file stopped growing on a nearly full disk (a
+    stopped writer), or after :data:`FLUSH_TIMEOUT_S`."""
+    deadline = time.monotonic() + FLUSH_TIMEOUT_S
+    size = _file_size(save)
+    while True:
+        try:
+            rec.flush(timeout_sec=FLUSH_STEP_S)
+            return
+        except RuntimeError as exc:
+            if "timed out" not in str(exc).lower():
+                raise
+            now = _file_size(save)
+            grown, size = now != size, now
+            if time.monotonic() > deadline or (save is not None and not grown and _nearly_full(Path(save).parent)):
+                raise RuntimeError(f"rerun's writer stopped ({exc})") from None
+
+
+def _file_size(path: str | Path | None) -> int:
+    try:
+        return os.stat(path).st_size if path is not None else 0
+    except OSError:
+        return 0
+
+
+def _nearly_full(folder: Path) -> bool:
+    try:
+        return shutil.disk_usage(folder).free < MIN_RECORDING_SPACE
+    except OSError:
+        return False
+
+
+def _disconnect(rec) -> bool:
+    """Close the stream on a helper thread: False when rerun's writer is stuck (its exit hook, which would wait for
+    it forever, is then dropped, so the process still ends)."""
+    closing = threading.Thread(target=rec.disconnect, name="rerun-disconnect", daemon=True)
+    closing.start()
+    closing.join(DISCONNECT_TIMEOUT_S)
+    if closing.is_alive():
+        import rerun as rr
+
+        rr.unregister_shutdown()
+        return False
+    return True
+
+
+def quiet_rerun_log() -> None:
+    """rerun's own log lines (a full disk prints several ERROR lines) off unless ``RUST_LOG`` asks for them:
+    semmap reports a failed recording itself, in one line. Must run before rerun is first imported."""
+    os.environ.setdefault("RUST_LOG", "off")
+
+
+def partial_recording(save: str | Path) -> Path:
+    """Where a recording is written until it is complete (then renamed to ``save``, so a failed one never replaces
+    an earlier file)."""
+    return Path(save).with_name(f".{Path(save).name}.partial")
 
 
 def open_recording(name: str, *, save: str | Path | None, spawn: bool):
     """A rerun recording stream writing to ``save`` (.rrd) and/or a newly spawned viewer."""
+    quiet_rerun_log()
     import rerun as rr
     from rerun.sinks import spawn as spawn_viewer
 
@@ -115,9 +212,18 @@ def open_recording(name: str, *, save: str | Path | None, spawn: bool):
         except RuntimeError as exc:
             raise ConfigError(f"--rerun-spawn: cannot start the rerun viewer: {str(exc).splitlines()[0]}") from None
         sinks.append(rr.GrpcSink())
-    rec.set_sinks(*sinks)
+    try:
+        rec.set_sinks(*sinks)  # (opens the file: "Failed to create file" when the disk or the system refuses it)
+    except RuntimeError as exc:
+        raise recording_failure(exc, save) from None
     rec.send_recording_name(name)
     return rec
+
+
+def _unlink(path: Path | None) -> None:
+    if path is not None:
+        with contextlib.suppress(OSError):
+            path.unlink()
 
 
 def class_colors(cloud: MapCloud, label_set: LabelSet | None) -> np.ndarray:
@@ -137,6 +243,7 @@ class RerunVisualizer:
 
     def __init__(self, *, save: str | Path | None = None, spawn: bool = False, map_every: int = DEFAULT_MAP_EVERY,
                  recording_name: str = "semmap run") -> None:
+        quiet_rerun_log()
         import rerun as rr
 
         if save is None and not spawn:
@@ -144,7 +251,14 @@ class RerunVisualizer:
         if map_every < 1:
             raise ConfigError(f"--rerun-map-every must be at least 1, got {map_every}")
         self._rr = rr
-        self.rec = open_recording(recording_name, save=save, spawn=spawn)
+        self.save = None if save is None else Path(save)
+        self._partial = None if save is None else partial_recording(save)  # renamed to ``save`` by finish()
+        self._drop_partial = weakref.finalize(self, _unlink, self._partial)  # a failed run leaves no partial file
+        try:
+            self.rec = open_recording(recording_name, save=self._partial, spawn=spawn)
+        except BaseException:
+            self._drop_partial()
+            raise
         self.map_every = map_every
         self._objects: tuple[Callable[[], list], LabelSet | None] | None = None
         self._positions: list[np.ndarray] = []
@@ -154,6 +268,13 @@ class RerunVisualizer:
 
     def log_frame(self, frame: Frame, T_world_cam: np.ndarray, semantics: TopKProbs | None, map_: MapLike) -> None:
         rr, rec = self._rr, self.rec
+        if self._partial is not None:  # stop in one line before rerun's writer meets a full disk (it would hang)
+            try:
+                check_recording_space(self._partial, needed=MIN_RECORDING_SPACE // 4)
+            except ConfigError:
+                _disconnect(rec)
+                self._drop_partial()
+                raise
         if self._frames == 0 and map_.label_set is not None:
             log_classes(rec, map_.label_set)
         rec.set_time("frame", sequence=int(frame.index))
@@ -178,7 +299,12 @@ class RerunVisualizer:
         if self._frames and self._last_map_frame != self._frames:
             self._log_trajectory()
             self._log_map(map_)
-        close_recording(self.rec)
+        try:
+            close_recording(self.rec, self._partial)
+            if self._partial is not None:
+                os.replace(self._partial, self.save)
+        finally:
+            self._drop_partial()
 
     def _log_trajectory(self) -> None:
         if len(self._positions) >= 2:
@@ -283,12 +409,13 @@ def view_map(path: str | Path, *, save: str | Path | None = None, spawn: bool = 
 
     ``save`` is checked against the map before it is read, written beside under a temporary name and renamed into
     place once complete (never the map itself, never a device)."""
+    quiet_rerun_log()
     import rerun as rr
 
     partial = None
     if save is not None:
         check_outputs([("--save", save, OutputKind.FILE)], [("MAP", path)])
-        partial = Path(save).with_name(f".{Path(save).name}.partial")
+        partial = partial_recording(save)
     cloud, label_set = map_file_cloud(path)
     try:
         rec = open_recording(f"semmap view {Path(path).name}", save=partial, spawn=spawn)
@@ -296,7 +423,7 @@ def view_map(path: str | Path, *, save: str | Path | None = None, spawn: bool = 
         if label_set is not None:
             log_classes(rec, label_set)
         log_cloud(rec, "world/map", cloud, label_set)
-        close_recording(rec)
+        close_recording(rec, partial)
         if partial is not None:
             os.replace(partial, save)
     finally:
@@ -304,12 +431,3 @@ def view_map(path: str | Path, *, save: str | Path | None = None, spawn: bool = 
             partial.unlink(missing_ok=True)
     return len(cloud)
 
-
-def close_recording(rec) -> None:
-    """Flush and close; a viewer that went away is one clear error, not a gRPC traceback."""
-    try:
-        rec.flush()
-    except RuntimeError as exc:
-        raise ConfigError(f"rerun viewer unreachable: {str(exc).splitlines()[0]}") from None
-    finally:
-        rec.disconnect()
