@@ -32,7 +32,7 @@ from semmap.sim.noise import KinectNoise
 from semmap.sim.render import Renderer
 from semmap.sim.scene import Scene, generate_scene
 from semmap.sim.trajectory import make_trajectory
-from semmap.types import CameraIntrinsics, Frame
+from semmap.types import DEFAULT_INTRINSICS, CameraIntrinsics, Frame
 
 FPS = 30.0
 DEPTH_SCALE = 5000.0
@@ -61,6 +61,8 @@ def simulate_sequence(
     if not isinstance(frames, (int, np.integer)) or frames <= 0:
         raise SimulationError(f"frames must be a positive integer, got {frames!r}")
     check_simulation(int(frames), image_size)
+    if image_size is not None:
+        check_reduced_size(image_size, intrinsics or DEFAULT_INTRINSICS)
     root = Path(out_dir)
     check_sequence_out(root)
     staged = StagedRun(root)
@@ -111,6 +113,15 @@ def _write_sequence(root: Path, *, scene_seed: int, kind: str, trajectory: str, 
     if trajectory_seed is not None:
         info["trajectory_seed"] = int(trajectory_seed)
     write_text_atomic(root / "scene.json", json.dumps(info, indent=1) + "\n")
+
+
+def check_reduced_size(size: tuple[int, int], native: CameraIntrinsics) -> None:
+    """``--image-size`` only reduces the rendered frames (as its help says): a side above the camera's is refused
+    in one line naming the native size, before anything is rendered or allocated."""
+    w, h = int(size[0]), int(size[1])
+    if w > native.width or h > native.height:
+        raise SimulationError(f"--image-size {w}x{h} is larger than the native {native.width}x{native.height} the "
+                              f"frames are rendered at; it only reduces them (e.g. 160x120)")
 
 
 def resized_intrinsics(intrinsics: CameraIntrinsics, size: tuple[int, int]) -> CameraIntrinsics:
