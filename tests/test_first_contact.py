@@ -257,18 +257,22 @@ def test_view_saves_semmaps_own_objects_ply(objects_ply, tmp_path, capsys, monke
 
 
 # ------------------------------------------------------------------ Ctrl-C: one line
-@pytest.mark.parametrize("command", ["track", "localize"])
-def test_ctrl_c_in_track_and_localize_is_one_line_and_130(command, room, room_map, tmp_path, capsys,
-                                                          monkeypatch) -> None:
+@pytest.mark.parametrize("command", ["track", "localize", "simulate"])
+def test_ctrl_c_in_track_localize_and_simulate_is_one_line_and_130(command, room, room_map, tmp_path, capsys,
+                                                                   monkeypatch) -> None:
     def interrupted(*args, **kwargs):
         raise KeyboardInterrupt
 
     monkeypatch.setattr("semmap.runner.track_to_file", interrupted)
     monkeypatch.setattr("semmap.localization.sequence.localize_sequence", interrupted)
-    args = (["track", room, "--out", tmp_path / "t.txt"] if command == "track"
-            else ["localize", room_map, room, "--out", tmp_path / "loc"])
+    monkeypatch.setattr("semmap.sim.export._write_sequence", interrupted)  # simulate stages, then says so
+    args = {"track": ["track", room, "--out", tmp_path / "t.txt"],
+            "localize": ["localize", room_map, room, "--out", tmp_path / "loc"],
+            "simulate": ["simulate", "--out", tmp_path / "sim", "--frames", "2"]}[command]
     code, _, err = cli(capsys, monkeypatch, *args)
-    assert code == 130 and err.strip() == "semmap: interrupted"
+    expected = (f"semmap: interrupted while rendering; nothing written to {tmp_path / 'sim'}"
+                if command == "simulate" else "semmap: interrupted")
+    assert code == 130 and err.strip() == expected
 
 
 def test_ctrl_c_after_the_last_frame_keeps_the_complete_outputs_and_exits_0(room, tmp_path, capsys,

@@ -841,7 +841,8 @@ def view(
     from semmap.viz.rerun_log import view_map
 
     n = view_map(path, save=save, spawn=save is None)
-    _console().print(f"{path}: {n:,} occupied voxels" + (f" written to {save}" if save else " sent to rerun"))
+    what = "points" if path.suffix == ".ply" else "occupied voxels"
+    _console().print(f"{path}: {n:,} {what}" + (f" written to {save}" if save else " sent to rerun"))
 
 
 def main() -> None:

@@ -12,7 +12,8 @@ from semmap.types import EMPTY_LABEL
 
 
 def describe_map_file(path: str | Path) -> dict:
-    """Kind, resolution and counts of a ``.ot`` / ``.bt`` / ``.semmap`` / ``.ply`` map file (FormatError otherwise)."""
+    """Kind, resolution and counts of a ``.ot`` / ``.bt`` / ``.semmap`` / ``.ply`` map file, or the points, objects
+    and classes of an ``objects.ply`` (FormatError otherwise)."""
     path = Path(path)
     if path.suffix == ".semmap":
         return _describe_semmap(path)
