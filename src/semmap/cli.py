@@ -841,7 +841,7 @@ def view(
     from semmap.viz.rerun_log import view_map
 
     n = view_map(path, save=save, spawn=save is None)
-    what = "points" if path.suffix == ".ply" else "occupied voxels"
+    what = "PLY vertices" if path.suffix == ".ply" else "occupied voxels"
     _console().print(f"{path}: {n:,} {what}" + (f" written to {save}" if save else " sent to rerun"))
 
 
