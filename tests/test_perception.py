@@ -288,7 +288,7 @@ def test_eval_seg_command(tmp_path):
     write_png(tmp_path / "gt" / "x.png", gt)
     write_png(tmp_path / "pred" / "x.png", gt)
     r = run_cli("eval-seg", str(tmp_path / "pred"), str(tmp_path / "gt"), "--num-classes", "2", "--out",
-                str(tmp_path / "s.json"))
+                str(tmp_path / "s.json"), "--json")
     assert r.returncode == 0, r.stderr
     assert json.loads(r.stdout)["miou"] == 1.0 and json.loads((tmp_path / "s.json").read_text())["mpa"] == 1.0
     r = run_cli("eval-seg", str(tmp_path / "nope"), str(tmp_path / "gt"))

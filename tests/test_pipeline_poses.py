@@ -54,7 +54,7 @@ def test_eval_traj_scores_a_file_against_a_dataset_or_a_file(room, tmp_path):
     est = tmp_path / "est.txt"
     write_trajectory(est, _shifted(read_trajectory(room / "groundtruth.txt")))
     for reference in (room, room / "groundtruth.txt"):
-        r = run_cli("eval-traj", str(reference), str(est), "--plot", str(tmp_path / "plot.png"))
+        r = run_cli("eval-traj", str(reference), str(est), "--plot", str(tmp_path / "plot.png"), "--json")
         assert r.returncode == 0, r.stderr
         scores = json.loads(r.stdout)
         assert scores["ate_rmse_m"] < 1e-6 and scores["matched"] == 8
@@ -67,7 +67,7 @@ def test_eval_traj_compares_several_estimates_against_two_references(room, tmp_p
     write_trajectory(a, _shifted(gt))
     write_trajectory(b, gt)
     r = run_cli("eval-traj", str(room), str(a), str(b), "--pairwise", "--reference2", str(room / "groundtruth.txt"),
-                "--rotation-frames", "2", "--plot-errors", str(tmp_path / "errors.png"))
+                "--rotation-frames", "2", "--plot-errors", str(tmp_path / "errors.png"), "--json")
     assert r.returncode == 0, r.stderr
     result = json.loads(r.stdout)
     assert set(result["estimates"]) == {"a/est", "b/est"}  # repeated stems named by their folder

@@ -53,6 +53,10 @@ _MemoryBudget = Annotated[str | None, typer.Option(help="refuse options whose me
                                                         "available memory)")]
 
 
+#: ``--json`` of the commands that print a table of their result.
+_Json = Annotated[bool, typer.Option("--json", help="print the full result as JSON on stdout instead of the table")]
+
+
 def _budget(text: str | None) -> None:
     """Apply ``--memory-budget`` for this command."""
     from semmap.limits import set_memory_budget
@@ -91,6 +95,7 @@ def _setup_logging(verbose: bool) -> None:
     logging.basicConfig(level=logging.DEBUG if verbose else logging.INFO, format=fmt, handlers=[handler],
                         force=True)
     logging.getLogger("numba").setLevel(logging.WARNING)
+    logging.getLogger("numexpr").setLevel(logging.WARNING)  # "NumExpr defaulting to N threads" (via rerun/pandas)
 
 
 def progress_bar(description: str):
@@ -275,7 +280,11 @@ def run(
         result = run_config(config, progress=progress_bar("mapping"),
                             track_progress=progress_bar(f"tracking ({poses})"), checkpoint_every=checkpoint_every,
                             resume=resume)
-    _print_summary(result.report, result.out_dir)
+    try:
+        _print_summary(result.report, result.out_dir)
+    except KeyboardInterrupt:  # the outputs are complete by now: say so, and it is a success
+        print(f"semmap: Ctrl-C after the run had finished; its outputs in {result.out_dir} are complete",
+              file=sys.stderr)
 
 
 @contextlib.contextmanager
@@ -330,29 +339,47 @@ def _validated(make):
         raise SemmapError(f"invalid option {where}: {msg}") from None
 
 
-def _print_summary(report: dict, out_dir: Path) -> None:
+def _print_table(title: str, rows: list[tuple[str, str]]) -> None:
+    """The summary table every command prints (on stderr, beside its progress bars; ``--json`` is for scripts)."""
     from rich.table import Table
 
-    t = Table(title=f"semmap: {out_dir}", show_header=False)
-    for key in ("frames_used", "frames_skipped", "occupied_voxels", "free_voxels", "occupied_leaves",
-                "free_leaves", "bytes_in_memory", "semantics", "miou_3d",
-                *(k for k in report if k.endswith("_miou_2d")), "frames_segmented"):
-        if key in report:
-            t.add_row(key, str(report[key]))
+    t = Table(title=title, show_header=False)
+    for key, value in rows:
+        t.add_row(key, value)
+    _console().print(t)
+
+
+def _print_summary(report: dict, out_dir: Path) -> None:
+    rows = [(key, str(report[key])) for key in ("frames_used", "frames_skipped", "occupied_voxels", "free_voxels",
+                                                "occupied_leaves", "free_leaves", "bytes_in_memory", "semantics",
+                                                "miou_3d",
+                                                *(k for k in report if k.endswith("_miou_2d")), "frames_segmented")
+            if key in report]
     if "trajectory_vs_ground_truth" in report:
         ate = report["trajectory_vs_ground_truth"]["ate_rmse_m"]
-        t.add_row("ATE of the poses used", f"{100 * ate:.2f} cm")
+        rows.append(("ATE of the poses used", f"{100 * ate:.2f} cm"))
     if "online" in report:
         o = report["online"]
-        t.add_row("online", f"{o['fps']:.1f} frames/s, latency {o['latency_ms']['median']:.0f} ms (median), "
-                            f"drift left in {o['drift_left_in']['max_mm']:.1f} mm (max)")
+        rows.append(("online", f"{o['fps']:.1f} frames/s, latency {o['latency_ms']['median']:.0f} ms (median), "
+                               f"drift left in {o['drift_left_in']['max_mm']:.1f} mm (max)"))
     top = list(report.get("voxels_per_class", {}).items())[:8]
     if top:
-        t.add_row("voxels per class", ", ".join(f"{name} {n:,}" for name, n in top))
-    for name, size in report.get("bytes_on_disk", {}).items():
-        t.add_row(f"size of {name}", f"{size:,} B")
-    t.add_row("ms per frame", f"{report['ms_per_frame']['total']:.1f}")
-    _console().print(t)
+        rows.append(("voxels per class", ", ".join(f"{name} {n:,}" for name, n in top)))
+    rows += [(f"size of {name}", f"{size:,} B") for name, size in report.get("bytes_on_disk", {}).items()]
+    rows.append(("ms per frame", f"{report['ms_per_frame']['total']:.1f}"))
+    _print_table(f"semmap: {out_dir}", rows)
+
+
+def _summary_out(summary: dict, as_json: bool, title: str, rows: list[tuple[str, str]]) -> None:
+    """A command's result: the full JSON on stdout with ``--json``, else the table of its main numbers."""
+    if as_json:
+        typer.echo(json.dumps(summary, indent=2))
+    else:
+        _print_table(title, rows)
+
+
+def _cm(metres: float | None) -> str:
+    return "-" if metres is None else f"{100 * metres:.2f} cm"
 
 
 @app.command()
@@ -403,16 +430,22 @@ class _ProgressCallback:
         self.description, self.total = description, total
 
     def __enter__(self):
-        from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
+        self._progress = None
+        return self._update
 
-        self._progress = Progress(TextColumn("[bold]{task.description}"), BarColumn(), MofNCompleteColumn(),
-                                  TimeRemainingColumn(), console=_console())
-        self._progress.__enter__()
-        task = self._progress.add_task(self.description, total=self.total)
-        return lambda i, n: self._progress.update(task, completed=i, total=n)
+    def _update(self, i: int, n: int) -> None:
+        """Start the bar on the first report (a refusal before any work shows only its one line)."""
+        if self._progress is None:
+            from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
+
+            self._progress = Progress(TextColumn("[bold]{task.description}"), BarColumn(), MofNCompleteColumn(),
+                                      TimeRemainingColumn(), console=_console())
+            self._progress.__enter__()
+            self._task = self._progress.add_task(self.description, total=self.total)
+        self._progress.update(self._task, completed=i, total=n)
 
     def __exit__(self, *exc):
-        return self._progress.__exit__(*exc)
+        return None if self._progress is None else self._progress.__exit__(*exc)
 
 
 @app.command()
@@ -424,6 +457,8 @@ def demo(
     rerun: Annotated[Path | None, typer.Option(help="also log the run to this rerun recording (.rrd)")] = None,
     semantics: Annotated[str, typer.Option(help="network (the shipped network named in weights/manifest.json, "
                                                 "ONNX Runtime) | oracle (the cnn-like error model)")] = "network",
+    trust_weights: Annotated[bool, typer.Option("--trust-weights", help="use shipped weights whose sha256 differs "
+                                                "from weights/manifest.json (with a warning)")] = False,
 ) -> None:
     """Simulate the default scene, map it with ground-truth poses and the shipped segmentation network (or the
     cnn-like oracle), and write the outputs of `semmap run` plus report.md with 3D accuracy against ground truth."""
@@ -435,7 +470,7 @@ def demo(
     with _interruptible():
         result = _validated(lambda: run_demo(out=out, frames=frames, resolution=resolution, scene_seed=scene_seed,
                                              rerun=rerun, oracle=semantics == SegmenterName.ORACLE,
-                                             progress=progress_bar("simulate + map")))
+                                             trust_weights=trust_weights, progress=progress_bar("simulate + map")))
     _print_summary(result.report, result.out_dir)
 
 
@@ -532,15 +567,26 @@ def track(
     max_frames: Annotated[int | None, typer.Option(help="use at most N frames")] = None,
     stride: Annotated[int, typer.Option(help="use every k-th frame")] = 1,
     plot: Annotated[Path | None, typer.Option(help="also plot the trajectory (and ground truth) to this PNG")] = None,
+    as_json: _Json = False,
 ) -> None:
     """Estimate the camera trajectory of a sequence and write it in TUM format; scored against the dataset's
     ground truth when it has one."""
     _setup_logging(False)
     from semmap.runner import track_to_file
 
-    summary = track_to_file(dataset, method, out, plot=plot, format=format, stride=stride, max_frames=max_frames,
-                            progress=progress_bar(f"tracking ({method})"))
-    typer.echo(json.dumps(summary, indent=2))
+    with _interruptible():
+        summary = track_to_file(dataset, method, out, plot=plot, format=format, stride=stride,
+                                max_frames=max_frames, progress=progress_bar(f"tracking ({method})"))
+    rows = [("method", method), ("frames tracked", f"{summary['tracked']} of {summary['frames']}"),
+            ("ms per frame", f"{summary['ms_per_frame']:.1f}"), ("trajectory", summary["trajectory"])]
+    if "ate_rmse_m" in summary:
+        rows += [("ATE (SE(3) aligned)", _cm(summary["ate_rmse_m"])), ("RPE per frame", _cm(summary["rpe_trans_m"])),
+                 ("Sim(3) scale", f"{summary['sim3_scale']:.4f}"), ("poses matched", str(summary["matched"]))]
+    else:
+        rows.append(("ATE", "not scored (the sequence has no ground truth)"))
+    if plot is not None:
+        rows.append(("plot", str(plot)))
+    _summary_out(summary, as_json, f"semmap track: {dataset}", rows)
 
 
 @app.command()
@@ -561,6 +607,8 @@ def localize(
                                                 f"{SEGMENTERS.choices()}")] = "auto",
     weights: Annotated[Path | None, typer.Option(help="network weights (espnetv2) or predictions folder "
                                                  "(precomputed)")] = None,
+    trust_weights: Annotated[bool, typer.Option("--trust-weights", help="use shipped weights whose sha256 differs "
+                                                "from weights/manifest.json (with a warning)")] = False,
     height: Annotated[float | None, typer.Option(help="ground mode: camera height (m); default: from ground "
                                                  "truth")] = None,
     pitch_deg: Annotated[float, typer.Option(help="ground mode with --height: camera pitch (°, down < 0)")] = 0.0,
@@ -571,6 +619,7 @@ def localize(
     seed: Annotated[int, typer.Option(help="random seed")] = 0,
     gif: Annotated[bool, typer.Option("--gif", help="also write particles.gif")] = False,
     memory_budget: _MemoryBudget = None,
+    as_json: _Json = False,
 ) -> None:
     """Monte-Carlo localization of a sequence's camera in a prior map: writes localization.txt, localization.npz,
     report.json, report.md, particles.png, errors.png (with ground truth) and optionally particles.gif."""
@@ -602,10 +651,33 @@ def localize(
                               model=choice(ObservationKind, model, "model"))
     options = LocalizeOptions(settings=settings, init=choice(InitMode, init, "initialisation"), init_pose=start,
                               motion=motion, motion_noise=motion_noise, segmenter=segmenter, weights=weights,
-                              height=height, pitch_deg=pitch_deg, roll_deg=roll_deg, points=points, stride=stride,
-                              max_frames=max_frames, seed=seed, gif=gif)
-    result, files = localize_sequence(map_path, sequence, out, options, progress=progress_bar("localizing"))
-    typer.echo(json.dumps({**result.summary(), "files": sorted(files)}, indent=2))
+                              trust_weights=trust_weights, height=height, pitch_deg=pitch_deg, roll_deg=roll_deg,
+                              points=points, stride=stride, max_frames=max_frames, seed=seed, gif=gif)
+    with _interruptible():
+        result, files = localize_sequence(map_path, sequence, out, options, progress=progress_bar("localizing"))
+    summary = result.summary()
+    _summary_out({**summary, "files": sorted(files)}, as_json, f"semmap localize: {out}",
+                 _localize_rows(summary, out, sorted(files)))
+
+
+def _localize_rows(s: dict, out: Path, files: list[str]) -> list[tuple[str, str]]:
+    """``semmap localize``'s table: the filter, whether and when it converged, the final error, the cost."""
+    converged = ("no" if s["frames_to_converge"] is None else
+                 f"after {s['frames_to_converge']} updates ({s['seconds_to_converge']} s)")
+    rows = [("filter", f"{s['particles']:,} particles, {s['model']} model, {s['mode']}, init {s['init']}, "
+                       f"motion {s['motion']}"),
+            ("updates", f"{s['updates']} ({s['frames_skipped']} frames skipped)"), ("converged", converged),
+            ("converged at the end", "yes" if s["converged_at_end"] else "no")]
+    if "pos_err_m_final" in s:
+        rows.append(("final error", f"{_cm(s['pos_err_m_final'])}, {s['rot_err_deg_final']:.2f}°"))
+        if "pos_err_m_after_convergence" in s:
+            rows.append(("error after convergence", f"{_cm(s['pos_err_m_after_convergence']['median'])}, "
+                                                    f"{s['rot_err_deg_after_convergence']['median']:.2f}° (median)"))
+        rows.append(("on the true pose", "yes" if s["converged_to_truth"] else "no"))
+    if s["ms_per_update"]:
+        rows.append(("ms per update", f"{s['ms_per_update']['median']:.1f} (median)"))
+    rows.append(("outputs", f"{out}: {', '.join(Path(f).name for f in files)}"))
+    return rows
 
 
 @app.command("eval-traj")
@@ -623,6 +695,7 @@ def eval_traj(
                                ] = None,
     plot_errors: Annotated[Path | None, typer.Option(help="write each estimate's position error per axis over the "
                                                      "frames to this PNG")] = None,
+    as_json: _Json = False,
 ) -> None:
     """ATE (after SE(3) Umeyama alignment) and RPE of estimated trajectories against a reference; with several
     estimates, `--pairwise` or `--reference2`, a comparison of all of them."""
@@ -631,18 +704,51 @@ def eval_traj(
 
     scores = evaluate_trajectories(gt, est, max_time_diff=max_time_diff, pairwise=pairwise, reference2=reference2,
                                    rotation_frames=rotation_frames, plot=plot, plot_errors=plot_errors)
-    typer.echo(json.dumps(scores, indent=2))
+    rows = _traj_rows(scores) + [(what, str(path)) for what, path in (("plot", plot), ("error plot", plot_errors))
+                                 if path is not None]
+    _summary_out(scores, as_json, f"semmap eval-traj: against {gt}", rows)
+
+
+def _traj_rows(scores: dict) -> list[tuple[str, str]]:
+    """``semmap eval-traj``'s table: ATE, RPE and scale per estimate, then the comparisons asked for."""
+    def scored(s: dict) -> str:
+        return (f"ATE {_cm(s['ate_rmse_m'])}, RPE {_cm(s['rpe_trans_m'])} / {s['rpe_rot_deg']:.2f}° per frame, "
+                f"Sim(3) scale {s['sim3_scale']:.4f}, {s['matched']} poses matched")
+
+    if "estimates" not in scores:
+        s = scores
+        return [("ATE (SE(3) aligned)", _cm(s["ate_rmse_m"])),
+                ("ATE mean / median / max", " / ".join(_cm(s[k]) for k in ("ate_mean_m", "ate_median_m",
+                                                                          "ate_max_m"))),
+                ("RPE per frame", f"{_cm(s['rpe_trans_m'])}, {s['rpe_rot_deg']:.2f}°"),
+                ("Sim(3) scale", f"{s['sim3_scale']:.4f}"),
+                ("poses matched", f"{s['matched']} (reference {s['gt_poses']}, estimate {s['est_poses']})"),
+                ("ground-truth path", f"{s['gt_path_length_m']:.2f} m")]
+    rows = [(name, scored(s)) for name, s in scores["estimates"].items()]
+    rows += [(f"{a} vs {b}", f"{_cm(p['ate_m'])} apart, {_cm(p['shared_m'])} of error shared")
+             for p in scores.get("pairwise", []) for a, b in [p["between"]]]
+    rows += [(f"{name} vs --reference2", f"ATE {_cm(s['ate_rmse_m'])}, {s['matched']} poses matched")
+             for name, s in scores.get("reference2", {}).items()]
+    if "rotation_disagreement_deg" in scores:
+        r = scores["rotation_disagreement_deg"]
+        rows.append((f"rotation over {r['frames']} frames", f"{r['common_frames']} common frames; the matrix of "
+                                                          f"{', '.join(r['order'])} with --json"))
+    return rows
 
 
 @app.command("eval-seg")
 def eval_seg(
     pred_dir: Annotated[Path, typer.Argument(help="folder of predicted label PNGs (class ids)")],
     gt_dir: Annotated[Path, typer.Argument(help="folder of ground-truth label PNGs with the same names")],
-    num_classes: Annotated[int, typer.Option(help="number of classes K (ids 0..K-1)")] = 21,
+    num_classes: Annotated[int | None, typer.Option(help="number of classes K (ids 0..K-1); default: the label "
+                                                        "set's, else the largest id in the images + 1")] = None,
+    labelset: Annotated[Path | None, typer.Option(help="labelset.json naming the classes (default: the one in or "
+                                                       "beside GT_DIR, as semmap simulate writes it)")] = None,
     ignore: Annotated[int, typer.Option(help="ground-truth id left out (255: VOC boundaries; -1: none)")] = 255,
     out: Annotated[Path | None, typer.Option(help="also write the scores as JSON here")] = None,
     resize: Annotated[bool, typer.Option("--resize", help="resize predictions of another size than their ground "
                                          "truth (nearest neighbour) instead of refusing them")] = False,
+    as_json: _Json = False,
 ) -> None:
     """Segmentation accuracy of predicted label images: MIoU and MPA (eqs. 11-12), per-class IoU and accuracy,
     confusion matrix."""
@@ -650,10 +756,19 @@ def eval_seg(
     from semmap.eval.segmentation import evaluate_label_folders
 
     result = evaluate_label_folders(pred_dir, gt_dir, num_classes, ignore=None if ignore < 0 else ignore,
-                                    resize=resize, out=out)
+                                    resize=resize, out=out, label_set=labelset)
     d = result.to_dict()
-    summary = {k: v for k, v in d.items() if k != "confusion"}
-    typer.echo(json.dumps(summary, indent=2))
+    classes = (f"{result.num_classes} from {result.label_set_path}" if result.label_set_path is not None
+               else f"{result.num_classes} (ids 0..{result.num_classes - 1}, no labelset.json)")
+    rows = [("images", f"{d['images']} scored, {len(d['missing_predictions'])} without a prediction"),
+            ("classes", classes), *((name, "-" if d[k] is None else f"{d[k]:.4f}") for k, name in
+                                    (("miou", "mIoU"), ("mpa", "MPA"), ("pixel_accuracy", "pixel accuracy")))]
+    rows += [(f"IoU {name}", f"{'-' if c['iou'] is None else format(c['iou'], '.4f')} (accuracy "
+                             f"{'-' if c['accuracy'] is None else format(c['accuracy'], '.4f')}, {c['pixels']:,} px)")
+             for name, c in d["per_class"].items()]
+    if out is not None:
+        rows.append(("scores written to", str(out)))
+    _summary_out(d, as_json, f"semmap eval-seg: {pred_dir} against {gt_dir}", rows)
 
 
 @app.command()
@@ -736,7 +851,8 @@ def view(
     from semmap.viz.rerun_log import view_map
 
     n = view_map(path, save=save, spawn=save is None)
-    _console().print(f"{path}: {n:,} occupied voxels" + (f" written to {save}" if save else " sent to rerun"))
+    what = "PLY vertices" if path.suffix == ".ply" else "occupied voxels"
+    _console().print(f"{path}: {n:,} {what}" + (f" written to {save}" if save else " sent to rerun"))
 
 
 @app.command()

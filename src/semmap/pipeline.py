@@ -42,6 +42,7 @@ from semmap.perception.schedule import (
 )
 from semmap.poses.base import Progress
 from semmap.poses.frame_poses import FramePoses
+from semmap.poses.track import GROUND_TRUTH
 from semmap.run.checkpoints import Checkpoints, check_checkpoint_options
 from semmap.run.outputs import refine_maps, warn_if_empty, write_outputs
 from semmap.run.paths import check_run_paths, staged_output
@@ -171,6 +172,19 @@ class RunResult:
         return self.map_of(MapKind.OCTOMAP)
 
 
+def no_pose_hint(config: RunConfig, dataset: Dataset) -> str:
+    """What to do when no frame has a pose: ground-truth poses come from the dataset (a bag's /tf or
+    --pose-topic, a folder's ground-truth file); without them, a tracker estimates them."""
+    if config.poses.source != GROUND_TRUTH:
+        return ""
+    from semmap.datasets.rosbag import RosbagDataset
+
+    track = "estimate them with --poses slam or --poses odometry"
+    if isinstance(dataset, RosbagDataset):
+        return f" (the bag has no camera poses on /tf or a --pose-topic: {track})"
+    return f" (poses come from the dataset's ground truth, e.g. TUM groundtruth.txt; without one, {track})"
+
+
 class Pipeline:
     """One mapping run from a dataset to ``map.ot``, ``map.bt``, ``map.semmap``, previews and the report.
 
@@ -209,17 +223,18 @@ class Pipeline:
             try:
                 outcome = self._map(stage)
                 report = self._write(outcome)
-                if stop_requested():
-                    raise RunInterrupted("interrupted while writing the outputs")
                 staged.commit()  # every file is there: the folder becomes --out in one rename
             except RunInterrupted as exc:
                 raise RunInterrupted(f"{exc}; {staged.abandon(keep_checkpoint=True)}") from None
             except BaseException:
                 staged.abandon(keep_checkpoint=self.checkpoint_every > 0 or self.resume)
                 raise
-        final = self.config.output.out
-        files = {key: final / Path(path).relative_to(stage) for key, path in outcome.files.items()}
-        return RunResult(list(outcome.maps), final, report, files, outcome.record.poses)
+            final = self.config.output.out
+            if stop_requested():  # Ctrl-C after the last frame: the outputs were finished, and are kept
+                log.warning("Ctrl-C after the last frame: the run finished writing; its outputs in %s are complete",
+                            final)
+            files = {key: final / Path(path).relative_to(stage) for key, path in outcome.files.items()}
+            return RunResult(list(outcome.maps), final, report, files, outcome.record.poses)
 
     # ---------------------------------------------------------------- steps
     def _map(self, stage: Path) -> RunOutcome:
@@ -283,11 +298,13 @@ class Pipeline:
                 self._integrate_frame(frame, T, sem, mapper, label_set, record)
                 self._after_frame(frame, mapper, pose_of, record)
         record.seconds = time.perf_counter() - t0
+        no_pose = record.no_pose
         if not record.poses:
-            no_pose = record.no_pose
-            hint = " (poses come from the dataset's ground truth, e.g. TUM groundtruth.txt)" if no_pose else ""
+            hint = no_pose_hint(self.config, dataset) if no_pose else ""
             raise ConfigError(f"{self.config.input.dataset}: no frame could be mapped "
                               f"({len(dataset.skipped)} unreadable, {len(no_pose)} without pose){hint}")
+        if len(no_pose) > 1:
+            log.warning("%d frames had no pose and were skipped (%s ... %s)", len(no_pose), no_pose[0], no_pose[-1])
 
     @contextmanager
     def _semantic_stream(self, posed: Iterator[tuple[Frame, np.ndarray]], label_set: LabelSet | None,
@@ -362,8 +379,9 @@ class Pipeline:
                 T, reason = pose_of(frame)
                 if pose_of.tracker is not None:
                     timings["track"] += (time.perf_counter() - t_pose) * 1e3
-                if T is None:
-                    log.warning("frame %s has no pose (%s); skipped", frame.name, reason)
+                if T is None:  # the first one is a warning; the rest are counted (one line at the end)
+                    (log.debug if record.no_pose else log.warning)("frame %s has no pose (%s); skipped", frame.name,
+                                                                   reason)
                     record.no_pose.append(frame.name)
                 else:
                     record.arrival[id(frame)] = arrived

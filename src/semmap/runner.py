@@ -78,9 +78,11 @@ def run_config(config: RunConfig, *, dataset: Dataset | None = None, progress: P
 
 
 def demo_config(*, out: Path, frames: int = 300, resolution: float | None = None, scene_seed: int = 0,
-                rerun: Path | None = None, oracle: bool = False) -> tuple[RunConfig, Dataset]:
-    """The demo's run: the default simulated scene, ground-truth poses, and the shipped network (ONNX Runtime)
-    or, with ``oracle`` or without shipped weights (warned), the cnn-like oracle segmenter."""
+                rerun: Path | None = None, oracle: bool = False, trust_weights: bool = False
+                ) -> tuple[RunConfig, Dataset]:
+    """The demo's run: the default simulated scene, ground-truth poses, and the shipped network (ONNX Runtime;
+    ``trust_weights``: even if its sha256 differs from the manifest) or, with ``oracle`` or without shipped
+    weights (warned), the cnn-like oracle segmenter."""
     from semmap.datasets.simulated import SimulatedDataset
     from semmap.perception.registry import demo_network
 
@@ -88,8 +90,8 @@ def demo_config(*, out: Path, frames: int = 300, resolution: float | None = None
     network = None if oracle else demo_network()
     if network is None and not oracle:
         log.warning("no shipped network weights (weights/manifest.json); the demo uses the oracle segmenter")
-    semantics = (SemanticsConfig(segmenter=network, backend="onnx") if network is not None
-                 else SemanticsConfig(source=SemanticSource.ORACLE, seed=scene_seed))
+    semantics = (SemanticsConfig(segmenter=network, backend="onnx", trust_weights=trust_weights)
+                 if network is not None else SemanticsConfig(source=SemanticSource.ORACLE, seed=scene_seed))
     mapping = MappingConfig() if resolution is None else MappingConfig(resolution=resolution)
     config = RunConfig(input=InputConfig(dataset=Path(dataset.name)), mapping=mapping, semantics=semantics,
                        output=OutputConfig(out=out, rerun=rerun))
@@ -97,7 +99,8 @@ def demo_config(*, out: Path, frames: int = 300, resolution: float | None = None
 
 
 def run_demo(*, out: Path, frames: int = 300, resolution: float | None = None, scene_seed: int = 0,
-             rerun: Path | None = None, oracle: bool = False, progress: Progress | None = None) -> RunResult:
+             rerun: Path | None = None, oracle: bool = False, trust_weights: bool = False,
+             progress: Progress | None = None) -> RunResult:
     """``semmap demo``: simulate the default scene and map it as ``semmap run`` would, scored against the
     simulator's ground truth (``out`` and ``rerun`` checked before the scene is built)."""
     from semmap.files.outputs import OutputKind, check_outputs
@@ -106,7 +109,7 @@ def run_demo(*, out: Path, frames: int = 300, resolution: float | None = None, s
     check("seed", scene_seed, "--scene-seed")
     check_outputs([("--out", out, OutputKind.FOLDER), ("--rerun", rerun, OutputKind.FILE)], [])
     config, dataset = demo_config(out=out, frames=frames, resolution=resolution, scene_seed=scene_seed,
-                                  rerun=rerun, oracle=oracle)
+                                  rerun=rerun, oracle=oracle, trust_weights=trust_weights)
     from semmap.perception.registry import SegmenterName
 
     segmenter = SegmenterName(config.semantics.segmenter or SegmenterName.ORACLE)

@@ -23,6 +23,7 @@ import cv2
 import numpy as np
 
 from semmap.datasets.base import read_label_image
+from semmap.datasets.label_folder import LABELSET_FILE
 from semmap.errors import ConfigError, DatasetError
 from semmap.eval.semantic import SegmentationScores, confusion, scores, scores_from_counts
 from semmap.files.atomic import write_text_atomic
@@ -51,6 +52,8 @@ class SegmentationEvaluation:
     num_classes: int
     images: int
     missing: tuple[str, ...]  # ground-truth images without a prediction (counted as not evaluated)
+    label_set: LabelSet | None = None  # the classes' names (the dataset's labelset.json), when known
+    label_set_path: Path | None = None  # where they were read from
 
     @property
     def confusion(self) -> np.ndarray:
@@ -63,8 +66,10 @@ class SegmentationEvaluation:
 
     def to_dict(self, label_set: LabelSet | None = None) -> dict:
         """JSON-ready summary: MIoU, MPA, pixel accuracy (null where nothing was scored), per-class IoU and
-        accuracy, and the confusion matrix (dense up to the limit, else its non-zero cells)."""
+        accuracy by class name (by id without a label set), and the confusion matrix (dense up to the limit,
+        else its non-zero cells)."""
         s = self.scores
+        label_set = label_set if label_set is not None else self.label_set
         names = label_set.names if label_set is not None else tuple(str(i) for i in range(len(s.iou)))
         per_class = {names[i]: {"iou": _finite(s.iou[i]), "accuracy": _finite(s.class_accuracy[i]),
                                 "pixels": int(s.support[i])}
@@ -72,8 +77,9 @@ class SegmentationEvaluation:
         confusion = (self.confusion.tolist() if self.num_classes <= DENSE_CONFUSION_LIMIT
                      else {"nonzero": self.pairs.tolist()})
         return {"miou": _finite(s.miou), "mpa": _finite(s.mpa), "pixel_accuracy": _finite(s.accuracy),
-                "images": self.images, "missing_predictions": list(self.missing), "per_class": per_class,
-                "confusion": confusion}
+                "images": self.images, "missing_predictions": list(self.missing), "num_classes": self.num_classes,
+                "label_set": None if self.label_set_path is None else str(self.label_set_path),
+                "per_class": per_class, "confusion": confusion}
 
 
 def _finite(value: float) -> float | None:
@@ -102,60 +108,102 @@ def label_pairs(pred_dir: Path, gt_dir: Path) -> Iterator[tuple[str, Path | None
         yield gt.stem, preds.get(gt.stem), gt
 
 
-def evaluate_label_folders(pred_dir: str | Path, gt_dir: str | Path, num_classes: int, *,
-                           ignore: int | None = 255, resize: bool = False,
-                           out: str | Path | None = None) -> SegmentationEvaluation:
+def find_label_set(gt_dir: str | Path) -> Path | None:
+    """The ``labelset.json`` of a ground-truth label folder: inside it, or beside it (a sequence's ``labels/``
+    folder and its ``labelset.json``, as ``semmap simulate`` writes them); None when there is none."""
+    gt_dir = Path(gt_dir)
+    return next((p for p in (gt_dir / LABELSET_FILE, gt_dir.parent / LABELSET_FILE) if p.is_file()), None)
+
+
+def evaluate_label_folders(pred_dir: str | Path, gt_dir: str | Path, num_classes: int | None = None, *,
+                           ignore: int | None = 255, resize: bool = False, out: str | Path | None = None,
+                           label_set: str | Path | None = None) -> SegmentationEvaluation:
     """Accumulate the confusion of every predicted label PNG against the ground-truth PNG of the same name.
 
-    A prediction of another size than its ground truth is refused, or resized (nearest neighbour, with a warning)
-    when ``resize``; a predicted id, or a ground-truth id other than ``ignore``, of ``num_classes`` or more is
-    refused, naming the file. Ground-truth images without a prediction are listed in ``missing``. Counts are
-    kept sparse, so memory does not grow with the square of ``num_classes``. With ``out``, the scores are also
-    written there as JSON (checked against both folders before any image is read).
+    The classes are those of ``label_set`` (a labelset.json; default: the one :func:`find_label_set` finds beside
+    the ground truth): K and the names in the scores. ``num_classes`` sets K without one (it must agree with a
+    label set); with neither, K is inferred from the largest id in the images. A prediction of another size than
+    its ground truth is refused, or resized (nearest neighbour, with a warning) when ``resize``; a predicted id,
+    or a ground-truth id other than ``ignore``, of K or more is refused, naming the file. Ground-truth images
+    without a prediction are listed in ``missing``. Counts are kept sparse, so memory does not grow with K².
+    With ``out``, the scores are also written there as JSON (checked against both folders before any image is
+    read).
     """
     check_outputs([("--out", out, OutputKind.FILE)], [("PRED_DIR", pred_dir), ("GT_DIR", gt_dir)])
     check("num_classes", num_classes, "--num-classes")
     check("label_id", ignore, "--ignore")
+    classes, classes_path, limit = _classes(Path(gt_dir), num_classes, label_set)
     codes = np.zeros(0, np.int64)
     counts = np.zeros(0, np.int64)
     missing: list[str] = []
-    images = 0
+    images, top = 0, 1
     for name, pred_path, gt_path in label_pairs(Path(pred_dir), Path(gt_dir)):
         if pred_path is None:
             missing.append(name)
             continue
         gt = read_label_image(gt_path)
-        pred = read_label_image(pred_path)
-        if pred.shape != gt.shape:
-            if not resize:
-                raise DatasetError(f"{pred_path}: prediction is {pred.shape[1]}x{pred.shape[0]}, its ground truth "
-                                   f"{gt_path.name} {gt.shape[1]}x{gt.shape[0]} (pass --resize to resize "
-                                   f"predictions by nearest neighbour)")
-            LOG.warning("%s: prediction is %dx%d, ground truth %dx%d; resized (nearest neighbour)", pred_path,
-                        pred.shape[1], pred.shape[0], gt.shape[1], gt.shape[0])
-            pred = cv2.resize(pred, (gt.shape[1], gt.shape[0]), interpolation=cv2.INTER_NEAREST)
-        _check_ids(pred_path, pred, num_classes, "predicted")
+        pred = _prediction_for(pred_path, gt_path, gt.shape, resize)
         keep = np.ones(gt.shape, bool) if ignore is None else gt != ignore
-        _check_ids(gt_path, gt[keep], num_classes, "ground-truth", hint=ignore is None)
-        new, n = np.unique(gt[keep].astype(np.int64) * num_classes + pred[keep], return_counts=True)
+        if limit is not None:
+            _check_ids(pred_path, pred, limit, "predicted")
+            _check_ids(gt_path, gt[keep], limit, "ground-truth", hint=ignore is None)
+        top = max(top, int(pred.max(initial=0)), int(gt[keep].max(initial=0)))
+        new, n = np.unique(gt[keep].astype(np.int64) * _CODE_BASE + pred[keep], return_counts=True)
         codes, inverse = np.unique(np.concatenate([codes, new]), return_inverse=True)
         counts = np.bincount(inverse, weights=np.concatenate([counts, n]), minlength=len(codes)).astype(np.int64)
         images += 1
     if images == 0:
         raise DatasetError(f"{pred_dir}: no prediction matches a ground-truth image in {gt_dir} by name")
-    pairs = np.stack([codes // num_classes, codes % num_classes, counts], axis=1).astype(np.int64)
-    result = SegmentationEvaluation(_scores_of_pairs(pairs, num_classes, ignore), pairs, num_classes, images,
-                                    tuple(missing))
+    k = limit[0] if limit is not None else top + 1
+    pairs = np.stack([codes // _CODE_BASE, codes % _CODE_BASE, counts], axis=1).astype(np.int64)
+    result = SegmentationEvaluation(_scores_of_pairs(pairs, k, ignore), pairs, k, images, tuple(missing),
+                                    classes, classes_path)
     if out is not None:
         write_text_atomic(out, json.dumps(result.to_dict(), indent=2, allow_nan=False))
     return result
 
 
-def _check_ids(path: Path, ids: np.ndarray, num_classes: int, what: str, *, hint: bool = False) -> None:
+#: Confusion cells are coded ``true id * _CODE_BASE + predicted id`` (ids are 16-bit), whatever K turns out to be.
+_CODE_BASE = MAX_CLASSES + 1
+
+
+def _classes(gt_dir: Path, num_classes: int | None, label_set: str | Path | None
+             ) -> tuple[LabelSet | None, Path | None, tuple[int, str] | None]:
+    """The label set (and its file) and the class-id limit ``(K, how it was set)``; the limit is None when K is
+    to be inferred from the images."""
+    path = Path(label_set) if label_set is not None else find_label_set(gt_dir)
+    classes = LabelSet.load(path) if path is not None else None
+    if num_classes is not None and not 2 <= num_classes <= MAX_CLASSES:
+        raise ConfigError(f"--num-classes must be in 2..{MAX_CLASSES} (label images hold 16-bit ids), "
+                          f"got {num_classes}")
+    if classes is None:
+        return None, None, None if num_classes is None else (num_classes, f"--num-classes {num_classes}")
+    if num_classes is not None and num_classes != len(classes):
+        raise ConfigError(f"--num-classes {num_classes} disagrees with the {len(classes)} classes of {path}; "
+                          f"leave --num-classes out (or pass --labelset)")
+    return classes, path, (len(classes), f"the {len(classes)} classes of {path}")
+
+
+def _prediction_for(pred_path: Path, gt_path: Path, shape: tuple[int, ...], resize: bool) -> np.ndarray:
+    """The predicted label image, of its ground truth's size: refused when it differs, or resized by nearest
+    neighbour (with a warning) when ``resize``."""
+    pred = read_label_image(pred_path)
+    if pred.shape == shape:
+        return pred
+    if not resize:
+        raise DatasetError(f"{pred_path}: prediction is {pred.shape[1]}x{pred.shape[0]}, its ground truth "
+                           f"{gt_path.name} {shape[1]}x{shape[0]} (pass --resize to resize "
+                           f"predictions by nearest neighbour)")
+    LOG.warning("%s: prediction is %dx%d, ground truth %dx%d; resized (nearest neighbour)", pred_path,
+                pred.shape[1], pred.shape[0], shape[1], shape[0])
+    return cv2.resize(pred, (shape[1], shape[0]), interpolation=cv2.INTER_NEAREST)
+
+
+def _check_ids(path: Path, ids: np.ndarray, limit: tuple[int, str], what: str, *, hint: bool = False) -> None:
     top = int(ids.max(initial=0))
-    if top >= num_classes:
+    if top >= limit[0]:
         extra = " (255 marks VOC boundaries: pass --ignore 255)" if hint and top == 255 else ""
-        raise DatasetError(f"{path}: {what} class id {top} is not below --num-classes {num_classes}{extra}")
+        raise DatasetError(f"{path}: {what} class id {top} is not below {limit[1]}{extra}")
 
 
 def _scores_of_pairs(pairs: np.ndarray, num_classes: int, ignore: int | None) -> SegmentationScores:

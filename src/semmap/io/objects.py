@@ -18,7 +18,7 @@ import numpy as np
 from semmap.errors import FormatError
 from semmap.files.atomic import write_atomic, write_text_atomic
 from semmap.maps.objects import MapObject, upright_box
-from semmap.types import LabelSet, distinct_colors
+from semmap.types import LabelSet, MapCloud, distinct_colors
 
 FORMAT = "semmap-objects"
 VERSION = 1
@@ -93,10 +93,29 @@ def write_objects_ply(path: str | Path, objects: list[MapObject]) -> int:
     return Path(path).stat().st_size
 
 
+def is_objects_ply(path: str | Path) -> bool:
+    """Whether ``path`` is a PLY whose header has the ``object`` property of ``objects.ply`` (not a map's PLY);
+    False for anything unreadable, which the map PLY reader then names."""
+    from semmap.files.safe import regular_file_size
+    from semmap.io.ply import MAX_PLY_HEADER
+
+    try:
+        regular_file_size(path, what="PLY file")
+        with open(path, "rb") as f:
+            head = f.read(MAX_PLY_HEADER)
+    except (OSError, FormatError):
+        return False
+    end = head.find(b"end_header\n")
+    return head.startswith(b"ply\n") and end >= 0 and b"\nproperty int object\n" in head[:end]
+
+
 def read_objects_ply(path: str | Path) -> dict[str, np.ndarray]:
     """``points`` (N, 3) float32, ``colors`` (N, 3) uint8, ``object`` (N,) int32, ``label`` (N,) uint16 of a PLY
     written by :func:`write_objects_ply`."""
+    from semmap.files.safe import regular_file_size
+
     path = Path(path)
+    regular_file_size(path, what="PLY file")  # never a FIFO or a device
     try:
         raw = path.read_bytes()
     except OSError as exc:
@@ -120,6 +139,19 @@ def read_objects_ply(path: str | Path) -> dict[str, np.ndarray]:
     return {"points": np.stack([rows["x"], rows["y"], rows["z"]], 1).astype(np.float32),
             "colors": np.stack([rows["red"], rows["green"], rows["blue"]], 1).astype(np.uint8),
             "object": rows["object"].astype(np.int32), "label": rows["label"].astype(np.uint16)}
+
+
+#: Size (m) of the cells an ``objects.ply``'s points are drawn as (the file holds points, no voxel size).
+OBJECT_POINT_SIZE = 0.02
+
+
+def objects_ply_cloud(path: str | Path) -> MapCloud:
+    """The points of an ``objects.ply`` as a cloud a viewer draws: each in its object's colour, with its class
+    id, at :data:`OBJECT_POINT_SIZE`."""
+    ply = read_objects_ply(path)
+    n = len(ply["label"])
+    return MapCloud(ply["points"].astype(np.float64), ply["colors"], ply["label"], np.zeros(n, np.float32),
+                    OBJECT_POINT_SIZE)
 
 
 def _rounded(v) -> list[float]:

@@ -48,6 +48,7 @@ class LocalizeOptions:
     motion_noise: float = 0.05  # gt-noisy: drift as a fraction of each motion
     segmenter: str | None = "auto"  # auto | none | a segmenter (semmap.perception.registry.SEGMENTERS)
     weights: Path | None = None
+    trust_weights: bool = False  # shipped weights whose sha256 differs from the manifest: used with a warning
     height: float | None = None  # ground mode without ground truth: camera height ...
     pitch_deg: float = 0.0  # ... and its fixed pitch and roll
     roll_deg: float = 0.0
@@ -113,7 +114,7 @@ def _segment_fn(options: LocalizeOptions, dataset, prior):
     from semmap.perception.registry import make_segmenter
 
     seg = make_segmenter(name, weights=options.weights, label_set=dataset.label_set or prior.label_set,
-                         seed=options.seed)
+                         seed=options.seed, trust_weights=options.trust_weights)
     if seg.label_set != prior.label_set:
         raise ConfigError(f"the segmenter {name!r} predicts {len(seg.label_set)} classes ({seg.label_set.names[:3]}...)"
                           f" but the map holds {len(prior.label_set)} ({prior.label_set.names[:3]}...)")

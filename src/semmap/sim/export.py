@@ -34,7 +34,7 @@ from semmap.sim.noise import KinectNoise
 from semmap.sim.render import Renderer
 from semmap.sim.scene import Scene, generate_scene
 from semmap.sim.trajectory import make_trajectory
-from semmap.types import CameraIntrinsics, Frame
+from semmap.types import DEFAULT_INTRINSICS, CameraIntrinsics, Frame
 
 FPS = 30.0
 DEPTH_SCALE = 5000.0
@@ -71,6 +71,8 @@ def simulate_sequence(
     check("seed", scene_seed, "--scene-seed")
     check("seed", trajectory_seed, "--trajectory-seed")
     check("seed", changes_seed, "--changes-seed")
+    if image_size is not None:
+        check_reduced_size(image_size, intrinsics or DEFAULT_INTRINSICS)
     root = Path(out_dir)
     check_sequence_out(root)
     staged = StagedRun(root)
@@ -128,6 +130,7 @@ def _write_sequence(root: Path, *, scene_seed: int, kind: str, trajectory: str, 
     write_text_atomic(root / "scene.json", json.dumps(info, indent=1) + "\n")
 
 
+<<<<<<< HEAD
 #: Layouts ``semmap simulate --format`` writes: TUM RGB-D (semmap's own), a ScanNet scan, Replica (NICE-SLAM).
 LAYOUTS = ("tum", "scannet", "replica")
 
@@ -141,6 +144,16 @@ def _write_frames(root: Path, frames: Iterable[Frame], layout: str) -> None:
     else:
         write_tum_sequence(root, frames, depth_scale=DEPTH_SCALE, write_labels=True)
         INDOOR_LABELS.save(root / "labelset.json")
+
+
+def check_reduced_size(size: tuple[int, int], native: CameraIntrinsics) -> None:
+    """``--image-size`` only reduces the rendered frames (as its help says): a side above the camera's is refused
+    in one line naming the native size, before anything is rendered or allocated."""
+    w, h = int(size[0]), int(size[1])
+    if w > native.width or h > native.height:
+        raise SimulationError(f"--image-size {w}x{h} is larger than the native {native.width}x{native.height} the "
+                              f"frames are rendered at; it only reduces them (e.g. 160x120)")
+>>>>>>> wt-first
 
 
 def resized_intrinsics(intrinsics: CameraIntrinsics, size: tuple[int, int]) -> CameraIntrinsics:

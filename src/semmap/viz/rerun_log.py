@@ -380,9 +380,10 @@ def map_file_cloud(path: str | Path) -> tuple[MapCloud, LabelSet | None]:
         m = load_map(path)
         return m.cloud(), m.label_set
     if path.suffix == ".ply":
+        from semmap.io.objects import is_objects_ply, objects_ply_cloud
         from semmap.io.ply import read_ply
 
-        return read_ply(path), None
+        return (objects_ply_cloud(path) if is_objects_ply(path) else read_ply(path)), None
     if path.suffix not in (".ot", ".bt"):
         raise FormatError(f"{path}: semmap view opens .semmap, .ply, .ot and .bt files")
     from semmap.io.octomap_files import read_octomap
