@@ -130,7 +130,6 @@ def _write_sequence(root: Path, *, scene_seed: int, kind: str, trajectory: str, 
     write_text_atomic(root / "scene.json", json.dumps(info, indent=1) + "\n")
 
 
-<<<<<<< HEAD
 #: Layouts ``semmap simulate --format`` writes: TUM RGB-D (semmap's own), a ScanNet scan, Replica (NICE-SLAM).
 LAYOUTS = ("tum", "scannet", "replica")
 
@@ -153,7 +152,6 @@ def check_reduced_size(size: tuple[int, int], native: CameraIntrinsics) -> None:
     if w > native.width or h > native.height:
         raise SimulationError(f"--image-size {w}x{h} is larger than the native {native.width}x{native.height} the "
                               f"frames are rendered at; it only reduces them (e.g. 160x120)")
->>>>>>> wt-first
 
 
 def resized_intrinsics(intrinsics: CameraIntrinsics, size: tuple[int, int]) -> CameraIntrinsics:
