@@ -72,18 +72,16 @@ class PixelScores:
     """Confusions of the map and of the network on the same pixels, accumulated over frames, and coverage."""
 
     num_classes: int
-    conf_map: np.ndarray = None  # type: ignore[assignment]
-    conf_net: np.ndarray = None  # type: ignore[assignment]
     eligible: int = 0  # pixels with a depth, a true label (and a network label, when there is a network)
     scored: int = 0  # of them, the pixels where the map gives a label
     frames: int = 0
+    has_network: bool = False  # a frame came with the network's labels
+    conf_map: np.ndarray = field(init=False)  # (K, K) rows = truth, columns = the map's label
+    conf_net: np.ndarray = field(init=False)  # (K, K) the network's, on the same pixels
 
     def __post_init__(self) -> None:
-        k = self.num_classes
-        if self.conf_map is None:
-            self.conf_map = np.zeros((k, k), np.int64)
-        if self.conf_net is None:
-            self.conf_net = np.zeros((k, k), np.int64)
+        self.conf_map = np.zeros((self.num_classes, self.num_classes), np.int64)
+        self.conf_net = np.zeros((self.num_classes, self.num_classes), np.int64)
 
     def add(self, gt: np.ndarray, net: np.ndarray | None, map_labels: np.ndarray) -> None:
         """One frame's pixels: true labels, the network's (None: no network) and the map's (EMPTY_LABEL = none)."""
@@ -93,13 +91,10 @@ class PixelScores:
         self.conf_map += confusion(np.asarray(map_labels)[both], gt[both], self.num_classes)
         if net is not None:
             self.conf_net += confusion(np.asarray(net)[both], gt[both], self.num_classes)
+            self.has_network = True
         self.eligible += int(eligible.sum())
         self.scored += int(both.sum())
         self.frames += 1
-
-    @property
-    def has_network(self) -> bool:
-        return bool(self.conf_net.any())
 
     def summary(self, suffix: str = "") -> dict:
         """``pixel_miou_map``, ``pixel_miou_network``, accuracy and MPA of both, their ``pixel_gain`` (map minus

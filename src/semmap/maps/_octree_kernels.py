@@ -421,7 +421,8 @@ def cell_mean_sets(keys: np.ndarray, valid: np.ndarray, packed: np.ndarray, m: i
                    sem_probs: np.ndarray, num_classes: int, empty: int) -> tuple[np.ndarray, np.ndarray]:
     """The evidence of all points of each endpoint cell as one measurement: the mean of their top-k class
     distributions (classes outside a point's set count 0 for it), as the k most probable classes of the mean
-    (ties: the lower class id).  Returns (m, k) labels (``empty`` where fewer classes) and probabilities."""
+    (ties: the lower class id); a cell of one point keeps that point's set as given.  Returns (m, k) labels
+    (``empty`` where fewer classes) and probabilities."""
     k = sem_labels.shape[1]
     cell = _cells_of_points(keys, valid, packed, m)
     offsets = np.zeros(m + 1, np.int64)
@@ -442,6 +443,12 @@ def cell_mean_sets(keys: np.ndarray, valid: np.ndarray, packed: np.ndarray, m: i
     stamp = np.full(num_classes, -1, np.int64)
     touched = np.empty(num_classes, np.int64)
     for j in range(m):
+        if offsets[j + 1] - offsets[j] == 1:  # one point: its own set, as given (the ``first`` measurement)
+            i = order[offsets[j]]
+            for c in range(k):
+                out_labels[j, c] = sem_labels[i, c]
+                out_probs[j, c] = sem_probs[i, c]
+            continue
         n_touched = 0
         for t in range(offsets[j], offsets[j + 1]):
             i = order[t]

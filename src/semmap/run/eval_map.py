@@ -23,8 +23,8 @@ def evaluate_map_file(map_path: Path, sequence: Path, *, format: str = "auto", s
                       min_depth: float = DEFAULT_MIN_DEPTH, max_depth: float = DEFAULT_MAX_DEPTH,
                       out: Path | None = None, progress: Progress | None = None) -> dict:
     """Map-at-pixel scores of the map file ``map_path`` (a ``.semmap`` of any map, or a run folder holding
-    ``map.semmap``) on every ``every``-th frame of ``sequence`` (its labels and poses), beside ``segmenter``'s labels
-    at the same pixels when given; written as JSON to ``out`` when given."""
+    ``map.semmap``) on every ``every``-th frame of ``sequence`` (its labels and its own poses: a map built from
+    those poses), beside ``segmenter``'s labels at the same pixels when given; written as JSON to ``out``."""
     from semmap.datasets import open_dataset
     from semmap.files.atomic import write_text_atomic
     from semmap.files.outputs import OutputKind, check_outputs
