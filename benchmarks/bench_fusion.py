@@ -6,15 +6,21 @@ once; then one pass over the frames feeds the same observations (the path ``semm
 then ``map.integrate``) to every map: the semantic OctoMap (topk), and the voxel grid and the point map with each
 fusion rule.  Every map is scored against the scene's ground-truth voxels (``eval.semantic``), then refined by the
 3D dense CRF and scored again.  Label set: the simulator's 30 classes padded to 40 (the issue's 40-class setting).
+Each row also scores the map at the pixels of every 10th frame against the network at the same pixels
+(``eval.pixels``: ``pixel_miou_map``, ``pixel_miou_network``, their ``gain``), beside the fusion ceiling of the
+preset's labels over all frames (``ceiling_voxel_accuracy``, ``unreachable_share``); ``octomap-first`` is the
+OctoMap fusing only the first point of each voxel and frame (OctoMap's discretized insert) against the default's
+mean of all its points.
 
 A timing section integrates 640x480 frames into the OctoMap and into the voxel grid with K = 40 (bayes) in the
 same loop, frame by frame (contention hits both alike), and reports the memory per voxel with 40 and 150 classes.
 
-    python benchmarks/bench_fusion.py [--quick]
+    python benchmarks/bench_fusion.py [--quick] [--scenes N]
 
 Prints a table and, last, one JSON line:
 {"bench": "fusion", "results": [{"scene", "preset", "map", "fusion", "crf", "miou", "accuracy", "bytes_per_voxel",
-"ms_per_frame"}...], "upper_bound": {"<scene>": miou}, "timing": {...}}
+"ms_per_frame", "pixel_miou_network", "pixel_miou_map", "gain", "pixel_coverage", "ceiling_voxel_accuracy",
+"unreachable_share"}...], "upper_bound": {"<scene>": miou}, "timing": {...}}
 """
 
 from __future__ import annotations
@@ -27,6 +33,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from semmap.datasets.simulated import SimulatedDataset
+from semmap.eval.pixels import EVERY, PixelScores, fusion_ceiling, map_labels_at
 from semmap.eval.semantic import evaluate_cloud_3d
 from semmap.fusion.crf import CrfParams, refine_map
 from semmap.fusion.rules import FusionParams, FusionRule
@@ -34,7 +41,7 @@ from semmap.geometry import DEFAULT_MAX_DEPTH, DEFAULT_MIN_DEPTH, backproject_wo
 from semmap.labels import INDOOR_LABELS
 from semmap.maps.point_map import SemanticPointMap
 from semmap.maps.registry import MapKind, compile_kernels
-from semmap.maps.semantic_octomap import SemanticOctoMap
+from semmap.maps.semantic_octomap import CellEvidence, SemanticOctoMap
 from semmap.maps.voxel_grid import SemanticVoxelGrid
 from semmap.perception.oracle import OracleSegmenter
 from semmap.perception.schedule import Scheduler, SegmentationSchedule
@@ -69,6 +76,10 @@ class Frames:
     frames: list
     obs: list  # Observation without semantics, per frame
     pixels: list  # flat pixel index of each point, per frame
+
+    def true_labels(self, i: int) -> np.ndarray:
+        """The true class of each point of frame ``i``."""
+        return np.take(self.frames[i].labels.reshape(-1), self.pixels[i])
 
 
 def render(kind: str, seed: int, size: str, n: int, stride: int, intrinsics: CameraIntrinsics) -> Frames:
@@ -110,7 +121,8 @@ def class_prior(others: list[Frames], num_classes: int) -> np.ndarray:
 
 
 def build_maps(label_set: LabelSet, prior: np.ndarray, point_resolution: float, rules) -> list:
-    maps = [SemanticOctoMap(RESOLUTION, label_set=label_set)]
+    maps = [SemanticOctoMap(RESOLUTION, label_set=label_set),
+            SemanticOctoMap(RESOLUTION, label_set=label_set, cell_evidence=CellEvidence.FIRST)]
     for rule in rules:
         fusion = FusionParams(rule, prior=prior if rule == FusionRule.BAYES_PRIOR else None)
         maps.append(SemanticVoxelGrid(RESOLUTION, label_set=label_set, fusion=fusion))
@@ -120,6 +132,34 @@ def build_maps(label_set: LabelSet, prior: np.ndarray, point_resolution: float, 
 
 def fusion_of(m) -> str:
     return m.fusion.name
+
+
+def map_name(m) -> str:
+    """The map's kind; ``octomap-first`` for an OctoMap taking only each voxel's first point of a frame."""
+    first = m.kind == MapKind.OCTOMAP and m.cell_evidence == CellEvidence.FIRST
+    return "octomap-first" if first else m.kind.value
+
+
+def pixel_scores(m, frames: Frames, sems: list[TopKProbs], num_classes: int) -> dict:
+    """The map at the pixels of every EVERY-th frame against the preset's labels at the same pixels."""
+    acc = PixelScores(num_classes)
+    for i in range(0, len(frames.obs), EVERY):
+        gt = frames.true_labels(i)
+        keep = gt != 0
+        acc.add(gt[keep], sems[i].labels[keep, 0], map_labels_at(m, frames.obs[i].points_world[keep]))
+    s = acc.summary()
+    return {"pixel_miou_network": s["pixel_miou_network"], "pixel_miou_map": s["pixel_miou_map"],
+            "gain": s["pixel_gain"], "pixel_coverage": s["pixel_coverage"]}
+
+
+def ceiling(frames: Frames, sems: list[TopKProbs]) -> dict:
+    """The fusion ceiling of a preset's labels over every frame (``eval.pixels.fusion_ceiling``)."""
+    gts = [frames.true_labels(i) for i in range(len(frames.obs))]
+    keep = [g != 0 for g in gts]
+    c = fusion_ceiling(np.concatenate([o.points_world[k] for o, k in zip(frames.obs, keep, strict=True)]),
+                       np.concatenate([g[k] for g, k in zip(gts, keep, strict=True)]),
+                       np.concatenate([s.labels[k, 0] for s, k in zip(sems, keep, strict=True)]), RESOLUTION)
+    return {"ceiling_voxel_accuracy": c["ceiling_voxel_accuracy"], "unreachable_share": c["unreachable_share"]}
 
 
 def bytes_per_voxel(m) -> float:
@@ -139,18 +179,20 @@ def run_preset(frames: Frames, sems: list[TopKProbs], maps: list, gt, label_set:
             m.integrate(o)
             ms[i] += (time.perf_counter() - t) * 1e3
     rows = []
+    top = ceiling(frames, sems)
     for i, m in enumerate(maps):
-        base = {"map": m.kind.value, "fusion": fusion_of(m), "bytes_per_voxel": bytes_per_voxel(m),
+        base = {"map": map_name(m), "fusion": fusion_of(m), "bytes_per_voxel": bytes_per_voxel(m),
                 "ms_per_frame": round(ms[i] / len(frames.obs), 2)}
         c = m.cloud()
         s = evaluate_cloud_3d(c.centers, c.labels, *gt, label_set, RESOLUTION)
-        rows.append({**base, "crf": False, "miou": s["miou_3d"], "accuracy": s["voxel_accuracy_3d"]})
+        rows.append({**base, "crf": False, "miou": s["miou_3d"], "accuracy": s["voxel_accuracy_3d"],
+                     **pixel_scores(m, frames, sems, len(label_set)), **top})
         if crf:
             r = refine_map(m, CrfParams(), viewpoint=viewpoint)
             c = m.cloud()
             s = evaluate_cloud_3d(c.centers, c.labels, *gt, label_set, RESOLUTION)
             rows.append({**base, "crf": True, "miou": s["miou_3d"], "accuracy": s["voxel_accuracy_3d"],
-                         "crf_ms": round(r.ms, 1)})
+                         "crf_ms": round(r.ms, 1), **pixel_scores(m, frames, sems, len(label_set)), **top})
     return rows
 
 
@@ -190,16 +232,17 @@ def timing(n: int, seed: int = 0) -> dict:
 
 
 def table(results: list[dict], upper: dict[str, float]) -> str:
-    lines = [f"{'scene':28s} {'preset':17s} {'map':9s} {'fusion':11s} {'mIoU':>6s} {'+CRF':>6s} {'acc':>6s} "
-             f"{'B/vox':>7s} {'ms/fr':>7s}"]
+    lines = [f"{'scene':28s} {'preset':17s} {'map':13s} {'fusion':11s} {'mIoU':>6s} {'+CRF':>6s} {'acc':>6s} "
+             f"{'B/vox':>7s} {'ms/fr':>7s} {'px net':>6s} {'px map':>6s} {'gain':>6s} {'ceil':>6s}"]
     by = {(r["scene"], r["preset"], r["map"], r["fusion"], r["crf"]): r for r in results}
     for (scene, preset, kind, fusion, crf), r in by.items():
         if crf:
             continue
         after = by.get((scene, preset, kind, fusion, True))
-        lines.append(f"{scene:28s} {preset:17s} {kind:9s} {fusion:11s} {r['miou']:6.3f} "
+        lines.append(f"{scene:28s} {preset:17s} {kind:13s} {fusion:11s} {r['miou']:6.3f} "
                      f"{after['miou'] if after else float('nan'):6.3f} {r['accuracy']:6.3f} "
-                     f"{r['bytes_per_voxel']:7.1f} {r['ms_per_frame']:7.2f}")
+                     f"{r['bytes_per_voxel']:7.1f} {r['ms_per_frame']:7.2f} {r['pixel_miou_network']:6.3f} "
+                     f"{r['pixel_miou_map']:6.3f} {r['gain']:+6.3f} {r['ceiling_voxel_accuracy']:6.3f}")
     lines += [f"upper bound (perfect labels) {s}: {v:.3f}" for s, v in upper.items()]
     return "\n".join(lines)
 
@@ -207,9 +250,10 @@ def table(results: list[dict], upper: dict[str, float]) -> str:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--quick", action="store_true", help="small scenes, fewer frames, 3 cm points (< 10 min)")
+    parser.add_argument("--scenes", type=int, default=None, help="only the first N scenes")
     args = parser.parse_args()
     n, stride = (24, 12) if args.quick else (60, 5)
-    scenes = QUICK_SCENES if args.quick else SCENES
+    scenes = (QUICK_SCENES if args.quick else SCENES)[: args.scenes]
     point_resolution = 0.03 if args.quick else 0.02  # coarser than the map's 1 cm default: 45 CRFs over its points
     t_start = time.perf_counter()
     compile_kernels(list(MapKind))
@@ -222,7 +266,8 @@ def main() -> None:
     for i, fr in enumerate(rendered):
         gt = gt_voxels(fr.scene, RESOLUTION)
         gt = (gt.keys, gt.class_ids)
-        prior = class_prior(rendered[:i] + rendered[i + 1:], len(label_set))
+        others = rendered[:i] + rendered[i + 1:]  # (a single scene: no prior, bayes-prior is bayes)
+        prior = class_prior(others, len(label_set)) if others else None
         viewpoint = np.mean([o.origin for o in fr.obs], axis=0)
         for preset in ("perfect", *PRESETS):
             sems = semantics(fr, preset, label_set, seed=i)
@@ -242,7 +287,9 @@ def main() -> None:
           f"{timed['voxelgrid_bayes_k40_ms']} ms/frame (ratio {timed['ratio']}); bytes per voxel "
           f"{timed['bytes_per_voxel']} (machine shared: ratios, not absolute times)")
     print(f"total {time.perf_counter() - t_start:.0f} s")
-    order = ("scene", "preset", "map", "fusion", "crf", "miou", "accuracy", "bytes_per_voxel", "ms_per_frame")
+    order = ("scene", "preset", "map", "fusion", "crf", "miou", "accuracy", "bytes_per_voxel", "ms_per_frame",
+             "pixel_miou_network", "pixel_miou_map", "gain", "pixel_coverage", "ceiling_voxel_accuracy",
+             "unreachable_share")
     print(json.dumps({"bench": "fusion", "quick": args.quick, "frames": n, "resolution": RESOLUTION,
                       "point_resolution": point_resolution, "classes": len(label_set),
                       "results": [{k: r[k] for k in order} for r in results], "upper_bound": upper,

@@ -353,7 +353,8 @@ def _print_summary(report: dict, out_dir: Path) -> None:
     rows = [(key, str(report[key])) for key in ("frames_used", "frames_skipped", "occupied_voxels", "free_voxels",
                                                 "occupied_leaves", "free_leaves", "bytes_in_memory", "semantics",
                                                 "miou_3d",
-                                                *(k for k in report if k.endswith("_miou_2d")), "frames_segmented")
+                                                *(k for k in report if k.endswith("_miou_2d")), "frames_segmented",
+                                                "pixel_miou_map", "pixel_miou_network", "pixel_coverage")
             if key in report]
     if "trajectory_vs_ground_truth" in report:
         ate = report["trajectory_vs_ground_truth"]["ate_rmse_m"]
@@ -769,6 +770,31 @@ def eval_seg(
     if out is not None:
         rows.append(("scores written to", str(out)))
     _summary_out(d, as_json, f"semmap eval-seg: {pred_dir} against {gt_dir}", rows)
+
+
+@app.command("eval-map")
+def eval_map(
+    map_path: Annotated[Path, typer.Argument(metavar="MAP", help="a .semmap map file (any map), or a run folder "
+                                             "holding map.semmap")],
+    seq: Annotated[Path, typer.Argument(help="the labelled sequence it was built from (poses and label images)")],
+    format: Annotated[str, typer.Option(help=_FORMATS)] = AUTO,
+    segmenter: Annotated[str | None, typer.Option(help="score this network's labels at the same pixels beside the "
+                                                  "map's (precomputed --weights FOLDER: stored predictions); "
+                                                  f"none: the map alone. {SEGMENTERS.choices()}")] = None,
+    weights: Annotated[Path | None, typer.Option(help="segmenter weights, or the folder of predictions")] = None,
+    every: Annotated[int, typer.Option(help="score every N-th frame")] = 10,
+    pixel_stride: Annotated[int, typer.Option(help="score every k-th pixel row and column")] = 1,
+    max_frames: Annotated[int | None, typer.Option(help="read at most N frames")] = None,
+    out: Annotated[Path | None, typer.Option(help="also write the scores as JSON here")] = None,
+) -> None:
+    """A map scored at the pixels of a labelled sequence: the map's label at each pixel's 3D point against the true
+    label, beside the network's own label at the same pixels (MIoU, accuracy, MPA, coverage, the fusion ceiling)."""
+    _setup_logging(False)
+    from semmap.run.eval_map import evaluate_map_file
+
+    scores = evaluate_map_file(map_path, seq, format=format, segmenter=segmenter, weights=weights, every=every,
+                               stride=pixel_stride, max_frames=max_frames, out=out)
+    typer.echo(json.dumps(scores, indent=2))
 
 
 @app.command()

@@ -19,6 +19,7 @@ from semmap.fusion.topk_bayes import DEFAULT_LAMBDA, DEFAULT_MAX_CONFIDENCE
 from semmap.geometry import DEFAULT_MAX_DEPTH, DEFAULT_MIN_DEPTH
 from semmap.limits import check, field_bounds
 from semmap.maps.registry import MAPS, MapKind, own_rules
+from semmap.maps.semantic_octomap import CellEvidence
 from semmap.perception.instances.registry import INSTANCE_SOURCES, InstanceSourceName
 from semmap.perception.registry import SEGMENTERS, SegmenterName
 from semmap.poses.track import GROUND_TRUTH, POSE_SOURCES, PoseSource
@@ -131,6 +132,9 @@ class MappingConfig(_Section):
     free_space: bool = Field(False, description="voxel grid: also ray-cast free space (occupancy OctoMap)")
     point_resolution: float = Field(0.01, **field_bounds("point_resolution", "--point-resolution"),
                                     description="filter cell of the point map (m)")
+    cell_evidence: CellEvidence = Field(CellEvidence.MEAN, description="OctoMap: the class evidence a voxel takes "
+                                        "from a frame: the mean of all its points' distributions (mean) or its first "
+                                        "point's (first, OctoMap's discretized insert)")
 
     @field_validator("maps", mode="before")
     @classmethod

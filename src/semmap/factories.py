@@ -59,7 +59,8 @@ def get_map(kind: MapKind, config: RunConfig, label_set: LabelSet | None) -> Sem
         from semmap.maps.semantic_octomap import SemanticOctoMap
 
         return SemanticOctoMap(m.resolution, label_set=label_set, max_range=m.max_range, occupancy=occupancy,
-                               fusion=fusion, color_mode=config.output.color_mode.value)
+                               fusion=fusion, color_mode=config.output.color_mode.value,
+                               cell_evidence=m.cell_evidence)
     if kind == MapKind.VOXELGRID:
         from semmap.maps.voxel_grid import SemanticVoxelGrid
 

@@ -337,6 +337,10 @@ class Pipeline:
             record.segmented += 1
             if frame.labels is not None:
                 self.scorer.add_segmentation(record, sem, frame.labels, len(label_set))
+        if frame.labels is not None and label_set is not None and record.pixels.due(len(record.poses)):
+            t_px = time.perf_counter()  # the frame's pixels and the maps' labels there before it is fused
+            record.pixels.add(frame, T, sem, mapper.maps, min_depth=mapper.min_depth, max_depth=mapper.max_depth)
+            timings["eval_pixels"] += (time.perf_counter() - t_px) * 1e3
         for name, ms in mapper.integrate(frame, T, sem).items():
             timings[name] += ms
         if self._objects is not None:  # instances and tracks every frame, the object map on keyframes

@@ -24,6 +24,7 @@ def render_report_md(report: dict, *, title: str = "semmap run", plots: dict[str
     lines = [f"# {title}", "", f"Dataset: `{report.get('dataset', '?')}`  ", f"Resolution: {report['resolution']} m  ",
              *([f"Semantics: {report['semantics']}  "] if "semantics" in report else []),
              f"Frames used: {report['frames_used']} (skipped: {report['frames_skipped']})", ""]
+    lines += _pixel_summary(report)
     if "miou_3d" in report:
         seg = next((k[: -len("_miou_2d")] for k in report if k.endswith("_miou_2d")), None)
         measures, per_class = _accuracy_tables(report, seg)
@@ -34,6 +35,7 @@ def render_report_md(report: dict, *, title: str = "semmap run", plots: dict[str
                   f"voxels.", "", *_alignment_lines(report), *per_class, ""]
     else:
         lines += _alignment_lines(report)
+    lines += _pixel_section(report)
     lines += _plot(plots, "iou", "IoU per class")
     sizes = report["bytes_on_disk"]
     lines += ["## Storage", "", "| representation | size |", "|---|---|",
@@ -99,6 +101,47 @@ _FILES = (("map.bt", "OctoMap .bt (occupancy only)"), ("map.ot", "semantic OctoM
           ("voxelgrid.semmap", "semantic voxel grid, native (every voxel's class state)"),
           ("voxelgrid.ply", "semantic voxel grid, binary PLY (occupied voxels)"),
           ("points.semmap", "semantic point map, native"), ("points.ply", "semantic point map, binary PLY"))
+
+
+def _pixel_summary(report: dict) -> list[str]:
+    """The line a reader reads first: whether the map labels the frames' pixels better than the network."""
+    if "pixel_gain" not in report:
+        return []
+    gain = 100 * report["pixel_gain"]
+    verdict = "better than" if gain > 0 else ("as good as" if gain == 0 else "worse than")
+    return [f"**At the same pixels the map labels {verdict} the network: MIoU {report['pixel_miou_map']:.3f} "
+            f"against {report['pixel_miou_network']:.3f} ({gain:+.1f} points), on "
+            f"{100 * report['pixel_coverage']:.0f} % of the labelled pixels of every {report['pixel_every']}th "
+            "frame.**", ""]
+
+
+def _pixel_section(report: dict) -> list[str]:
+    """The table "network vs map at the same pixels": final map, causal map, and the fusion ceiling."""
+    if "pixel_miou_map" not in report:
+        return []
+    net = "pixel_miou_network" in report
+
+    def row(name: str, suffix: str) -> str:
+        cells = [f"{report.get(f'pixel_{m}_map{suffix}', float('nan')):.3f}" for m in ("miou", "accuracy", "mpa")]
+        if net:
+            cells += [f"{report.get(f'pixel_{m}_network{suffix}', float('nan')):.3f}"
+                      for m in ("miou", "accuracy", "mpa")]
+            cells.append(f"{100 * report.get(f'pixel_gain{suffix}', float('nan')):+.1f}")
+        return f"| {name} | " + " | ".join(cells) + f" | {report.get(f'pixel_coverage{suffix}', float('nan')):.3f} |"
+
+    head = "| map | mIoU | accuracy | MPA |" + (" network mIoU | accuracy | MPA | gain (points) |" if net else "")
+    lines = ["## Network vs map at the same pixels", "", head + " coverage |",
+             "|---" * head.count("|") + "|", row("final", ""), row("causal (as the frame arrived)", "_causal"),
+             "", f"Every {report['pixel_every']}th frame ({report['pixel_frames']} frames, every "
+             f"{report['pixel_stride']}th pixel row and column): each pixel's depth back-projected with the frame's "
+             "pose, the map's label at that point against the true label, on exactly the pixels where "
+             + ("both the map and the network give a label." if net else "the map gives a label (no network).")]
+    if "ceiling_voxel_accuracy" in report:
+        lines.append(f"Ceiling: over the {report['ceiling_voxels']:,} voxels these pixels fall into, the network's "
+                     f"plurality label is right in {100 * report['ceiling_voxel_accuracy']:.1f} %, and in "
+                     f"{100 * report['unreachable_share']:.1f} % the true class is never among its labels (no "
+                     "per-voxel rule can get those right).")
+    return [*lines, ""]
 
 
 def _alignment_lines(report: dict) -> list[str]:

@@ -18,6 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from semmap.errors import ConfigError
+from semmap.eval.pixels import PixelRecord
 from semmap.eval.report_html import write_report_html
 from semmap.eval.report_md import write_report_md
 from semmap.eval.report_plots import write_report_plots
@@ -56,6 +57,7 @@ class RunRecord:
     scheduler: Scheduler | None = None
     last_index: int | None = None  # dataset index of the last frame mapped
     last_name: str | None = None
+    pixels: PixelRecord = field(default_factory=PixelRecord)  # the map-at-pixel samples (``eval.pixels``)
 
     def __post_init__(self) -> None:
         self.timings = defaultdict(float, self.timings)
@@ -71,6 +73,7 @@ class RunRecord:
             arrays["conf2d"] = self.conf2d
         if self.scheduler is not None:
             arrays.update({f"schedule/{k}": v for k, v in self.scheduler.state().items()})
+        arrays.update({f"pixels/{k}": v for k, v in self.pixels.state().items()})
         return meta, arrays
 
     @classmethod
@@ -86,6 +89,8 @@ class RunRecord:
             record.scheduler = Scheduler(schedule)
             record.scheduler.restore({k.removeprefix("schedule/"): v for k, v in arrays.items()
                                       if k.startswith("schedule/")})
+        if "pixels/sizes" in arrays:
+            record.pixels.restore({k.removeprefix("pixels/"): v for k, v in arrays.items() if k.startswith("pixels/")})
         return record
 
 
@@ -164,12 +169,14 @@ def files_of(m: SemanticMap) -> set[str]:
 
 
 def maps_report(maps: Sequence[SemanticMap], sizes: dict[str, int], crf: dict[MapKind, dict],
-                scorer: RunScorer) -> dict:
-    """Each map side by side: what it holds, its files, its accuracy (and before the CRF)."""
+                scorer: RunScorer, pixels: PixelRecord | None = None) -> dict:
+    """Each map side by side: what it holds, its files, its accuracy (and before the CRF), at voxels and at the
+    evaluated frames' pixels."""
     out = {}
     for m in maps:
         files = {name: size for name, size in sizes.items() if name in files_of(m)}
-        entry = {"resolution": m.resolution, **m.describe(), "files": files, **scorer.map_3d(m)}
+        entry = {"resolution": m.resolution, **m.describe(), "files": files, **scorer.map_3d(m),
+                 **(pixels.report(m) if pixels is not None else {})}
         if m.kind in crf:
             entry["crf"] = crf[m.kind]
         out[m.kind.value] = entry
@@ -320,10 +327,11 @@ def build_report(o: RunOutcome, scorer: RunScorer, resolution: float) -> dict:
         report["objects"] = o.objects
     primary = o.maps[0]
     report.update(scorer.evaluate(primary, o.record, o.segmenter))
+    report.update(o.record.pixels.report(primary))  # the map against the network at the same pixels
     if primary.kind in o.crf and "miou_3d_before" in o.crf[primary.kind]:
         report["miou_3d_before_crf"] = o.crf[primary.kind]["miou_3d_before"]
     if len(o.maps) > 1 or o.crf:
-        report["maps"] = maps_report(o.maps, o.sizes, o.crf, scorer)
+        report["maps"] = maps_report(o.maps, o.sizes, o.crf, scorer, o.record.pixels)
     return report
 
 

@@ -381,6 +381,103 @@ def update_attributes(rows: np.ndarray, point_index: np.ndarray, colors: np.ndar
         _attributes_serial(*args)
 
 
+@nb.njit(cache=True, inline="always")
+def _slot(p: np.int64, mask: int) -> int:
+    """Home slot of packed key ``p`` in a power-of-two table (Fibonacci hashing)."""
+    return int((np.uint64(p) * np.uint64(0x9E3779B97F4A7C15)) >> np.uint64(40)) & mask
+
+
+@nb.njit(cache=True, nogil=True)
+def _cells_of_points(keys: np.ndarray, valid: np.ndarray, packed: np.ndarray, m: int) -> np.ndarray:
+    """Endpoint cell (index into ``packed[:m]``) of every point, -1 for invalid points and points outside them."""
+    cap = 16
+    while cap < 2 * m:
+        cap *= 2
+    mask = cap - 1
+    table_keys = np.full(cap, -1, np.int64)
+    table_cells = np.empty(cap, np.int64)
+    for j in range(m):
+        h = _slot(packed[j], mask)
+        while table_keys[h] != -1:
+            h = (h + 1) & mask
+        table_keys[h] = packed[j]
+        table_cells[h] = j
+    cell = np.full(valid.shape[0], -1, np.int64)
+    for i in range(valid.shape[0]):
+        if not valid[i]:
+            continue
+        p = pack_key(keys[i, 0], keys[i, 1], keys[i, 2])
+        h = _slot(p, mask)
+        while table_keys[h] != -1:
+            if table_keys[h] == p:
+                cell[i] = table_cells[h]
+                break
+            h = (h + 1) & mask
+    return cell
+
+
+@nb.njit(cache=True, nogil=True)
+def cell_mean_sets(keys: np.ndarray, valid: np.ndarray, packed: np.ndarray, m: int, sem_labels: np.ndarray,
+                   sem_probs: np.ndarray, num_classes: int, empty: int) -> tuple[np.ndarray, np.ndarray]:
+    """The evidence of all points of each endpoint cell as one measurement: the mean of their top-k class
+    distributions (classes outside a point's set count 0 for it), as the k most probable classes of the mean
+    (ties: the lower class id); a cell of one point keeps that point's set as given.  Returns (m, k) labels
+    (``empty`` where fewer classes) and probabilities."""
+    k = sem_labels.shape[1]
+    cell = _cells_of_points(keys, valid, packed, m)
+    offsets = np.zeros(m + 1, np.int64)
+    for i in range(cell.shape[0]):
+        if cell[i] >= 0:
+            offsets[cell[i] + 1] += 1
+    for j in range(m):
+        offsets[j + 1] += offsets[j]
+    order = np.empty(offsets[m], np.int64)
+    cursor = offsets[:m].copy()
+    for i in range(cell.shape[0]):
+        if cell[i] >= 0:
+            order[cursor[cell[i]]] = i
+            cursor[cell[i]] += 1
+    out_labels = np.full((m, k), empty, np.uint16)
+    out_probs = np.zeros((m, k), np.float32)
+    acc = np.zeros(num_classes, np.float64)
+    stamp = np.full(num_classes, -1, np.int64)
+    touched = np.empty(num_classes, np.int64)
+    for j in range(m):
+        if offsets[j + 1] - offsets[j] == 1:  # one point: its own set, as given (the ``first`` measurement)
+            i = order[offsets[j]]
+            for c in range(k):
+                out_labels[j, c] = sem_labels[i, c]
+                out_probs[j, c] = sem_probs[i, c]
+            continue
+        n_touched = 0
+        for t in range(offsets[j], offsets[j + 1]):
+            i = order[t]
+            for c in range(k):
+                lab = np.int64(sem_labels[i, c])
+                if lab == empty or lab >= num_classes:
+                    continue
+                if stamp[lab] != j:
+                    stamp[lab] = j
+                    acc[lab] = 0.0
+                    touched[n_touched] = lab
+                    n_touched += 1
+                acc[lab] += np.float64(sem_probs[i, c])
+        n = offsets[j + 1] - offsets[j]
+        for c in range(min(k, n_touched)):  # k passes of "the largest left" (k is small)
+            best = -1
+            for t in range(n_touched):
+                lab = touched[t]
+                if lab < 0:
+                    continue
+                if best < 0 or acc[lab] > acc[touched[best]] or (acc[lab] == acc[touched[best]]
+                                                                  and lab < touched[best]):
+                    best = t
+            out_labels[j, c] = touched[best]
+            out_probs[j, c] = np.float32(acc[touched[best]] / n)
+            touched[best] = -1
+    return out_labels, out_probs
+
+
 @nb.njit(cache=True, nogil=True)
 def max_class_id(labels: np.ndarray, empty: int) -> int:
     """Largest class id in a (N, k) uint16 array, empty slots aside (-1 when there is none)."""

@@ -16,6 +16,7 @@ import logging
 import math
 import time
 from dataclasses import dataclass, field
+from enum import Enum
 from typing import ClassVar
 
 import numba as nb
@@ -39,6 +40,15 @@ UNKNOWN, FREE, OCCUPIED = 0, 1, 2
 #: Largest temporary scan grid (cells = bytes); wider scans are range-limited with a warning.
 GRID_CELL_LIMIT = 1 << 27
 _INITIAL_SHARD_CAP = 8  # slots per shard of an empty map (8 KiB in all): the first scan sizes the table
+
+
+class CellEvidence(str, Enum):
+    """The class evidence a voxel takes from one scan: the mean of the distributions of all its points (``mean``,
+    the default: it measured better at the same pixels, issue 33), or its first point's set (``first``: OctoMap's
+    discretized insert, one point per cell)."""
+
+    FIRST = "first"
+    MEAN = "mean"
 
 
 def logodds(p: float) -> np.float32:
@@ -157,7 +167,8 @@ class SemanticOctoMap:
 
     Implements :class:`semmap.maps.base.SemanticMap` (``integrate``, ``cloud``, ``describe``);
     ``fusion`` is the label-fusion rule and its settings (default ``topk``, k = 3: the paper's map);
-    ``color_mode`` is the voxel colour its ``.ot`` file shows (``class`` or ``rgb``).
+    ``color_mode`` is the voxel colour its ``.ot`` file shows (``class`` or ``rgb``); ``cell_evidence`` is the
+    class evidence a voxel takes from a scan (:class:`CellEvidence`; occupancy is OctoMap's either way).
     """
 
     kind = MapKind.OCTOMAP
@@ -165,7 +176,8 @@ class SemanticOctoMap:
 
     def __init__(self, resolution: float = 0.05, *, occupancy: OccupancyParams | None = None,
                  fusion: FusionParams | None = None, label_set: LabelSet | None = None,
-                 max_range: float = -1.0, grid_cell_limit: int = GRID_CELL_LIMIT, color_mode: str = "class") -> None:
+                 max_range: float = -1.0, grid_cell_limit: int = GRID_CELL_LIMIT, color_mode: str = "class",
+                 cell_evidence: CellEvidence | str = CellEvidence.MEAN) -> None:
         if not (math.isfinite(resolution) and 0.001 <= resolution <= 10.0):
             raise ConfigError(f"resolution must be between 0.001 and 10 m, got {resolution}")
         self.resolution = float(resolution)
@@ -180,6 +192,11 @@ class SemanticOctoMap:
         self.max_range = float(max_range)
         self.grid_cell_limit = int(grid_cell_limit)
         self.color_mode = color_mode
+        try:
+            self.cell_evidence = CellEvidence(cell_evidence)
+        except ValueError:
+            raise ConfigError(f"cell evidence must be one of {[e.value for e in CellEvidence]}, "
+                              f"got {cell_evidence!r}") from None
         self._tree_counts: dict[str, int] | None = None
         self._hit, self._miss = self.occupancy.hit_log, self.occupancy.miss_log
         self._min, self._max = self.occupancy.min_log, self.occupancy.max_log
@@ -326,6 +343,10 @@ class SemanticOctoMap:
         if col is not None or sem_l is not None:
             k = self.fusion.k
             update, finish = self._entry.kernels()
+            if sem_l is not None and self.cell_evidence == CellEvidence.MEAN:  # one measurement per cell
+                sem_l, sem_p = self._cell_means(keys, valid, packed, sem_l, sem_p)
+                col = None if col is None else np.ascontiguousarray(col[first])
+                first = np.arange(m, dtype=np.int64)
             kern.update_attributes(rows, first,
                                    col if col is not None else np.zeros((1, 3), np.uint8), col is not None,
                                    sem_l if sem_l is not None else np.zeros((1, k), np.uint16),
@@ -334,6 +355,13 @@ class SemanticOctoMap:
                                    self._entry.code, update, finish, self._params, threads)
         stats.ms["attributes"] = (time.perf_counter() - t5) * 1e3
         return stats
+
+    def _cell_means(self, keys: np.ndarray, valid: np.ndarray, packed: np.ndarray, sem_l: np.ndarray,
+                    sem_p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Per endpoint cell, the mean class distribution of all its points as a top-k set (``CellEvidence.MEAN``)."""
+        classes = self._num_classes or kern.max_class_id(sem_l, int(EMPTY_LABEL)) + 1
+        return kern.cell_mean_sets(keys, valid, packed, packed.shape[0], sem_l, sem_p, max(int(classes), 1),
+                                   int(EMPTY_LABEL))
 
     def _validated(self, points, origin, colors, semantics):
         """Inputs as contiguous arrays of the kernels' dtypes, or a ConfigError saying what is wrong."""
@@ -605,7 +633,7 @@ class SemanticOctoMap:
             raise ConfigError(f"levels must be in 0..15, got {levels}")
         out = SemanticOctoMap(self.resolution * 2**levels, occupancy=self.occupancy, fusion=self.fusion,
                               label_set=self.label_set, max_range=self.max_range,
-                              grid_cell_limit=self.grid_cell_limit)
+                              grid_cell_limit=self.grid_cell_limit, cell_evidence=self.cell_evidence)
         c = self.cells()
         if levels == 0 or c.packed.size == 0:
             out._load_cells(c)
@@ -743,6 +771,8 @@ def compile_kernels() -> float:
         m = SemanticOctoMap(0.05, label_set=LabelSet.generic(4), max_range=max_range)
         m.insert_points(pts, np.zeros(3), colors=colors, semantics=TopKProbs(labels, probs))  # grows the table
         m.insert_points(pts, np.array([1e6, 0.0, 0.0]), colors=colors)  # hits only
+    first = SemanticOctoMap(0.05, label_set=LabelSet.generic(4), cell_evidence=CellEvidence.FIRST)
+    first.insert_points(pts, np.zeros(3), colors=colors, semantics=TopKProbs(labels, probs))
     m.state_at(pts[:8])
     m.semantics_at(pts[:8])
     m.coarsen(1)

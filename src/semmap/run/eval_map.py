@@ -1,0 +1,75 @@
+"""``semmap eval-map``: an existing map scored at the pixels of a labelled sequence, beside a network's labels.
+
+The map is read with the map readers (``io.map_files.load_map``), the sequence with the dataset readers, the network
+labels come from ``--segmenter`` (``precomputed --weights FOLDER`` for predictions stored as files), and the
+scoring is ``eval.pixels``: the final map only (there is no causal variant for a finished map).
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+
+from semmap.errors import ConfigError
+from semmap.eval.pixels import EVERY, PixelScores, frame_sample, fusion_ceiling, map_labels_at
+from semmap.geometry import DEFAULT_MAX_DEPTH, DEFAULT_MIN_DEPTH
+from semmap.poses.base import Progress
+
+
+def evaluate_map_file(map_path: Path, sequence: Path, *, format: str = "auto", segmenter: str | None = None,
+                      weights: Path | None = None, every: int = EVERY, stride: int = 1, max_frames: int | None = None,
+                      min_depth: float = DEFAULT_MIN_DEPTH, max_depth: float = DEFAULT_MAX_DEPTH,
+                      out: Path | None = None, progress: Progress | None = None) -> dict:
+    """Map-at-pixel scores of the map file ``map_path`` (a ``.semmap`` of any map, or a run folder holding
+    ``map.semmap``) on every ``every``-th frame of ``sequence`` (its labels and its own poses: a map built from
+    those poses), beside ``segmenter``'s labels at the same pixels when given; written as JSON to ``out``."""
+    from semmap.datasets import open_dataset
+    from semmap.files.atomic import write_text_atomic
+    from semmap.files.outputs import OutputKind, check_outputs
+    from semmap.io.map_files import load_map
+
+    check_outputs([("--out", out, OutputKind.FILE)], [("MAP", map_path), ("SEQ", sequence)])
+    if every < 1 or stride < 1:
+        raise ConfigError(f"--every and --pixel-stride must be at least 1, got {every} and {stride}")
+    path = Path(map_path) / "map.semmap" if Path(map_path).is_dir() else Path(map_path)
+    m = load_map(path)
+    if m.label_set is None:
+        raise ConfigError(f"{path}: the map holds no classes; a map built with semantics is needed")
+    dataset = open_dataset(sequence, format, max_frames=max_frames)
+    net = _segmenter(segmenter, weights, dataset)
+    acc = PixelScores(len(m.label_set))
+    kept: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
+    frames = progress(iter(dataset), len(dataset)) if progress is not None else dataset
+    for i, frame in enumerate(frames):
+        if i % every or frame.T_world_cam is None or frame.labels is None:
+            continue
+        sem = net.segment(frame) if net is not None else None
+        s = frame_sample(frame, frame.T_world_cam, sem, min_depth=min_depth, max_depth=max_depth, stride=stride)
+        acc.add(s.gt, s.net if net is not None else None, map_labels_at(m, s.points))
+        if net is not None:
+            kept.append((s.points, s.gt, s.net))
+    if acc.frames == 0:
+        raise ConfigError(f"{sequence}: no frame (of every {every}th) has both a pose and a label image to score "
+                          "the map at")
+    result = {"map": str(path), "kind": m.kind.value, "sequence": str(sequence), "pixel_every": every,
+              "pixel_stride": stride, "pixel_frames": acc.frames, "segmenter": segmenter, **acc.summary()}
+    if kept:
+        result.update(fusion_ceiling(*(np.concatenate(part) for part in zip(*kept, strict=True)), m.resolution))
+    if out is not None:
+        write_text_atomic(out, json.dumps(result, indent=2))
+    return result
+
+
+def _segmenter(name: str | None, weights: Path | None, dataset):
+    """The segmenter ``name`` predicting the dataset's classes where it needs them, or None."""
+    if name is None:
+        if weights is not None:
+            raise ConfigError("--weights needs --segmenter (precomputed for a folder of predictions)")
+        return None
+    from semmap.perception.registry import SEGMENTERS, make_segmenter
+
+    entry = SEGMENTERS[name]
+    label_set = dataset.label_set if entry.dataset_classes else None
+    return make_segmenter(name, weights=weights, label_set=label_set)
