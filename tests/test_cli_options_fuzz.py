@@ -48,6 +48,7 @@ REQUIRED = {
     "info": [f"{NOWHERE}/map.ot"],
     "batch": [f"{NOWHERE}/seq", "--out", f"{NOWHERE}/out"],
     "view": [f"{NOWHERE}/map.ot"],
+    "eval-map": [f"{NOWHERE}/map.semmap", f"{NOWHERE}/seq"],
     "diff": [f"{NOWHERE}/a.semmap", f"{NOWHERE}/b.semmap", "--out", f"{NOWHERE}/out"],
     "export grid": [f"{NOWHERE}/map.semmap", "--out", f"{NOWHERE}/out"],
     "export esdf": [f"{NOWHERE}/map.semmap", "--out", f"{NOWHERE}/out"],

@@ -147,6 +147,8 @@ OPTIONS: dict[str, OptionRule] = {
     "--z-min": OptionRule("coordinate"), "--z-max": OptionRule("coordinate"), "--floor": OptionRule("coordinate"),
     "--slice-z": OptionRule("coordinate"), "--inflation": OptionRule("inflation"), "--near": OptionRule("distance"),
     "--door-width": OptionRule("distance"), "--region": OptionRule("coordinate", REGION),
+    # eval-map
+    "eval-map --every": OptionRule("every_positive"),
 }
 
 
