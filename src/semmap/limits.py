@@ -14,7 +14,7 @@ import os
 import re
 from dataclasses import dataclass
 
-from semmap.errors import ConfigError
+from semmap.errors import ConfigError, FormatError
 
 #: Environment variable holding the memory budget (bytes, or a size like ``4G``, ``512M``).
 BUDGET_ENV = "SEMMAP_MEMORY_BUDGET"
@@ -99,6 +99,20 @@ def check(name: str, value: float | int | None, option: str | None = None) -> fl
     if not math.isfinite(number) or (lim.integer and number != int(number)) or not lim.lo <= number <= lim.hi:
         raise ConfigError(f"{label} must be {kind} from {_num(lim.lo)} to {_num(lim.hi)} ({lim.what}), got {value!r}")
     return value
+
+
+def check_file_resolution(value: float, path: object) -> float:
+    """A map file's resolution when it lies within the ``resolution`` limit, else a :class:`FormatError` naming
+    ``path`` (every map reader: ``.ot``, ``.bt``, ``.semmap``, ``.ply``)."""
+    lim = LIMITS["resolution"]
+    try:
+        number = float(value)
+    except (TypeError, ValueError):
+        number = math.nan
+    if not (math.isfinite(number) and lim.lo <= number <= lim.hi):
+        raise FormatError(f"{path}: resolution must be from {_num(lim.lo)} to {_num(lim.hi)} m, got {value!r} "
+                          "(a damaged or foreign file?)")
+    return number
 
 
 def _num(x: float) -> str:
