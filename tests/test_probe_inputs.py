@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from helpers import room_label_set
+from helpers import make_room_frames, room_label_set
 from semmap.maps.semantic_octomap import SemanticOctoMap
 from semmap.types import Observation, TopKProbs
 
@@ -138,3 +138,99 @@ def test_the_good_map_files_still_read(maps, capsys, monkeypatch):
     for name in ("map.ot", "map.bt", "map.semmap", "voxelgrid.semmap", "voxelgrid.ply"):
         code, _out, err = cli(capsys, monkeypatch, "info", maps / name)
         assert code == 0, err
+
+
+# ---------------------------------------------------------------------------------------------- sequences
+def _tum(root: Path, frames=None) -> Path:
+    """A TUM sequence of ``frames`` (default: three frames of the analytic room, with labels and a label set)."""
+    from semmap.io.tum_writer import write_tum_sequence
+
+    write_tum_sequence(root, frames if frames is not None else make_room_frames(3), label_set=room_label_set())
+    return root
+
+
+@pytest.fixture(scope="module")
+def seq(tmp_path_factory) -> Path:
+    """The three-frame sequence the cases below copy and break (never changed itself)."""
+    return _tum(tmp_path_factory.mktemp("seq") / "seq")
+
+
+def _copy(seq: Path, dst: Path) -> Path:
+    import shutil
+
+    return Path(shutil.copytree(seq, dst))
+
+
+def _static(root: Path, n: int = 4) -> Path:
+    """A sequence whose camera never moves: one frame ``n`` times with its ground truth."""
+    frame = make_room_frames(1)[0]
+    return _tum(root, [frame.with_(index=i, timestamp=i / 30, name=f"{i / 30:.6f}") for i in range(n)])
+
+
+def _append_row(path: Path, row: str) -> None:
+    path.write_text(path.read_text() + row + "\n")
+
+
+def _run_args(seq: Path, out: Path, *more: object) -> list[object]:
+    return ["run", seq, "--out", out, "--resolution", "0.2", *more]
+
+
+def test_u1_repeated_timestamps_are_used_once_and_the_run_finishes(seq, tmp_path, capsys, monkeypatch):
+    dup = _copy(seq, tmp_path / "tum_dup_ts")
+    for name, folder in (("rgb.txt", "rgb"), ("depth.txt", "depth")):
+        _append_row(dup / name, f"0.000000 {folder}/0.033333.png")  # a second row at the first frame's time
+    code, _out, err = cli(capsys, monkeypatch, *_run_args(dup, tmp_path / "o"))
+    assert code == 0, err
+    assert "rgb.txt: 1 rows repeat an earlier timestamp" in err
+    report = json.loads((tmp_path / "o" / "report.json").read_text())
+    assert report["frames_used"] == 3
+
+
+def test_m10_a_huge_rgb_list_is_read_only_as_far_as_max_frames_needs(seq, tmp_path, monkeypatch):
+    from semmap.datasets import tum
+
+    big = _copy(seq, tmp_path / "tum_huge_rgbtxt")
+    rows = "".join(f"{1000 + i / 30:.6f} rgb/missing.png\n" for i in range(50_000))
+    (big / "rgb.txt").write_text((big / "rgb.txt").read_text() + rows)
+    parsed = []
+    real_stamp = tum._stamp
+    monkeypatch.setattr(tum, "_stamp", lambda path, number, field: parsed.append(path.name) or
+                        real_stamp(path, number, field))
+    dataset = tum.TumDataset(big, max_frames=2)
+    assert len(dataset) == 2 and [f.name for f in dataset] == ["0.000000", "0.033333"]
+    assert parsed.count("rgb.txt") <= 2 + tum.READ_MARGIN
+    assert len(tum.TumDataset(big)) == 3  # (without --max-frames the whole list is read)
+
+
+@pytest.mark.parametrize("where", ["est", "gt"])
+def test_s6_eval_traj_refuses_absurd_positions_naming_the_file(seq, tmp_path, capsys, monkeypatch, where):
+    gt = seq / "groundtruth.txt"
+    big = tmp_path / "big.txt"
+    big.write_text("\n".join(f"{i / 30:.6f} 1e300 -1e300 1e300 0 0 0 1" for i in range(3)) + "\n")
+    args = ["eval-traj", gt, big] if where == "est" else ["eval-traj", big, gt]
+    line = refused(capsys, monkeypatch, *args)
+    assert f"{big}:1: " in line and "beyond" in line
+
+
+def test_u24_eval_traj_on_a_folder_without_poses_names_the_folder(seq, tmp_path, capsys, monkeypatch):
+    bare = _copy(seq, tmp_path / "tum_gt_missing")
+    (bare / "groundtruth.txt").unlink()
+    line = refused(capsys, monkeypatch, "eval-traj", bare, seq / "groundtruth.txt")
+    assert str(bare) in line and "no ground-truth poses" in line
+
+
+def test_u2_u4_a_static_camera_is_scored_with_a_warning_not_refused(tmp_path, capsys, monkeypatch):
+    static = _static(tmp_path / "tum_static")
+    gt = static / "groundtruth.txt"
+    code, out, err = cli(capsys, monkeypatch, "eval-traj", gt, gt)
+    assert code == 0, err
+    scores = json.loads(out)
+    assert scores["ate_rmse_m"] == pytest.approx(0.0, abs=1e-9) and scores["sim3_scale"] is None
+    assert "Umeyama alignment is not possible" in scores["alignment_not_possible"]
+    assert "NaN" not in out and "Infinity" not in out
+    code, out, err = cli(capsys, monkeypatch, "track", static, "--out", tmp_path / "t.txt", "--method", "odometry")
+    assert code == 0, err
+    assert (tmp_path / "t.txt").is_file() and "no Sim(3) scale" in err
+    code, out, err = cli(capsys, monkeypatch, *_run_args(static, tmp_path / "o", "--poses", gt))
+    assert code == 0, err
+    assert (tmp_path / "o" / "map.ot").is_file() and (tmp_path / "o" / "report.json").is_file()

@@ -70,6 +70,7 @@ LIMITS: dict[str, Limit] = {
     "threads": Limit(1, 1024, "threads", integer=True),
     "queue": Limit(1, 10_000, "frames", integer=True),
     "height": Limit(-100.0, 100.0, "camera height (m)"),
+    "position": Limit(-1e8, 1e8, "camera position (m from the origin)"),
     "angle_deg": Limit(-180.0, 180.0, "degrees"),
     "noise": Limit(0.0, 10.0, "fraction"),
     "learning_rate": Limit(1e-9, 10.0, "learning rate"),
