@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from helpers import make_room_frames, room_label_set
+from helpers import ROOM_CAMERA, make_room_frames, room_label_set
 from semmap.maps.semantic_octomap import SemanticOctoMap
 from semmap.types import Observation, TopKProbs
 
@@ -234,3 +234,53 @@ def test_u2_u4_a_static_camera_is_scored_with_a_warning_not_refused(tmp_path, ca
     code, out, err = cli(capsys, monkeypatch, *_run_args(static, tmp_path / "o", "--poses", gt))
     assert code == 0, err
     assert (tmp_path / "o" / "map.ot").is_file() and (tmp_path / "o" / "report.json").is_file()
+
+
+def _move_gt_row(seq: Path, dst: Path, row: int, position: str) -> Path:
+    """A copy of ``seq`` whose ground-truth row ``row`` puts the camera at ``position`` (three numbers)."""
+    bad = _copy(seq, dst)
+    lines = (bad / "groundtruth.txt").read_text().splitlines()
+    data = [i for i, line in enumerate(lines) if not line.startswith("#")]
+    fields = lines[data[row]].split()
+    lines[data[row]] = " ".join([fields[0], *position.split(), *fields[4:]])
+    (bad / "groundtruth.txt").write_text("\n".join(lines) + "\n")
+    return bad
+
+
+@pytest.mark.parametrize("position, says", [
+    ("1e6 0 0", "frame 0.033333 has no pose (its camera lies 1,000,000 m from the origin, beyond the ±6,554 m"),
+    ("1e300 -1e300 1e300", "groundtruth.txt: 1 poses have non-finite entries or positions beyond ±1e+08 m (lines 4)"),
+])
+def test_s2_u8_a_frame_posed_absurdly_far_away_is_skipped_with_a_warning_naming_it(seq, tmp_path, capsys,
+                                                                                    monkeypatch, position, says):
+    bad = _move_gt_row(seq, tmp_path / "far", 1, position)
+    code, _out, err = cli(capsys, monkeypatch, *_run_args(bad, tmp_path / "o"))
+    assert code == 0, err
+    assert says in " ".join(err.split())
+    report = json.loads((tmp_path / "o" / "report.json").read_text())
+    assert report["frames_used"] == 2 and report["frames_skipped"] == 1
+
+
+def test_s2_a_frame_without_depth_in_range_is_named(seq, tmp_path, capsys, monkeypatch):
+    from helpers import write_png
+
+    bad = _copy(seq, tmp_path / "zero_depth")
+    write_png(bad / "depth" / "0.033333.png", np.zeros((ROOM_CAMERA.height, ROOM_CAMERA.width), np.uint16))
+    code, _out, err = cli(capsys, monkeypatch, *_run_args(bad, tmp_path / "o"))
+    assert code == 0, err
+    assert "frame 0.033333 adds nothing to the map: no depth pixel lies between --min-depth" in " ".join(err.split())
+
+
+@pytest.mark.parametrize("case", ["tum_label_oob", "tum_ls_few"])
+def test_u5_u7_a_label_id_outside_the_label_set_names_the_file_and_frame(seq, tmp_path, capsys, monkeypatch, case):
+    from helpers import write_png
+    from semmap.types import LabelSet
+
+    bad = _copy(seq, tmp_path / case)
+    if case == "tum_label_oob":
+        write_png(bad / "labels" / "0.000000.png", np.full((ROOM_CAMERA.height, ROOM_CAMERA.width), 200, np.uint8))
+    else:
+        LabelSet(("unknown", "thing"), np.zeros((2, 3), np.uint8)).save(bad / "labelset.json")
+    line = refused(capsys, monkeypatch, *_run_args(bad, tmp_path / "o"))
+    assert f"{bad / 'labels' / '0.000000.png'}: label id" in line and "of frame 0.000000" in line
+    assert not (tmp_path / "o").exists()

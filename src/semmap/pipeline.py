@@ -27,6 +27,7 @@ from semmap.frame_arrays import class_sets, frame_from_arrays
 from semmap.geometry import backproject_world, pixel_normals
 from semmap.interrupt import RunInterrupted, deferred_interrupts, stop_requested
 from semmap.io.staged_run import StagedRun
+from semmap.keys import TREE_MAX_VAL
 from semmap.limits import check_map_extent
 from semmap.maps.base import SemanticMap
 from semmap.maps.registry import MapKind, compile_kernels
@@ -57,6 +58,8 @@ from semmap.types import CameraIntrinsics, Frame, LabelSet, Observation, TopKPro
 from semmap.viz.rerun_log import NoVisualizer, Visualizer, get_visualizer
 
 log = logging.getLogger("semmap")
+#: Frames that add nothing to the map are named up to this many times per run.
+MAX_EMPTY_FRAME_WARNINGS = 5
 
 
 class Mapper:
@@ -193,6 +196,7 @@ class Pipeline:
         self._objects: ObjectStage | None = None
         self._viewer: Visualizer = NoVisualizer()
         self._checkpoints: Checkpoints | None = None
+        self._empty_frames = 0  # frames without a depth pixel in range
 
     def run(self) -> RunResult:
         """Map the sequence; outputs appear in ``--out`` all at once at the end (a failure or Ctrl-C leaves it as it
@@ -239,6 +243,7 @@ class Pipeline:
         else:
             pose_of = pose_source_for(c, dataset, instances=self.instances, track_progress=self.track_progress)
             record = RunRecord()
+        pose_of.limit_to(TREE_MAX_VAL * c.mapping.resolution)  # (the key range of every map)
         startup_s += warm_tracker(c, first)
         self._objects = ObjectStage(self.instances) if self.instances is not None else None
         if self._objects is not None:
@@ -318,8 +323,11 @@ class Pipeline:
             record.segmented += 1
             if frame.labels is not None:
                 self.scorer.add_segmentation(record, sem, frame.labels, len(label_set))
+        before = mapper.points_integrated
         for name, ms in mapper.integrate(frame, T, sem).items():
             timings[name] += ms
+        if mapper.points_integrated == before:
+            self._warn_empty_frame(frame)
         if self._objects is not None:  # instances and tracks every frame, the object map on keyframes
             t_obj = time.perf_counter()
             self._objects.step(frame, T, sem, mapper.last_was_keyframe)
@@ -332,6 +340,15 @@ class Pipeline:
         record.poses.append(T)
         record.latency_ms.append((time.perf_counter() - record.arrival.pop(id(frame))) * 1e3)
         self._viewer.log_frame(frame, T, sem, mapper.maps[0])
+
+    def _warn_empty_frame(self, frame: Frame) -> None:
+        """Say which frames add nothing to the map (the first few by name, then that there are more)."""
+        self._empty_frames += 1
+        m = self.config.mapping
+        if self._empty_frames <= MAX_EMPTY_FRAME_WARNINGS:
+            log.warning("frame %s adds nothing to the map: no depth pixel lies between --min-depth %g and "
+                        "--max-depth %g m%s", frame.name, m.min_depth, m.max_depth,
+                        "" if self._empty_frames < MAX_EMPTY_FRAME_WARNINGS else " (further such frames not listed)")
 
     def _after_frame(self, frame: Frame, mapper: Mapper, pose_of: FramePoses, record: RunRecord) -> None:
         """Checkpoint every ``checkpoint_every`` mapped frames (and on Ctrl-C), then stop here if asked to."""

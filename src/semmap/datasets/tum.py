@@ -112,7 +112,7 @@ class TumDataset(SequenceReader[_TumRef]):
         check_image_size(rgb, cam, ref.rgb, "colour")
         depth = read_depth(ref.depth, self._depth_scale)
         check_image_size(depth, cam, ref.depth, "depth")
-        labels = self._labels.read(ref.name, cam) if self._labels else None
+        labels = self._labels.read(ref.name, cam, self._classes()) if self._labels else None
         instances = self._instances.read(ref.name, cam) if self._instances else None
         return Frame(
             index=ref.index,
