@@ -284,3 +284,59 @@ def test_u5_u7_a_label_id_outside_the_label_set_names_the_file_and_frame(seq, tm
     line = refused(capsys, monkeypatch, *_run_args(bad, tmp_path / "o"))
     assert f"{bad / 'labels' / '0.000000.png'}: label id" in line and "of frame 0.000000" in line
     assert not (tmp_path / "o").exists()
+
+
+def test_u10_a_bag_whose_colour_topic_is_the_depth_topic_says_which_topic_holds_what(tmp_path):
+    from ros_helpers import DEPTH, RGB, write_bag
+    from semmap.datasets import open_dataset
+    from semmap.errors import DatasetError
+
+    path = write_bag(tmp_path / "rec.bag", make_room_frames(2))
+    with pytest.raises(DatasetError) as info:
+        open_dataset(path, ros={"rgb_topic": DEPTH})
+    message = str(info.value)
+    assert f"{DEPTH} is both the colour and the depth topic" in message
+    assert f"{DEPTH} (16UC1)" in message and f"{RGB} (rgb8)" in message
+
+
+# ---------------------------------------------------------------------------------------------- named paths
+def _special(tmp_path: Path, kind: str) -> Path:
+    import os
+
+    if kind == "folder":
+        (tmp_path / "w").mkdir()
+        return tmp_path / "w"
+    if kind == "fifo":
+        os.mkfifo(tmp_path / "fifo.pt")
+        return tmp_path / "fifo.pt"
+    return Path("/dev/zero")
+
+
+@pytest.mark.parametrize("kind, says", [("folder", "is a folder"), ("device", "is a device"), ("fifo", "is a FIFO")])
+def test_u16_u18_weights_that_are_not_a_file_say_what_they_are(tmp_path, kind, says):
+    from semmap.errors import FormatError
+    from semmap.perception.espnetv2 import load_espnetv2
+    from semmap.perception.networks.registry import load_weights
+
+    path = _special(tmp_path, kind)
+    for load in (load_weights, load_espnetv2):
+        with pytest.raises(FormatError, match=rf"^{path}: {says}, expected"):
+            load(path)
+
+
+def test_u19_poses_that_name_a_folder_say_it_is_a_folder(seq, tmp_path, capsys, monkeypatch):
+    (tmp_path / "traj").mkdir()
+    line = refused(capsys, monkeypatch, *_run_args(seq, tmp_path / "o", "--poses", tmp_path / "traj"))
+    assert f"{tmp_path / 'traj'} is a folder" in line and "--poses" in line
+
+
+def test_u20_localize_on_an_octomap_file_says_it_needs_a_semmap_map(maps, tmp_path, seq, capsys, monkeypatch):
+    line = refused(capsys, monkeypatch, "localize", maps / "map.ot", seq, "--out", tmp_path / "l")
+    assert str(maps / "map.ot") in line and "localize needs a semmap map" in line and "map.semmap" in line
+
+
+def test_u23_a_batch_config_that_is_not_an_object_names_the_file(seq, tmp_path, capsys, monkeypatch):
+    config = tmp_path / "list.json"
+    config.write_text("[1, 2]")
+    line = refused(capsys, monkeypatch, "batch", seq, "--out", tmp_path / "b", "--config", config)
+    assert f"{config}: " in line and "object" in line

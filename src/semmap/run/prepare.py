@@ -10,6 +10,7 @@ from pathlib import Path
 from semmap.config import LoopMode, RunConfig, SemanticSource
 from semmap.datasets import Dataset
 from semmap.errors import ConfigError
+from semmap.files.safe import path_kind
 from semmap.interrupt import checked
 from semmap.perception.base import Preparable, Segmenter
 from semmap.perception.instances.base import InstanceSource
@@ -101,7 +102,7 @@ def pose_source_for(config: RunConfig, dataset: Dataset, *, instances: InstanceS
     path = Path(source)
     if not path.is_file():
         raise ConfigError(f"--poses must be {GROUND_TRUTH}, a tracker ({', '.join(METHODS + OBJECT_METHODS)}) or a "
-                          f"trajectory file; {path} does not exist")
+                          f"trajectory file; {path} {path_kind(path)}")
     return FramePoses(str(path), lookup=TrajectoryPoses.from_file(path, max_time_diff=config.poses.max_time_diff))
 
 
