@@ -340,3 +340,41 @@ def test_u23_a_batch_config_that_is_not_an_object_names_the_file(seq, tmp_path, 
     config.write_text("[1, 2]")
     line = refused(capsys, monkeypatch, "batch", seq, "--out", tmp_path / "b", "--config", config)
     assert f"{config}: " in line and "object" in line
+
+
+# ---------------------------------------------------------------------------------------------- semantics, training
+def test_s14_semantics_labels_without_labels_is_refused_before_mapping(seq, tmp_path, capsys, monkeypatch):
+    import shutil
+
+    bare = _copy(seq, tmp_path / "nolabels")
+    shutil.rmtree(bare / "labels")
+    (bare / "labelset.json").unlink()
+    line = refused(capsys, monkeypatch, *_run_args(bare, tmp_path / "o", "--semantics", "labels"))
+    assert str(bare) in line and "--semantics labels" in line and "--labels" in line
+    assert not (tmp_path / "o").exists()
+
+
+def _plain_training_folder(root: Path, label: int) -> Path:
+    """A plain training folder of two 32x24 images whose labels are all ``label``."""
+    from helpers import write_png
+
+    for i in range(2):
+        write_png(root / "images" / f"f{i}.png", np.full((24, 32, 3), 60 * i, np.uint8))
+        write_png(root / "labels" / f"f{i}.png", np.full((24, 32), label, np.uint8))
+    room_label_set().save(root / "labelset.json")
+    return root
+
+
+def test_s15_training_on_void_labels_only_is_refused_naming_the_folder(tmp_path, capsys, monkeypatch):
+    data = _plain_training_folder(tmp_path / "plain_alllabel0", 0)
+    line = refused(capsys, monkeypatch, "train", "--model", "fcn", "--data", data, "--out", tmp_path / "t",
+                   "--iterations", "2", "--batch", "2", "--input-size", "32x24", "--threads", "1")
+    assert str(data) in line and "every label pixel is 0" in line
+    assert not (tmp_path / "t").exists()
+
+
+def test_s16_training_with_a_zero_depth_scale_is_refused(tmp_path, capsys, monkeypatch):
+    data = _plain_training_folder(tmp_path / "plain", 1)
+    line = refused(capsys, monkeypatch, "train", "--model", "rgbd-net", "--data", data, "--out", tmp_path / "t",
+                   "--depth-scale", "0")
+    assert "--depth-scale must be a number from" in line

@@ -48,6 +48,7 @@ from semmap.run.outputs import refine_maps, warn_if_empty, write_outputs
 from semmap.run.paths import check_run_paths, staged_output
 from semmap.run.prepare import (
     FirstFrame,
+    check_labels_exist,
     label_set_for,
     pose_source_for,
     pose_source_to_resume,
@@ -233,6 +234,7 @@ class Pipeline:
         label_set = label_set_for(c, dataset, self.segmenter)
         startup_s = compile_kernels(c.mapping.maps)  # numba's first-use compilation out of the per-frame timings
         first = FirstFrame(dataset)  # what a segmenter and an online tracker get ready on (read if needed)
+        check_labels_exist(c, dataset, first, self.segmenter)
         segmenter_s = prepare_segmenter(self.segmenter, first)  # and an ONNX export / session out of the first frame's
         mapper = Mapper([get_map(kind, c, label_set) for kind in c.mapping.maps], min_depth=c.mapping.min_depth,
                         max_depth=c.mapping.max_depth, pixel_stride=c.mapping.pixel_stride)

@@ -47,6 +47,18 @@ def label_set_for(config: RunConfig, dataset: Dataset, segmenter: Segmenter | No
     return None
 
 
+def check_labels_exist(config: RunConfig, dataset: Dataset, first: FirstFrame, segmenter: Segmenter | None) -> None:
+    """``--semantics labels`` on a dataset without label images (no label folder, no label set, none on the first
+    frame) is refused in one line before mapping, not mapped without semantics."""
+    if segmenter is not None or config.semantics.source != SemanticSource.LABELS or config.input.labels is not None:
+        return
+    frame = first.frame
+    if dataset.label_set is None and frame is not None and frame.labels is None and frame.semantics is None:
+        raise ConfigError(f"{config.input.dataset}: --semantics labels, but the dataset has no label images (frame "
+                          f"{frame.name} has none); name a folder of them with --labels, or choose another "
+                          "--semantics")
+
+
 def prepare_segmenter(segmenter: Segmenter | None, first: FirstFrame) -> float:
     """Let a segmenter with a start-up cost pay it on the dataset's first frame; returns the seconds."""
     if not isinstance(segmenter, Preparable) or first.frame is None:
