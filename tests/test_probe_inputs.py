@@ -378,3 +378,63 @@ def test_s16_training_with_a_zero_depth_scale_is_refused(tmp_path, capsys, monke
     line = refused(capsys, monkeypatch, "train", "--model", "rgbd-net", "--data", data, "--out", tmp_path / "t",
                    "--depth-scale", "0")
     assert "--depth-scale must be a number from" in line
+
+
+# ---------------------------------------------------------------------------------------------- memory of a run
+@pytest.fixture
+def budget_2m():
+    from semmap import limits
+
+    limits.set_memory_budget("2M")
+    yield
+    limits.set_memory_budget(None)
+
+
+def test_h1_m3_the_maps_are_checked_against_the_budget_after_every_frame(budget_2m):
+    from semmap.limits import MemoryBudgetError
+    from semmap.maps.voxel_grid import SemanticVoxelGrid
+    from semmap.pipeline import Mapper
+    from semmap.types import CameraIntrinsics
+
+    rng = np.random.default_rng(1)
+    camera = CameraIntrinsics(320, 240, 200.0, 200.0, 159.5, 119.5)
+    depth = rng.uniform(1.0, 3.0, (240, 320)).astype(np.float32)
+    rgb = np.zeros((240, 320, 3), np.uint8)
+    mapper = Mapper([SemanticVoxelGrid(0.01)], min_depth=0.1, max_depth=8.0)
+    with pytest.raises(MemoryBudgetError, match=r"--resolution 0\.01: the maps hold .* after frame 7 and grew .*"
+                                                r"past the budget of 2\.1 MB \(--memory-budget\); choose a coarser"):
+        mapper.integrate_arrays(rgb, depth, camera, np.eye(4), index=7)
+
+
+def test_u21_a_range_cut_by_a_too_fine_resolution_says_so(caplog):
+    from semmap.config import InputConfig, MappingConfig, OutputConfig, RunConfig
+    from semmap.run.outputs import warn_if_empty
+
+    m = SemanticOctoMap(0.01, grid_cell_limit=4096)
+    obs = _observation()
+    m.integrate(Observation(obs.points_world * 3, obs.origin, obs.colors))
+    cut = m.range_cut_m
+    assert cut is not None and 0 < cut < 0.1
+    config = RunConfig(input=InputConfig(dataset=Path("x")), mapping=MappingConfig(resolution=0.01),
+                       output=OutputConfig(out=Path("o")))
+    warn_if_empty(m, config, 300, [np.eye(4)])
+    text = " ".join(caplog.text.split())
+    assert "--resolution 0.01 m is too fine for the range of the scans" in text
+    assert f"readings beyond {cut:.2f} m were cut off; choose a coarser --resolution" in text
+    assert "check the poses and depth units" not in text
+
+
+def test_h1_ground_truth_voxels_beyond_the_budget_leave_the_3d_score_out_with_a_warning(budget_2m, caplog):
+    from types import SimpleNamespace
+
+    from semmap.eval.run_report import RunScorer
+    from semmap.limits import MemoryBudgetError
+    from semmap.sim.ground_truth import gt_voxels
+
+    scene = SimpleNamespace(vertices=np.array([[0, 0, 0], [10, 0, 0], [0, 10, 0]], np.float32),
+                            triangles=np.array([[0, 1, 2]]), tri_class=np.array([1]), tri_instance=np.array([1]))
+    with pytest.raises(MemoryBudgetError, match=r"--resolution 0\.002 over the simulated scene's 50 m² of surface"):
+        gt_voxels(scene, 0.002)
+    m = SemanticOctoMap(0.002, label_set=room_label_set())
+    assert RunScorer(lambda res: gt_voxels(scene, res), 0.002).map_3d(m) == {}
+    assert "the map is not scored in 3D: --resolution 0.002" in caplog.text

@@ -220,6 +220,22 @@ def check_map_extent(resolution: float, extent_m: tuple[float, float, float], wh
                  cells * BYTES_PER_VOXEL)
 
 
+def check_map_growth(resolution: float, held: int, growth: int, where: str) -> None:
+    """Refuse to go on once the maps (``held`` bytes, grown ``growth`` with the last frame, ``where`` names it) would
+    pass the budget with one more such frame: the whole run's memory, not only the first view's."""
+    budget, source = memory_budget()
+    if held + max(growth, 0) > budget:
+        raise MemoryBudgetError(f"--resolution {resolution:g}: the maps hold {human(held)} after {where} and grew "
+                                f"{human(max(growth, 0))} with it, past the budget of {human(budget)} ({source}); "
+                                f"choose a coarser --resolution, fewer frames, or raise the budget with "
+                                f"--memory-budget or {BUDGET_ENV}")
+
+
+#: Bytes per ground-truth surface voxel while a simulated scene is voxelised for scoring (sample keys, weights and
+#: the sort that merges them).
+BYTES_PER_GROUND_TRUTH_VOXEL = 64
+
+
 #: Bytes per simulated frame kept for the whole run (pose, timestamps, file lists) and per pixel of one frame
 #: while it is rendered and reduced (colour, depth, labels, instances and the renderer's buffers).
 BYTES_PER_SIMULATED_FRAME = 1024

@@ -28,7 +28,7 @@ from semmap.geometry import backproject_world, pixel_normals
 from semmap.interrupt import RunInterrupted, deferred_interrupts, stop_requested
 from semmap.io.staged_run import StagedRun
 from semmap.keys import TREE_MAX_VAL
-from semmap.limits import check_map_extent
+from semmap.limits import check_map_extent, check_map_growth
 from semmap.maps.base import SemanticMap
 from semmap.maps.registry import MapKind, compile_kernels
 from semmap.object_stage import ObjectStage
@@ -77,6 +77,7 @@ class Mapper:
         self._keyframe_of = Scheduler(SegmentationSchedule(keyframes=True))
         self._normals = any(m.needs_normals for m in maps)
         self._extent_checked = False  # the memory of the free space the first frame spans, checked once
+        self._held = 0  # bytes the maps held after the last frame
 
     def integrate(self, frame: Frame, T_world_cam: np.ndarray, semantics: TopKProbs | None) -> dict[str, float]:
         """Integrate one frame seen from ``T_world_cam`` with optional per-pixel class sets (H, W, k) into every
@@ -109,7 +110,15 @@ class Mapper:
             steps = m.integrate(obs)
             ms.update(steps if i == 0 else {f"{m.kind.value}:{k}": v for k, v in steps.items()})
         self.points_integrated += len(points_world)
+        self._check_growth(frame)
         return ms
+
+    def _check_growth(self, frame: Frame) -> None:
+        """After each frame, refuse to go on once the maps would pass the memory budget with one more frame like
+        it (the first view's estimate cannot see a long or wide sequence coming)."""
+        held = sum(int(getattr(m, "memory_bytes", 0)) for m in self.maps)
+        growth, self._held = held - self._held, held
+        check_map_growth(self.maps[0].resolution, held, growth, f"frame {frame.name or frame.index}")
 
     def _check_extent(self, points: np.ndarray, origin: np.ndarray) -> None:
         """Refuse a resolution whose ray-cast cells over the first frame's view (a cheap lower bound of the

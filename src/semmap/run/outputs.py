@@ -82,5 +82,9 @@ def warn_if_empty(primary: SemanticMap, config: RunConfig, points_integrated: in
         reasons.append(f"no depth pixel lies between --min-depth {m.min_depth} and --max-depth {m.max_depth} m")
     if 0 <= m.max_range < m.resolution:
         reasons.append(f"--max-range {m.max_range} m leaves every reading beyond range")
+    cut = getattr(primary, "range_cut_m", None) or getattr(getattr(primary, "geometry", None), "range_cut_m", None)
+    if cut is not None:
+        reasons.append(f"--resolution {m.resolution:g} m is too fine for the scans' range: readings beyond {cut:.2f} m "
+                       "were cut off; choose a coarser --resolution")
     log.warning("%d frames added nothing to the map: no voxel is occupied (%s)", len(poses),
                 "; ".join(reasons) or "check the poses and depth units")
