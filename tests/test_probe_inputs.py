@@ -438,3 +438,25 @@ def test_h1_ground_truth_voxels_beyond_the_budget_leave_the_3d_score_out_with_a_
     m = SemanticOctoMap(0.002, label_set=room_label_set())
     assert RunScorer(lambda res: gt_voxels(scene, res), 0.002).map_3d(m) == {}
     assert "the map is not scored in 3D: --resolution 0.002" in caplog.text
+
+
+def test_m5_a_crf_beyond_the_budget_is_refused_before_its_lattices_and_the_run_keeps_the_map(budget_2m, caplog):
+    from semmap.eval.run_report import RunScorer
+    from semmap.fusion.crf import CrfParams, refine_map
+    from semmap.limits import MemoryBudgetError
+    from semmap.maps.voxel_grid import SemanticVoxelGrid
+    from semmap.run.outputs import refine_maps
+
+    rng = np.random.default_rng(2)
+    points = rng.uniform([-1, -1, 1], [1, 1, 2], (6000, 3)).astype(np.float32)
+    sem = TopKProbs.from_hard_labels(rng.integers(0, 7, 6000).astype(np.uint16), 0.9, 7)
+    m = SemanticVoxelGrid(0.02, label_set=room_label_set())
+    m.integrate(Observation(points, np.zeros(3), np.full((6000, 3), 200, np.uint8), sem))
+    before = m.class_probs().copy()
+    with pytest.raises(MemoryBudgetError, match=r"--crf over the [0-9,]+ elements of the voxelgrid map with 7 classes "
+                                                r"needs about .* over the budget of 2\.1 MB"):
+        refine_map(m, CrfParams())
+    out = refine_maps([m], [np.eye(4)], iterations=2, scorer=RunScorer(None, 0.02))
+    assert out[m.kind]["refined"] == 0 and "--crf" in out[m.kind]["skipped"]
+    assert "the voxelgrid map is not refined: --crf over" in caplog.text
+    assert np.array_equal(m.class_probs(), before)

@@ -231,6 +231,19 @@ def check_map_growth(resolution: float, held: int, growth: int, where: str) -> N
                                 f"--memory-budget or {BUDGET_ENV}")
 
 
+#: Bytes of the dense CRF per element and per element and class (pydensecrf's two permutohedral lattices over six
+#: features, the unaries, messages and the posterior; measured 1.2 kB + 70 B per class with 10^5 elements).
+BYTES_PER_CRF_ELEMENT = 1280
+BYTES_PER_CRF_ELEMENT_CLASS = 80
+
+
+def check_crf(elements: int, classes: int, what: str) -> None:
+    """Refuse a dense CRF over ``elements`` voxels or points of ``classes`` classes (``what`` names the map) whose
+    lattices would not fit the budget, before they are built."""
+    check_memory(f"--crf over the {elements:,} elements of {what} with {classes} classes",
+                 elements * (BYTES_PER_CRF_ELEMENT + classes * BYTES_PER_CRF_ELEMENT_CLASS))
+
+
 #: Bytes per ground-truth surface voxel while a simulated scene is voxelised for scoring (sample keys, weights and
 #: the sort that merges them).
 BYTES_PER_GROUND_TRUTH_VOXEL = 64

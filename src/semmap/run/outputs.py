@@ -13,6 +13,7 @@ from semmap.eval.run_report import RunScorer
 from semmap.files.atomic import write_text_atomic
 from semmap.io.map_files import save_map_files
 from semmap.keys import TREE_MAX_VAL
+from semmap.limits import MemoryBudgetError
 from semmap.maps.base import SemanticMap
 from semmap.maps.registry import MapKind
 from semmap.object_stage import ObjectStage
@@ -60,7 +61,12 @@ def refine_maps(maps: list[SemanticMap], poses: list[np.ndarray], *, iterations:
         if m.label_set is None:
             continue
         before = scorer.map_3d(m)
-        r = refine_map(m, params, viewpoint=viewpoint)
+        try:
+            r = refine_map(m, params, viewpoint=viewpoint)
+        except MemoryBudgetError as exc:  # a refinement is not worth the map: kept as fused, with a warning
+            log.warning("the %s map is not refined: %s", m.kind.value, exc)
+            out[m.kind] = {"refined": 0, "changed": 0, "ms": 0.0, "skipped": str(exc)}
+            continue
         out[m.kind] = {**({"miou_3d_before": before["miou_3d"],
                            "voxel_accuracy_3d_before": before["voxel_accuracy_3d"]} if before else {}),
                        "refined": r.refined, "changed": r.changed, "ms": round(r.ms, 1)}
