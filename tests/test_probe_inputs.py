@@ -175,17 +175,6 @@ def _run_args(seq: Path, out: Path, *more: object) -> list[object]:
     return ["run", seq, "--out", out, "--resolution", "0.2", *more]
 
 
-def test_u1_repeated_timestamps_are_used_once_and_the_run_finishes(seq, tmp_path, capsys, monkeypatch):
-    dup = _copy(seq, tmp_path / "tum_dup_ts")
-    for name, folder in (("rgb.txt", "rgb"), ("depth.txt", "depth")):
-        _append_row(dup / name, f"0.000000 {folder}/0.033333.png")  # a second row at the first frame's time
-    code, _out, err = cli(capsys, monkeypatch, *_run_args(dup, tmp_path / "o"))
-    assert code == 0, err
-    assert "rgb.txt: 1 rows repeat an earlier timestamp" in err
-    report = json.loads((tmp_path / "o" / "report.json").read_text())
-    assert report["frames_used"] == 3
-
-
 def test_m10_a_huge_rgb_list_is_read_only_as_far_as_max_frames_needs(seq, tmp_path, monkeypatch):
     from semmap.datasets import tum
 
@@ -236,39 +225,36 @@ def test_u2_u4_a_static_camera_is_scored_with_a_warning_not_refused(tmp_path, ca
     assert (tmp_path / "o" / "map.ot").is_file() and (tmp_path / "o" / "report.json").is_file()
 
 
-def _move_gt_row(seq: Path, dst: Path, row: int, position: str) -> Path:
-    """A copy of ``seq`` whose ground-truth row ``row`` puts the camera at ``position`` (three numbers)."""
-    bad = _copy(seq, dst)
+def _move_gt_row(bad: Path, row: int, position: str) -> None:
+    """Ground-truth row ``row`` of the sequence ``bad`` puts the camera at ``position`` (three numbers)."""
     lines = (bad / "groundtruth.txt").read_text().splitlines()
     data = [i for i, line in enumerate(lines) if not line.startswith("#")]
     fields = lines[data[row]].split()
     lines[data[row]] = " ".join([fields[0], *position.split(), *fields[4:]])
     (bad / "groundtruth.txt").write_text("\n".join(lines) + "\n")
-    return bad
 
 
-@pytest.mark.parametrize("position, says", [
-    ("1e6 0 0", "frame 0.033333 has no pose (its camera lies 1,000,000 m from the origin, beyond the ±6,554 m"),
-    ("1e300 -1e300 1e300", "groundtruth.txt: 1 poses have non-finite entries or positions beyond ±1e+08 m (lines 4)"),
-])
-def test_s2_u8_a_frame_posed_absurdly_far_away_is_skipped_with_a_warning_naming_it(seq, tmp_path, capsys,
-                                                                                    monkeypatch, position, says):
-    bad = _move_gt_row(seq, tmp_path / "far", 1, position)
-    code, _out, err = cli(capsys, monkeypatch, *_run_args(bad, tmp_path / "o"))
-    assert code == 0, err
-    assert says in " ".join(err.split())
-    report = json.loads((tmp_path / "o" / "report.json").read_text())
-    assert report["frames_used"] == 2 and report["frames_skipped"] == 1
-
-
-def test_s2_a_frame_without_depth_in_range_is_named(seq, tmp_path, capsys, monkeypatch):
+def test_s2_u1_u8_bad_frames_are_skipped_or_named_and_the_others_mapped(tmp_path, capsys, monkeypatch):
+    """One sequence with one of each: frame 0's time repeated in rgb.txt and depth.txt (U1), frame 1 posed 10^6 m
+    away (S2), frame 2 posed at 1e300 (U8), frame 3 without depth in range (S2); frame 4 is good."""
     from helpers import write_png
 
-    bad = _copy(seq, tmp_path / "zero_depth")
-    write_png(bad / "depth" / "0.033333.png", np.zeros((ROOM_CAMERA.height, ROOM_CAMERA.width), np.uint16))
+    bad = _tum(tmp_path / "bad", make_room_frames(5))
+    for name, folder in (("rgb.txt", "rgb"), ("depth.txt", "depth")):
+        _append_row(bad / name, f"0.000000 {folder}/0.033333.png")  # a second row at the first frame's time
+    _move_gt_row(bad, 1, "1e6 0 0")
+    _move_gt_row(bad, 2, "1e300 -1e300 1e300")
+    write_png(bad / "depth" / "0.100000.png", np.zeros((ROOM_CAMERA.height, ROOM_CAMERA.width), np.uint16))
     code, _out, err = cli(capsys, monkeypatch, *_run_args(bad, tmp_path / "o"))
     assert code == 0, err
-    assert "frame 0.033333 adds nothing to the map: no depth pixel lies between --min-depth" in " ".join(err.split())
+    said = " ".join(err.split())
+    assert "rgb.txt: 1 rows repeat an earlier timestamp; at most one row per timestamp is used" in said
+    assert "frame 0.033333 has no pose (its camera lies 1,000,000 m from the origin, beyond the ±6,554 m" in said
+    assert "groundtruth.txt: 1 poses have non-finite entries or positions beyond ±1e+08 m (lines 5)" in said
+    assert "frame 0.066667 has no pose" in said
+    assert "frame 0.100000 adds nothing to the map: no depth pixel lies between --min-depth" in said
+    report = json.loads((tmp_path / "o" / "report.json").read_text())
+    assert report["frames_used"] == 3 and report["frames_skipped"] == 2
 
 
 @pytest.mark.parametrize("case", ["tum_label_oob", "tum_ls_few"])
