@@ -300,6 +300,9 @@ class Pipeline:
         if not record.poses:
             no_pose = record.no_pose
             hint = " (poses come from the dataset's ground truth, e.g. TUM groundtruth.txt)" if no_pose else ""
+            if pose_of.beyond_reach:
+                hint = (f" ({pose_of.beyond_reach} cameras lie beyond the ±{pose_of.reach_m:,.0f} m the maps can hold "
+                        f"at --resolution {self.config.mapping.resolution:g} m: check the poses and their unit)")
             raise ConfigError(f"{self.config.input.dataset}: no frame could be mapped "
                               f"({len(dataset.skipped)} unreadable, {len(no_pose)} without pose){hint}")
 

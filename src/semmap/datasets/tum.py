@@ -6,7 +6,6 @@ Also reads the per-frame ground truth our simulator writes next to them (``label
 
 from __future__ import annotations
 
-import io
 import json
 import re
 from collections.abc import Iterator
@@ -171,7 +170,7 @@ def _data_lines(path: Path, limit: int | None = None) -> Iterator[tuple[int, lis
         raise DatasetError(f"{path}: file is missing (a TUM sequence needs rgb.txt and depth.txt)")
     text = read_text_limited(path, what="file list", error=lambda reason: DatasetError(f"{path}: {reason}"))
     found = 0
-    for number, line in enumerate(io.StringIO(text), start=1):
+    for number, line in enumerate(_lines(text), start=1):
         line = line.strip()
         if line and not line.startswith("#"):
             if limit is not None and found >= limit:
@@ -197,6 +196,16 @@ def _read_groundtruth(path: Path, strict: bool) -> tuple[np.ndarray, np.ndarray]
         return read_tum(path, strict=strict)
     except FormatError as exc:
         raise DatasetError(str(exc)) from None
+
+
+def _lines(text: str) -> Iterator[str]:
+    """The lines of ``text`` one at a time (no list of them, no copy of the text)."""
+    start = 0
+    while start < len(text):
+        end = text.find("\n", start)
+        end = len(text) if end < 0 else end
+        yield text[start:end]
+        start = end + 1
 
 
 def read_file_list(path: Path, limit: int | None = None) -> list[tuple[float, str]]:

@@ -26,6 +26,7 @@ class FramePoses:
         self._used: list[tuple[float, str, np.ndarray]] = []
         self._gt = GroundTruthRecorder()
         self.reach_m: float | None = None  # a camera farther from the origin adds nothing to a map: no pose
+        self.beyond_reach = 0  # frames given no pose for that
 
     def limit_to(self, reach_m: float) -> None:
         """Give no pose to a frame whose camera lies ``reach_m`` or more from the origin (what the maps can hold):
@@ -47,6 +48,7 @@ class FramePoses:
         if T is not None and self.reach_m is not None:
             far = float(np.abs(np.asarray(T)[:3, 3]).max())
             if far >= self.reach_m:
+                self.beyond_reach += 1
                 T, reason = None, (f"its camera lies {far:,.0f} m from the origin, beyond the ±{self.reach_m:,.0f} m "
                                    "the maps can hold at this resolution")
         if frame.T_world_cam is None or self.reach_m is None or np.abs(frame.T_world_cam[:3, 3]).max() < self.reach_m:
