@@ -91,7 +91,7 @@ def motion_source(name: str, *, noise: float = 0.05, seed: int = 0) -> MotionSou
     path = Path(name)
     if not path.is_file():
         raise ConfigError(f"--motion must be one of {', '.join(MOTION_SOURCES)} or a trajectory file; "
-                          f"{name} {path_kind(path)}")
+                          + (f"{name} {path_kind(path)}" if path.exists() else f"{name!r} is neither"))
     return TrajectorySource(path)
 
 
