@@ -150,7 +150,7 @@ def test_nan_in_groundtruth_leaves_those_frames_without_pose_or_stops_when_stric
     with caplog.at_level(logging.WARNING, logger="semmap"):
         frames = list(TumDataset(tum_seq))
     assert frames[1].T_world_cam is None and frames[0].T_world_cam is not None  # the pipeline skips it: no pose
-    assert "groundtruth.txt: 1 poses have non-finite entries (lines 4)" in caplog.text
+    assert "groundtruth.txt: 1 poses have non-finite entries or positions beyond ±1e+08 m (lines 4)" in caplog.text
     with pytest.raises(DatasetError, match=r"groundtruth.txt:4: pose has non-finite"):
         TumDataset(tum_seq, strict=True)
 

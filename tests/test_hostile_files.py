@@ -91,10 +91,11 @@ def test_poses_a_million_metres_away_warn_why_the_map_is_empty(room, tmp_path, c
     far[:, :3, 3] += 1e6
     write_trajectory(tmp_path / "far.txt", Trajectory(gt.timestamps, far))
     config = _config(room, tmp_path / "o").model_copy(update={"poses": PosesConfig(source=str(tmp_path / "far.txt"))})
-    with caplog.at_level(logging.WARNING, logger="semmap"):
-        Pipeline(config).run()
-    assert "5 frames added nothing to the map" in caplog.text and "1,000,0" in caplog.text
-    assert "beyond the ±6,554 m a map of resolution 0.2 m can hold" in caplog.text
+    with caplog.at_level(logging.WARNING, logger="semmap"), pytest.raises(ConfigError) as info:
+        Pipeline(config).run()  # each frame is skipped naming it, then the run stops in one line
+    assert "frame 0.000000 has no pose (its camera lies 1,000,0" in caplog.text
+    assert ("no frame could be mapped (0 unreadable, 5 without pose) (5 cameras lie beyond the ±6,554 m the maps can "
+            "hold at --resolution 0.2 m") in str(info.value)
 
 
 def test_opencv_says_nothing_of_its_own_about_a_corrupt_image(room, tmp_path):

@@ -61,7 +61,7 @@ def test_wide_scans_are_range_limited_with_a_warning_and_still_match_octomap(cap
     pts = random_scan(rng, n=1500, radius=(0.5, 6.0))
     with caplog.at_level(logging.WARNING, logger="semmap"):
         stats = m.insert_points(pts, np.zeros(3))
-    assert stats.range_limited and "limiting its range" in caplog.text
+    assert stats.range_limited and "is too fine for the range of the scans" in caplog.text
     limit = m.max_range if m.max_range > 0 else None
     assert limit is None  # the map's own setting is untouched
     tree = pyoctomap.OcTree(0.1)

@@ -325,7 +325,8 @@ def _size(text: str | None) -> tuple[int, int] | int | None:
     return parse_input_size(text)
 
 
-def _validated(make):
+def _validated(make, source: Path | None = None):
+    """``make()``, its first validation error as one line (naming ``source``, the file the values came from)."""
     from pydantic import ValidationError
 
     try:
@@ -334,6 +335,10 @@ def _validated(make):
         first = exc.errors()[0]
         where = ".".join(str(p) for p in first["loc"])
         msg = str(first["msg"]).removeprefix("Value error, ")
+        if source is not None:
+            raise SemmapError(f"{source}: {f'field {where}: ' if where else ''}{msg}"
+                              f"{'' if where else ' (expected a JSON object like a run folder config.json)'}"
+                              ) from None
         if not where:  # a rule across options
             raise SemmapError(msg) from None
         raise SemmapError(f"invalid option {where}: {msg}") from None
@@ -840,7 +845,7 @@ def batch(
         from semmap.files.safe import read_text_limited
 
         text = read_text_limited(config, what="run configuration")
-        template = _validated(lambda: RunConfig.model_validate_json(text))
+        template = _validated(lambda: RunConfig.model_validate_json(text), source=config)
     else:
         template = _validated(lambda: RunConfig(
             input=InputConfig(dataset=datasets[0], format=format, stride=stride, max_frames=max_frames,

@@ -14,7 +14,7 @@ import os
 import re
 from dataclasses import dataclass
 
-from semmap.errors import ConfigError
+from semmap.errors import ConfigError, FormatError
 
 #: Environment variable holding the memory budget (bytes, or a size like ``4G``, ``512M``).
 BUDGET_ENV = "SEMMAP_MEMORY_BUDGET"
@@ -70,6 +70,7 @@ LIMITS: dict[str, Limit] = {
     "threads": Limit(1, 1024, "threads", integer=True),
     "queue": Limit(1, 10_000, "frames", integer=True),
     "height": Limit(-100.0, 100.0, "camera height (m)"),
+    "position": Limit(-1e8, 1e8, "camera position (m from the origin)"),
     "angle_deg": Limit(-180.0, 180.0, "degrees"),
     "noise": Limit(0.0, 10.0, "fraction"),
     "learning_rate": Limit(1e-9, 10.0, "learning rate"),
@@ -238,6 +239,20 @@ def _shown(value: object) -> str:
     return text if len(text) <= 40 else text[:37] + "..."
 
 
+def check_file_resolution(value: float, path: object) -> float:
+    """A map file's resolution when it lies within the ``resolution`` limit, else a :class:`FormatError` naming
+    ``path`` (every map reader: ``.ot``, ``.bt``, ``.semmap``, ``.ply``)."""
+    lim = LIMITS["resolution"]
+    try:
+        number = float(value)
+    except (TypeError, ValueError):
+        number = math.nan
+    if not (math.isfinite(number) and lim.lo <= number <= lim.hi):
+        raise FormatError(f"{path}: resolution must be from {_num(lim.lo)} to {_num(lim.hi)} m, got {value!r} "
+                          "(a damaged or foreign file?)")
+    return number
+
+
 def _num(x: float) -> str:
     return f"{int(x):,}" if float(x).is_integer() else f"{x:g}"
 
@@ -348,6 +363,35 @@ def check_map_extent(resolution: float, extent_m: tuple[float, float, float], wh
     size = "x".join(f"{e:.1f}" for e in extent_m)
     check_memory(f"--resolution {resolution:g} over {where} of {size} m ({cells:,.0f} cells)",
                  cells * BYTES_PER_VOXEL)
+
+
+def check_map_growth(resolution: float, held: int, growth: int, where: str) -> None:
+    """Refuse to go on once the maps (``held`` bytes, grown ``growth`` with the last frame, ``where`` names it) would
+    pass the budget with one more such frame: the whole run's memory, not only the first view's."""
+    budget, source = memory_budget()
+    if held + max(growth, 0) > budget:
+        raise MemoryBudgetError(f"--resolution {resolution:g}: the maps hold {human(held)} after {where} and grew "
+                                f"{human(max(growth, 0))} with it, past the budget of {human(budget)} ({source}); "
+                                f"choose a coarser --resolution, fewer frames, or raise the budget with "
+                                f"--memory-budget or {BUDGET_ENV}")
+
+
+#: Bytes of the dense CRF per element and per element and class (pydensecrf's two permutohedral lattices over six
+#: features, the unaries, messages and the posterior; measured 1.2 kB + 70 B per class with 10^5 elements).
+BYTES_PER_CRF_ELEMENT = 1280
+BYTES_PER_CRF_ELEMENT_CLASS = 80
+
+
+def check_crf(elements: int, classes: int, what: str) -> None:
+    """Refuse a dense CRF over ``elements`` voxels or points of ``classes`` classes (``what`` names the map) whose
+    lattices would not fit the budget, before they are built."""
+    check_memory(f"--crf over the {elements:,} elements of {what} with {classes} classes",
+                 elements * (BYTES_PER_CRF_ELEMENT + classes * BYTES_PER_CRF_ELEMENT_CLASS))
+
+
+#: Bytes per ground-truth surface voxel while a simulated scene is voxelised for scoring (sample keys, weights and
+#: the sort that merges them).
+BYTES_PER_GROUND_TRUTH_VOXEL = 64
 
 
 #: Bytes per simulated frame kept for the whole run (pose, timestamps, file lists) and per pixel of one frame

@@ -27,7 +27,8 @@ from semmap.frame_arrays import class_sets, frame_from_arrays
 from semmap.geometry import backproject_world, pixel_normals
 from semmap.interrupt import RunInterrupted, deferred_interrupts, stop_requested
 from semmap.io.staged_run import StagedRun
-from semmap.limits import check_map_extent
+from semmap.keys import TREE_MAX_VAL
+from semmap.limits import check_map_extent, check_map_growth
 from semmap.maps.base import SemanticMap
 from semmap.maps.registry import MapKind, compile_kernels
 from semmap.object_stage import ObjectStage
@@ -48,6 +49,7 @@ from semmap.run.outputs import refine_maps, warn_if_empty, write_outputs
 from semmap.run.paths import check_run_paths, staged_output
 from semmap.run.prepare import (
     FirstFrame,
+    check_labels_exist,
     label_set_for,
     pose_source_for,
     pose_source_to_resume,
@@ -59,6 +61,8 @@ from semmap.types import CameraIntrinsics, Frame, LabelSet, Observation, TopKPro
 from semmap.viz.rerun_log import NoVisualizer, Visualizer, get_visualizer
 
 log = logging.getLogger("semmap")
+#: Frames that add nothing to the map are named up to this many times per run.
+MAX_EMPTY_FRAME_WARNINGS = 5
 
 
 class Mapper:
@@ -75,6 +79,7 @@ class Mapper:
         self._keyframe_of = Scheduler(SegmentationSchedule(keyframes=True))
         self._normals = any(m.needs_normals for m in maps)
         self._extent_checked = False  # the memory of the free space the first frame spans, checked once
+        self._held = 0  # bytes the maps held after the last frame
 
     def integrate(self, frame: Frame, T_world_cam: np.ndarray, semantics: TopKProbs | None) -> dict[str, float]:
         """Integrate one frame seen from ``T_world_cam`` with optional per-pixel class sets (H, W, k) into every
@@ -107,7 +112,15 @@ class Mapper:
             steps = m.integrate(obs)
             ms.update(steps if i == 0 else {f"{m.kind.value}:{k}": v for k, v in steps.items()})
         self.points_integrated += len(points_world)
+        self._check_growth(frame)
         return ms
+
+    def _check_growth(self, frame: Frame) -> None:
+        """After each frame, refuse to go on once the maps would pass the memory budget with one more frame like
+        it (the first view's estimate cannot see a long or wide sequence coming)."""
+        held = sum(int(getattr(m, "memory_bytes", 0)) for m in self.maps)
+        growth, self._held = held - self._held, held
+        check_map_growth(self.maps[0].resolution, held, growth, f"frame {frame.name or frame.index}")
 
     def _check_extent(self, points: np.ndarray, origin: np.ndarray) -> None:
         """Refuse a resolution whose ray-cast cells over the first frame's view (a cheap lower bound of the
@@ -208,6 +221,7 @@ class Pipeline:
         self._objects: ObjectStage | None = None
         self._viewer: Visualizer = NoVisualizer()
         self._checkpoints: Checkpoints | None = None
+        self._empty_frames = 0  # frames without a depth pixel in range
 
     def run(self) -> RunResult:
         """Map the sequence; outputs appear in ``--out`` all at once at the end (a failure or Ctrl-C leaves it as it
@@ -245,6 +259,7 @@ class Pipeline:
         label_set = label_set_for(c, dataset, self.segmenter)
         startup_s = compile_kernels(c.mapping.maps)  # numba's first-use compilation out of the per-frame timings
         first = FirstFrame(dataset)  # what a segmenter and an online tracker get ready on (read if needed)
+        check_labels_exist(c, dataset, first, self.segmenter)
         segmenter_s = prepare_segmenter(self.segmenter, first)  # and an ONNX export / session out of the first frame's
         mapper = Mapper([get_map(kind, c, label_set) for kind in c.mapping.maps], min_depth=c.mapping.min_depth,
                         max_depth=c.mapping.max_depth, pixel_stride=c.mapping.pixel_stride)
@@ -255,6 +270,7 @@ class Pipeline:
         else:
             pose_of = pose_source_for(c, dataset, instances=self.instances, track_progress=self.track_progress)
             record = RunRecord()
+        pose_of.limit_to(TREE_MAX_VAL * c.mapping.resolution)  # (the key range of every map)
         startup_s += warm_tracker(c, first)
         self._objects = ObjectStage(self.instances) if self.instances is not None else None
         if self._objects is not None:
@@ -301,6 +317,9 @@ class Pipeline:
         no_pose = record.no_pose
         if not record.poses:
             hint = no_pose_hint(self.config, dataset) if no_pose else ""
+            if pose_of.beyond_reach:
+                hint = (f" ({pose_of.beyond_reach} cameras lie beyond the ±{pose_of.reach_m:,.0f} m the maps can hold "
+                        f"at --resolution {self.config.mapping.resolution:g} m: check the poses and their unit)")
             raise ConfigError(f"{self.config.input.dataset}: no frame could be mapped "
                               f"({len(dataset.skipped)} unreadable, {len(no_pose)} without pose){hint}")
         if len(no_pose) > 1:
@@ -341,8 +360,11 @@ class Pipeline:
             t_px = time.perf_counter()  # the frame's pixels and the maps' labels there before it is fused
             record.pixels.add(frame, T, sem, mapper.maps, min_depth=mapper.min_depth, max_depth=mapper.max_depth)
             timings["eval_pixels"] += (time.perf_counter() - t_px) * 1e3
+        before = mapper.points_integrated
         for name, ms in mapper.integrate(frame, T, sem).items():
             timings[name] += ms
+        if mapper.points_integrated == before:
+            self._warn_empty_frame(frame)
         if self._objects is not None:  # instances and tracks every frame, the object map on keyframes
             t_obj = time.perf_counter()
             self._objects.step(frame, T, sem, mapper.last_was_keyframe)
@@ -355,6 +377,15 @@ class Pipeline:
         record.poses.append(T)
         record.latency_ms.append((time.perf_counter() - record.arrival.pop(id(frame))) * 1e3)
         self._viewer.log_frame(frame, T, sem, mapper.maps[0])
+
+    def _warn_empty_frame(self, frame: Frame) -> None:
+        """Say which frames add nothing to the map (the first few by name, then that there are more)."""
+        self._empty_frames += 1
+        m = self.config.mapping
+        if self._empty_frames <= MAX_EMPTY_FRAME_WARNINGS:
+            log.warning("frame %s adds nothing to the map: no depth pixel lies between --min-depth %g and "
+                        "--max-depth %g m%s", frame.name, m.min_depth, m.max_depth,
+                        "" if self._empty_frames < MAX_EMPTY_FRAME_WARNINGS else " (further such frames not listed)")
 
     def _after_frame(self, frame: Frame, mapper: Mapper, pose_of: FramePoses, record: RunRecord) -> None:
         """Checkpoint every ``checkpoint_every`` mapped frames (and on Ctrl-C), then stop here if asked to."""

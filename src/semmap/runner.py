@@ -12,8 +12,10 @@ from pathlib import Path
 
 from semmap.config import InputConfig, MappingConfig, OutputConfig, RunConfig, SemanticsConfig, SemanticSource
 from semmap.datasets import Dataset
+from semmap.errors import ConfigError
 from semmap.eval.run_report import GroundTruthFn
 from semmap.factories import instance_source_for, segmenter_for
+from semmap.files.parse import json_safe
 from semmap.limits import check
 from semmap.pipeline import Pipeline, RunResult
 from semmap.poses.base import Progress
@@ -171,12 +173,13 @@ def track_summary(result: TrackResult, method: str, out: Path, *, plot: Path | N
     gt, est = result.ground_truth, result.estimate
     if len(gt) >= 3 and len(est) >= 3:
         scores = evaluate_trajectory(gt, est)
-        summary.update({k: scores[k] for k in ("ate_rmse_m", "rpe_trans_m", "sim3_scale", "matched")})
+        summary.update({k: scores[k] for k in ("ate_rmse_m", "rpe_trans_m", "sim3_scale", "matched",
+                                               "alignment_not_possible") if k in scores})
         if plot is not None:
             plot_trajectories(plot, gt, {method: est})
     elif plot is not None:
         plot_trajectories(plot, est, {})
-    return summary
+    return json_safe(summary)
 
 
 def reference_trajectory(path: Path) -> Trajectory:
@@ -185,7 +188,11 @@ def reference_trajectory(path: Path) -> Trajectory:
         from semmap.datasets import open_dataset
         from semmap.poses.file import trajectory_of_dataset
 
-        return trajectory_of_dataset(open_dataset(path))
+        trajectory = trajectory_of_dataset(open_dataset(path))
+        if not len(trajectory):
+            raise ConfigError(f"{path}: the dataset folder has no ground-truth poses to score against (a TUM "
+                              "groundtruth.txt, 7-Scenes frame-*.pose.txt or a simulated sequence's poses)")
+        return trajectory
     from semmap.io.trajectory import read_trajectory
 
     return read_trajectory(path, strict=True)
@@ -193,7 +200,6 @@ def reference_trajectory(path: Path) -> Trajectory:
 
 def named_trajectories(paths: list[Path]) -> dict[str, Trajectory]:
     """TUM trajectory files by file stem (the parent folder's name is added where stems repeat)."""
-    from semmap.errors import ConfigError
     from semmap.io.trajectory import read_trajectory
 
     stems = [p.stem for p in paths]
@@ -234,4 +240,4 @@ def evaluate_trajectories(gt: Path, est: list[Path], *, max_time_diff: float = 0
     if plot_errors is not None:
         ref, common = on_common_frames(reference, estimates, max_time_diff=max_time_diff)
         plot_position_errors(plot_errors, ref, common, title=f"position error against {gt.name}, SE(3) aligned")
-    return scores
+    return json_safe(scores)

@@ -260,6 +260,10 @@ class SequenceReader(ABC, Generic[R]):
     def __len__(self) -> int:
         return len(self._refs)
 
+    def _classes(self) -> int | None:
+        """Classes of the label set that label images must stay within (None: no label set, any id)."""
+        return None if self._label_set is None else len(self._label_set)
+
     def __iter__(self) -> Iterator[Frame]:
         self._skipped.clear()
         for ref in self._refs:

@@ -45,8 +45,9 @@ class LabelFolder:
         """The file name a frame's labels would have in the plainest form (for messages)."""
         return self.root / f"{frame_name}{LABEL_SUFFIXES[0]}"
 
-    def read(self, frame_name: str, intrinsics: CameraIntrinsics) -> np.ndarray | None:
-        """(H, W) uint16 ids for the frame, or None with a warning naming the expected file if it has none."""
+    def read(self, frame_name: str, intrinsics: CameraIntrinsics, classes: int | None = None) -> np.ndarray | None:
+        """(H, W) uint16 ids for the frame, or None with a warning naming the expected file if it has none;
+        a :class:`DatasetError` naming the file and frame when an id lies outside a label set of ``classes``."""
         path = self.lookup(frame_name)
         if path is None:
             LOG.warning("frame %s has no %s image (expected %s); its %ss are left empty",
@@ -54,6 +55,10 @@ class LabelFolder:
             return None
         ids = read_label_image(path)
         check_image_size(ids, intrinsics, path, self.kind)
+        top = int(ids.max()) if classes is not None and ids.size else -1
+        if classes is not None and top >= classes:
+            raise DatasetError(f"{path}: label id {top} is outside the label set (0..{classes - 1}) of frame "
+                               f"{frame_name}; the label images and {LABELSET_FILE} do not belong together")
         return ids
 
 

@@ -162,6 +162,10 @@ class RosbagDataset:
                 self._depth_topic = depth_topic or self._choose_image_topic(topics, depth=True)
                 for option, topic in (("--rgb-topic", self._rgb_topic), ("--depth-topic", self._depth_topic)):
                     self._check_topic(topics, topic, IMAGE_TYPES, option)
+                if self._rgb_topic == self._depth_topic:
+                    raise DatasetError(f"{self._path}: {self._rgb_topic} is both the colour and the depth topic; "
+                                       "name the other one with --rgb-topic or --depth-topic; image topics: "
+                                       f"{_image_encodings(reader, topics)}")
                 info_topic = camera_info_topic or self._choose_info_topic(topics)
                 if info_topic is not None:
                     self._check_topic(topics, info_topic, (CAMERA_INFO_TYPE,), "--camera-info-topic")
@@ -430,6 +434,23 @@ class RosbagDataset:
         if world.lstrip("/") not in tree:
             raise DatasetError(f"--world-frame {world}: not in /tf; frames: {', '.join(tree.frames)}")
         return world, camera_frame
+
+
+def _image_encodings(reader, topics: dict[str, str]) -> str:
+    """``topic (encoding)`` of every image topic, from its first message, for a message that must say which is
+    colour and which is depth."""
+    parts = []
+    for topic, kind in sorted(topics.items()):
+        if kind not in IMAGE_TYPES:
+            continue
+        encoding = "no messages"
+        connections = [c for c in reader.connections if c.topic == topic]
+        for connection, _, raw in reader.messages(connections=connections):
+            msg = reader.deserialize(raw, connection.msgtype)
+            encoding = str(getattr(msg, "encoding", None) or getattr(msg, "format", "") or "unknown encoding")
+            break
+        parts.append(f"{topic} ({encoding})")
+    return ", ".join(parts) or "none"
 
 
 def _open_rosbag(path: Path, *, labels, raw_color: bool, ros: dict | None, **kwargs) -> RosbagDataset:

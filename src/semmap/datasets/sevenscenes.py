@@ -110,7 +110,7 @@ class SevenScenesDataset(SequenceReader[_SevenScenesRef]):
             depth=depth,
             intrinsics=cam,
             T_world_cam=pose,
-            labels=self._labels.read(ref.name, cam) if self._labels else None,
+            labels=self._labels.read(ref.name, cam, self._classes()) if self._labels else None,
             name=ref.name,
             raw_color=raw,
         )

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import json
 import re
+from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -77,11 +78,7 @@ class TumDataset(SequenceReader[_TumRef]):
         self._depth_scale = float(depth_scale)
         self.depth_units = self._depth_scale
 
-        rgb = read_file_list(root / "rgb.txt")
-        depth = read_file_list(root / "depth.txt")
-        for name, rows in (("rgb.txt", rgb), ("depth.txt", depth)):
-            warn_repeated_stamps(root / name, [t for t, _ in rows])
-        pairs = associate([t for t, _ in rgb], [t for t, _ in depth], max_time_diff)
+        rgb, depth, pairs = _paired_lists(root, max_time_diff, stride, max_frames)
         if len(pairs) < len(rgb):
             LOG.info("%s: %d of %d colour frames have no depth frame within %.3f s",
                      root, len(rgb) - len(pairs), len(rgb), max_time_diff)
@@ -114,7 +111,7 @@ class TumDataset(SequenceReader[_TumRef]):
         check_image_size(rgb, cam, ref.rgb, "colour")
         depth = read_depth(ref.depth, self._depth_scale)
         check_image_size(depth, cam, ref.depth, "depth")
-        labels = self._labels.read(ref.name, cam) if self._labels else None
+        labels = self._labels.read(ref.name, cam, self._classes()) if self._labels else None
         instances = self._instances.read(ref.name, cam) if self._instances else None
         return Frame(
             index=ref.index,
@@ -132,17 +129,54 @@ class TumDataset(SequenceReader[_TumRef]):
 # --------------------------------------------------------------------------------------------------
 # Text files
 # --------------------------------------------------------------------------------------------------
-def _data_lines(path: Path) -> list[tuple[int, list[str]]]:
-    """(line number, fields) of the non-comment, non-blank lines of a TUM text file."""
+#: Colour rows read beyond the ones ``max_frames`` needs, so that pairing them with depth frames ends as with the
+#: whole file (a depth frame goes to the closest colour frame, which may lie a little further down the list).
+READ_MARGIN = 64
+
+
+def _paired_lists(root: Path, max_time_diff: float, stride: int, max_frames: int | None):
+    """``rgb.txt`` and ``depth.txt`` rows (a repeated timestamp: its first row only, as the warning says) and their
+    pairs; with ``max_frames`` only the colour rows it needs are read (a huge list costs what is used)."""
+    counted = isinstance(max_frames, int) and isinstance(stride, int) and max_frames >= 1 and stride >= 1
+    needed = int(stride) * (int(max_frames) - 1) + 1 if counted else None
+    limit = None if needed is None else needed + READ_MARGIN
+    depth = _first_per_stamp(root / "depth.txt", read_file_list(root / "depth.txt"))
+    while True:
+        rgb_rows = read_file_list(root / "rgb.txt", limit=limit)
+        rgb = _first_per_stamp(root / "rgb.txt", rgb_rows)
+        pairs = associate([t for t, _ in rgb], [t for t, _ in depth], max_time_diff)
+        if limit is None or len(rgb_rows) < limit or len(pairs) >= needed:
+            return rgb, depth, pairs
+        limit *= 8  # too few colour rows had a depth frame: read further
+
+
+def _first_per_stamp(path: Path, rows: list[tuple[float, str]]) -> list[tuple[float, str]]:
+    """``rows`` without those repeating an earlier row's timestamp (warned, naming ``path``): two frames of one
+    time cannot both be posed, paired or written to a trajectory."""
+    warn_repeated_stamps(path, [t for t, _ in rows])
+    seen: set[float] = set()
+    out = []
+    for row in rows:
+        if row[0] not in seen:
+            seen.add(row[0])
+            out.append(row)
+    return out
+
+
+def _data_lines(path: Path, limit: int | None = None) -> Iterator[tuple[int, list[str]]]:
+    """(line number, fields) of the non-comment, non-blank lines of a TUM text file (the first ``limit``),
+    split one at a time."""
     if not path.exists():
         raise DatasetError(f"{path}: file is missing (a TUM sequence needs rgb.txt and depth.txt)")
     text = read_text_limited(path, what="file list", error=lambda reason: DatasetError(f"{path}: {reason}"))
-    out = []
-    for number, line in enumerate(text.splitlines(), start=1):
+    found = 0
+    for number, line in enumerate(_lines(text), start=1):
         line = line.strip()
         if line and not line.startswith("#"):
-            out.append((number, re.split(r"[\s,]+", line)))
-    return out
+            if limit is not None and found >= limit:
+                return
+            found += 1
+            yield number, re.split(r"[\s,]+", line)
 
 
 def _stamp(path: Path, number: int, field: str) -> float:
@@ -164,10 +198,20 @@ def _read_groundtruth(path: Path, strict: bool) -> tuple[np.ndarray, np.ndarray]
         raise DatasetError(str(exc)) from None
 
 
-def read_file_list(path: Path) -> list[tuple[float, str]]:
-    """Rows ``(timestamp, relative path)`` of ``rgb.txt`` / ``depth.txt`` in file order."""
+def _lines(text: str) -> Iterator[str]:
+    """The lines of ``text`` one at a time (no list of them, no copy of the text)."""
+    start = 0
+    while start < len(text):
+        end = text.find("\n", start)
+        end = len(text) if end < 0 else end
+        yield text[start:end]
+        start = end + 1
+
+
+def read_file_list(path: Path, limit: int | None = None) -> list[tuple[float, str]]:
+    """Rows ``(timestamp, relative path)`` of ``rgb.txt`` / ``depth.txt`` in file order (the first ``limit``)."""
     rows = []
-    for number, fields in _data_lines(path):
+    for number, fields in _data_lines(path, limit):
         if len(fields) < 2:
             raise DatasetError(f"{path}:{number}: expected 'timestamp filename', got {' '.join(fields)!r}")
         rows.append((_stamp(path, number, fields[0]), fields[1]))

@@ -24,6 +24,7 @@ from semmap.eval.report_md import write_report_md
 from semmap.eval.report_plots import write_report_plots
 from semmap.eval.semantic import confusion, evaluate_2d, evaluate_cloud_3d
 from semmap.files.atomic import write_text_atomic
+from semmap.limits import MemoryBudgetError
 from semmap.maps.base import SemanticMap
 from semmap.maps.registry import MAPS, MapKind
 from semmap.perception.schedule import Scheduler, SegmentationSchedule
@@ -146,7 +147,12 @@ class RunScorer:
         if self.ground_truth is None or m.label_set is None or self._frame_unknown:
             return {}
         if self.resolution not in self._gt:
-            self._gt[self.resolution] = self.ground_truth(self.resolution)
+            try:
+                self._gt[self.resolution] = self.ground_truth(self.resolution)
+            except MemoryBudgetError as exc:  # a score is not worth running out of memory for: warn, go on
+                log.warning("the map is not scored in 3D: %s", exc)
+                self.ground_truth = None
+                return {}
         gt_keys, gt_labels = self._gt[self.resolution]
         cloud = m.cloud()
         centers = cloud.centers if self.T_gt_map is None else transform_points(self.T_gt_map, cloud.centers)

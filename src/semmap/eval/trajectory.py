@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import copy
 import io
+import logging
 from pathlib import Path
 
 import numpy as np
@@ -18,10 +19,15 @@ from evo.core.trajectory import PoseTrajectory3D
 from semmap.errors import ConfigError
 from semmap.files.atomic import write_bytes_atomic
 from semmap.io.trajectory import clean_poses
+from semmap.limits import LIMITS
 from semmap.types import Trajectory, rotation_angle
+
+log = logging.getLogger("semmap")
 
 #: Fewest associated poses an evaluation accepts (Umeyama alignment needs three non-collinear positions).
 MIN_MATCHES = 3
+#: How a trajectory too degenerate for the Umeyama fit (a camera that stays put or moves along a line) is aligned.
+FALLBACK_ALIGNMENT = "se3 offset of the first matched pose"
 
 
 def _to_evo(trajectory: Trajectory, source: str) -> PoseTrajectory3D:
@@ -29,6 +35,10 @@ def _to_evo(trajectory: Trajectory, source: str) -> PoseTrajectory3D:
     if len(trajectory) == 0:
         raise ConfigError(f"{source} trajectory has no poses")
     poses = clean_poses(trajectory.poses, f"{source} trajectory")
+    far = float(np.abs(poses[:, :3, 3]).max())
+    if far > LIMITS["position"].hi:
+        raise ConfigError(f"{source} trajectory has a camera {far:.3g} m from the origin (more than "
+                          f"{LIMITS['position'].hi:g} m): not a trajectory in metres")
     return PoseTrajectory3D(poses_se3=list(poses), timestamps=trajectory.timestamps.copy(), name=source)
 
 
@@ -76,13 +86,23 @@ def alignment_to_ground_truth(gt: Trajectory, est: Trajectory, *, max_time_diff:
 
     :class:`ConfigError` when fewer than :data:`MIN_MATCHES` poses match."""
     ref, est_s = synchronize(gt, est, max_time_diff)
-    try:
-        _, T = align(ref, est_s)
-    except ConfigError as exc:
-        T = ref.poses_se3[0] @ np.linalg.inv(est_s.poses_se3[0])
-        T[3] = (0.0, 0.0, 0.0, 1.0)
-        return T, {"method": "se3 offset of the first matched pose", "frames": 1, "why": str(exc)}
+    _, T, why = align_or_offset(ref, est_s)
+    if why is not None:
+        return T, {"method": FALLBACK_ALIGNMENT, "frames": 1, "why": why}
     return T, {"method": "se3 umeyama on the trajectory", "frames": int(ref.num_poses)}
+
+
+def align_or_offset(ref: PoseTrajectory3D, est: PoseTrajectory3D) -> tuple[PoseTrajectory3D, np.ndarray, str | None]:
+    """:func:`align` (SE(3)), or where the positions are too degenerate for the fit, ``est`` moved so that its first
+    pose lies on ``ref``'s; with why the fit was not possible (None when it was)."""
+    try:
+        return (*align(ref, est), None)
+    except ConfigError as exc:
+        T = ref.poses_se3[0] @ np.linalg.inv(est.poses_se3[0])
+        T[3] = (0.0, 0.0, 0.0, 1.0)
+        moved = copy.deepcopy(est)
+        moved.transform(T)
+        return moved, T, str(exc)
 
 
 def _ape(ref: PoseTrajectory3D, est: PoseTrajectory3D) -> metrics.APE:
@@ -105,9 +125,16 @@ def evaluate_trajectory(gt: Trajectory, est: Trajectory, *, max_time_diff: float
     metric scale of its depth, so a scale away from 1 says the depth calibration and the ground truth disagree.
     """
     ref, est_s = synchronize(gt, est, max_time_diff)
-    aligned, T_align = align(ref, est_s)
+    aligned, T_align, why = align_or_offset(ref, est_s)
+    if why is None:
+        scaled, T_sim3 = align(ref, est_s, with_scale=True)
+        method = {"alignment_method": "se3 umeyama on the trajectory"}
+    else:  # a scoring step warns and goes on: no fit, no scale, the ATE after the first pose's offset
+        log.warning("%s; the ATE is taken after the %s instead, and no Sim(3) scale is given", why,
+                    FALLBACK_ALIGNMENT)
+        scaled = T_sim3 = None
+        method = {"alignment_method": FALLBACK_ALIGNMENT, "alignment_not_possible": why}
     ate = _ape(ref, aligned)
-    scaled, T_sim3 = align(ref, est_s, with_scale=True)
     rpe_t = _rpe(ref, est_s, metrics.PoseRelation.translation_part)
     rpe_r = _rpe(ref, est_s, metrics.PoseRelation.rotation_angle_deg)
     dt = float(np.median(np.diff(ref.timestamps)))
@@ -120,8 +147,8 @@ def evaluate_trajectory(gt: Trajectory, est: Trajectory, *, max_time_diff: float
         "ate_mean_m": float(ate.get_statistic(stat.mean)),
         "ate_median_m": float(ate.get_statistic(stat.median)),
         "ate_max_m": float(ate.get_statistic(stat.max)),
-        "sim3_scale": float(np.cbrt(np.linalg.det(T_sim3[:3, :3]))),
-        "ate_sim3_rmse_m": float(_ape(ref, scaled).get_statistic(stat.rmse)),
+        "sim3_scale": None if T_sim3 is None else float(np.cbrt(np.linalg.det(T_sim3[:3, :3]))),
+        "ate_sim3_rmse_m": None if scaled is None else float(_ape(ref, scaled).get_statistic(stat.rmse)),
         "rpe_trans_m": float(rpe_t.get_statistic(stat.rmse)),
         "rpe_trans_mean_m": float(rpe_t.get_statistic(stat.mean)),
         "rpe_rot_deg": float(rpe_r.get_statistic(stat.rmse)),
@@ -130,6 +157,7 @@ def evaluate_trajectory(gt: Trajectory, est: Trajectory, *, max_time_diff: float
         "rpe_rot_deg_per_s": float(rpe_r.get_statistic(stat.rmse)) / dt if dt > 0 else float("nan"),
         "gt_path_length_m": float(ref.path_length),
         "alignment": T_align.round(9).tolist(),
+        **method,
     }
 
 
@@ -270,7 +298,7 @@ def plot_trajectories(path: str | Path, gt: Trajectory, estimates: dict[str, Tra
     top.plot(gt_clean.positions[:, ax0], gt_clean.positions[:, ax1], color="black", lw=2, label="ground truth")
     for name, est in estimates.items():
         ref, est_s = synchronize(gt_clean, est, max_time_diff)
-        aligned, _ = align(ref, est_s)
+        aligned, _, _ = align_or_offset(ref, est_s)
         xyz = aligned.positions_xyz
         errors = np.linalg.norm(xyz - ref.positions_xyz, axis=1)
         rmse = float(np.sqrt(np.mean(errors**2)))

@@ -45,10 +45,27 @@ def regular_file_size(path: str | Path, *, what: str = "file", error: ErrorFacto
     if stat.S_ISDIR(st.st_mode):
         raise error(f"is a folder, expected a {what}")
     if not stat.S_ISREG(st.st_mode):
-        kind = "FIFO" if stat.S_ISFIFO(st.st_mode) else "device" if stat.S_ISCHR(st.st_mode) or \
-            stat.S_ISBLK(st.st_mode) else "socket" if stat.S_ISSOCK(st.st_mode) else "special file"
-        raise error(f"is a {kind}, not a regular file ({what} expected); refusing to read it")
+        raise error(f"is a {_special_kind(st.st_mode)}, not a regular file ({what} expected); refusing to read it")
     return int(st.st_size)
+
+
+def _special_kind(mode: int) -> str:
+    return "FIFO" if stat.S_ISFIFO(mode) else "device" if stat.S_ISCHR(mode) or stat.S_ISBLK(mode) else \
+        "socket" if stat.S_ISSOCK(mode) else "special file"
+
+
+def path_kind(path: str | Path) -> str:
+    """What lies at ``path``, for a message: ``does not exist``, ``is a folder``, ``is a FIFO``, ``is a device``,
+    ``is a regular file`` ... (never opens it)."""
+    try:
+        mode = os.stat(path).st_mode
+    except FileNotFoundError:
+        return "does not exist"
+    except (OSError, ValueError) as exc:
+        return f"cannot be read ({getattr(exc, 'strerror', None) or exc})"
+    if stat.S_ISDIR(mode):
+        return "is a folder"
+    return "is a regular file" if stat.S_ISREG(mode) else f"is a {_special_kind(mode)}"
 
 
 def read_bytes_limited(path: str | Path, max_bytes: int, *, what: str = "file",

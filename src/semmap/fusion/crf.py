@@ -18,6 +18,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from semmap.errors import ConfigError
+from semmap.limits import check_crf
 from semmap.types import EMPTY_LABEL
 
 
@@ -100,6 +101,7 @@ def refine_map(m, params: CrfParams, *, viewpoint: np.ndarray | None = None) -> 
     has = cloud.labels != EMPTY_LABEL
     if m.label_set is None or not has.any():
         return CrfResult(0, 0, (time.perf_counter() - t0) * 1e3)
+    check_crf(int(has.sum()), len(m.label_set), f"the {getattr(m.kind, 'value', 'map')} map")
     probs = m.class_probs()
     normals = cloud.normals
     if normals is None or not np.isfinite(normals).all():

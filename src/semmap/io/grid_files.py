@@ -16,6 +16,7 @@ import numpy as np
 from semmap.errors import FormatError, SemmapError
 from semmap.files.atomic import write_atomic
 from semmap.fusion.rules import FusionParams
+from semmap.limits import check_file_resolution
 from semmap.maps.registry import MapKind
 from semmap.maps.semantic_grid import GridArrays
 from semmap.maps.semantic_octomap import CellArrays, OccupancyParams, SemanticOctoMap
@@ -76,6 +77,7 @@ def load_grid(path: str | Path):
     from semmap.files.safe import read_npz_members
 
     header = read_header(path)
+    check_file_resolution(header.get("resolution"), path)
     arrays = read_npz_members(path, what="semmap map")
     arrays.pop("header", None)
     missing = set(_GRID_FIELDS) - set(arrays)
@@ -106,6 +108,8 @@ def load_grid(path: str | Path):
         if "geo_packed" not in arrays or "geo_logodds" not in arrays:
             raise FormatError(f"{path}: free-space map without its occupancy cells")
         n = arrays["geo_packed"].shape[0]
+        if not np.isfinite(np.asarray(arrays["geo_logodds"], np.float64)).all():
+            raise FormatError(f"{path}: occupancy cells with non-finite (NaN or infinite) log-odds")
         m.geometry = SemanticOctoMap.from_cells(
             resolution, CellArrays(arrays["geo_packed"], arrays["geo_logodds"], np.full(n, -1, np.int32),
                                    np.zeros((0, 3), np.uint8), np.zeros(0, np.uint16),
@@ -129,6 +133,12 @@ def _check(path: Path, a: GridArrays, m) -> None:
         arr = getattr(a, name)
         if arr.dtype != dtype or arr.shape != shape:
             raise FormatError(f"{path}: array {name!r} is {arr.dtype}{arr.shape}, expected {np.dtype(dtype)}{shape}")
+    for name in ("logodds", "dense", "set_probs", "positions", "normal_sums"):
+        arr = getattr(a, name)
+        values = arr.view(np.float16) if arr.dtype == np.uint16 else arr  # (float16 state is stored as its bits)
+        if values.size and not np.isfinite(values).all():
+            what = "log-odds" if name == "logodds" else f"values in {name!r}"
+            raise FormatError(f"{path}: {int((~np.isfinite(values)).sum()):,} non-finite (NaN or infinite) {what}")
     p = a.packed
     if p.size and (p.min() < 0 or p.max() >= 1 << 48 or np.unique(p).size != p.size):
         raise FormatError(f"{path}: invalid or duplicate voxel keys")

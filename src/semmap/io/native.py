@@ -21,6 +21,7 @@ from semmap.errors import FormatError, SemmapError
 from semmap.files.atomic import write_atomic
 from semmap.files.safe import json_from_bytes
 from semmap.fusion.rules import FusionParams, FusionRule
+from semmap.limits import check_file_resolution
 from semmap.maps.semantic_octomap import CellArrays, OccupancyParams, SemanticOctoMap
 from semmap.types import LabelSet
 
@@ -116,9 +117,7 @@ def _parse_header(path: Path, raw: bytes):
         raise FormatError(f"{path}: not a semmap map (format {header.get('format')!r})")
     if header.get("version") != VERSION:
         raise FormatError(f"{path}: unsupported semmap map version {header.get('version')!r} (this is {VERSION})")
-    resolution = _number(header, "resolution", path)
-    if resolution <= 0:
-        raise FormatError(f"{path}: resolution must be positive, got {resolution}")
+    resolution = check_file_resolution(_number(header, "resolution", path), path)
     max_range = _number(header, "max_range", path)
     parts = {}
     for key in ("occupancy", "semantics"):

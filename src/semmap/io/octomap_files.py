@@ -24,6 +24,7 @@ import numpy as np
 from semmap.errors import FormatError
 from semmap.files.atomic import write_atomic
 from semmap.keys import TREE_DEPTH
+from semmap.limits import check_file_resolution
 from semmap.maps.octree_tree import OctreeNodes, morton_decode
 
 OT_MAGIC = "# Octomap OcTree file"
@@ -192,6 +193,7 @@ def _parse_header(data: bytes, path: str) -> tuple[str, str, int, float, int]:
         raise FormatError(f"{path}: bad number in header: {exc}") from None
     if size < 0 or not (res > 0 and np.isfinite(res)):
         raise FormatError(f"{path}: bad size {size} or resolution {res} in header")
+    check_file_resolution(res, path)
     return lines[0], tree_type, size, res, pos
 
 

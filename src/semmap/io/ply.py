@@ -12,6 +12,7 @@ import numpy as np
 
 from semmap.errors import FormatError
 from semmap.files.atomic import write_atomic
+from semmap.limits import check_file_resolution
 from semmap.types import MapCloud
 
 _BASE = [("x", "<f4"), ("y", "<f4"), ("z", "<f4"), ("red", "u1"), ("green", "u1"), ("blue", "u1"),
@@ -78,8 +79,22 @@ def read_ply(path: str | Path) -> MapCloud:
     dtype = np.dtype(fields)
     if n < 0 or body != n * dtype.itemsize:
         raise FormatError(f"{path}: truncated PLY ({body} bytes of vertex data, expected {n * dtype.itemsize})")
+    if any(line.startswith("comment resolution") for line in lines):
+        check_file_resolution(resolution, path)
     rows = np.frombuffer(raw, dtype, count=n, offset=start).copy()
+    _check_values(path, rows)
     normals = np.stack([rows["nx"], rows["ny"], rows["nz"]], 1).astype(np.float32) if "nx" in names else None
     return MapCloud(np.stack([rows["x"], rows["y"], rows["z"]], 1).astype(np.float64),
                     np.stack([rows["red"], rows["green"], rows["blue"]], 1).astype(np.uint8),
                     rows["label"].astype(np.uint16), rows["confidence"].astype(np.float32), resolution, normals)
+
+
+def _check_values(path: Path, rows: np.ndarray) -> None:
+    """Finite coordinates, normals and confidences in [0, 1]: a damaged file is refused naming it, never drawn."""
+    names = [name for name in ("x", "y", "z", "nx", "ny", "nz") if name in rows.dtype.names]
+    bad = sum(int((~np.isfinite(rows[name])).sum()) for name in names)
+    if bad:
+        raise FormatError(f"{path}: {bad:,} non-finite (NaN or infinite) coordinates or normals")
+    conf = rows["confidence"]
+    if conf.size and not (np.isfinite(conf).all() and conf.min() >= 0 and conf.max() <= 1.001):
+        raise FormatError(f"{path}: confidences outside [0, 1] (or NaN)")

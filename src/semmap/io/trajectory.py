@@ -18,6 +18,7 @@ from semmap.errors import FormatError
 from semmap.files.atomic import write_text_atomic
 from semmap.files.parse import is_number
 from semmap.files.safe import read_text_limited
+from semmap.limits import LIMITS
 from semmap.types import Trajectory, interpolate_pose, orthonormality_error, pose_from_tum, pose_to_tum, snap_rigid
 
 LOG = logging.getLogger("semmap")
@@ -27,6 +28,8 @@ QUAT_NORM_TOL = 0.1
 #: Largest accepted max |R Rᵀ − I| before a rotation is re-orthonormalised instead of rejected.
 ORTHO_TOL = 1e-2
 HEADER = "# timestamp tx ty tz qx qy qz qw"
+#: Farthest camera position (m from the origin) a trajectory row may hold (the limits table's ``position``).
+FAR = LIMITS["position"].hi
 
 
 def read_tum(path: str | Path, *, strict: bool = False) -> tuple[np.ndarray, np.ndarray]:
@@ -56,8 +59,9 @@ def read_tum(path: str | Path, *, strict: bool = False) -> tuple[np.ndarray, np.
     if strict and not rows:
         raise FormatError(f"{path}: no poses (expected rows 'timestamp tx ty tz qx qy qz qw')")
     if bad:
-        LOG.warning("%s: %d poses have non-finite entries (lines %s); frames at their times are skipped", path,
-                    len(bad), ", ".join(map(str, bad[:5])) + (" ..." if len(bad) > 5 else ""))
+        LOG.warning("%s: %d poses have non-finite entries or positions beyond ±%g m (lines %s); frames at their "
+                    "times are skipped", path, len(bad), FAR,
+                    ", ".join(map(str, bad[:5])) + (" ..." if len(bad) > 5 else ""))
     times = np.asarray(stamps, dtype=np.float64)
     warn_repeated_stamps(path, times)
     order = np.argsort(times, kind="stable")
@@ -90,9 +94,9 @@ def _parse_row(path: Path, number: int, line: str, *, strict: bool) -> tuple[flo
     if not np.isfinite(values[0]):
         raise FormatError(f"{path}:{number}: timestamp {fields[0]!r} is not finite")
     pose = values[1:]
-    if not np.isfinite(pose).all():
+    if not np.isfinite(pose).all() or np.abs(pose[:3]).max() > FAR:
         if strict:
-            raise FormatError(f"{path}:{number}: pose has non-finite entries")
+            raise FormatError(f"{path}:{number}: pose has non-finite entries or a position beyond ±{FAR:g} m")
         return float(values[0]), np.full(7, np.nan)
     norm = float(np.linalg.norm(pose[3:]))
     if norm < 1e-9:

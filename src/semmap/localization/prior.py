@@ -272,6 +272,10 @@ def load_prior(path: str | Path, **kwargs) -> PriorMap:
             raise FormatError(f"{path}: folder has none of {', '.join(MAP_FILES)} (map a sequence first with "
                               f"semmap run)")
         path = found
+    elif path.suffix in (".ot", ".bt", ".ply"):
+        raise FormatError(f"{path}: localize needs a semmap map with its class evidence, one of "
+                          f"{', '.join(MAP_FILES)} (or the run folder holding it); a {path.suffix} file has no "
+                          f"class sets to localize against")
     m = load_map(path)
     if m.kind == MapKind.OCTOMAP:
         return prior_from_octomap(m, **kwargs)

@@ -15,6 +15,7 @@ import numpy as np
 
 from semmap.errors import ConfigError
 from semmap.files.outputs import OutputKind, check_outputs
+from semmap.files.safe import path_kind
 from semmap.io.staged_run import write_staged
 from semmap.limits import check, check_option
 from semmap.localization.filter import FilterSettings
@@ -92,7 +93,7 @@ def motion_source(name: str, *, noise: float = 0.05, seed: int = 0) -> MotionSou
     path = Path(name)
     if not path.is_file():
         raise ConfigError(f"--motion must be one of {', '.join(MOTION_SOURCES)} or a trajectory file; "
-                          f"{name!r} is neither")
+                          + (f"{name} {path_kind(path)}" if path.exists() else f"{name!r} is neither"))
     return TrajectorySource(path)
 
 

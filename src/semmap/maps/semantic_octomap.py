@@ -403,12 +403,13 @@ class SemanticOctoMap:
         max_range = self.max_range
         lo, hi = self._clip_box(lo, hi, okey, max_range, origin_ok)
         if int(np.prod(hi - lo + 1)) > self.grid_cell_limit and origin_ok:
-            limit = (int(self.grid_cell_limit ** (1.0 / 3.0)) - 6) / 2 * self.resolution
+            limit = self._range_cut()
             max_range = limit if max_range < 0 else min(max_range, limit)
             stats.range_limited = True
             if not self._warned_range:
-                log.warning("a scan spans more than %d voxels at %.3f m; limiting its range to %.2f m "
-                            "(set max_range to choose)", self.grid_cell_limit, self.resolution, max_range)
+                log.warning("--resolution %g m is too fine for the range of the scans: ray-casting one would take more "
+                            "than %d cells, so readings beyond %.2f m are cut off (choose a coarser --resolution, or "
+                            "--max-range to set the cut)", self.resolution, self.grid_cell_limit, max_range)
                 self._warned_range = True
             lo, hi = self._clip_box(lo, hi, okey, max_range, origin_ok)
         if int(np.prod(hi - lo + 1)) > self.grid_cell_limit:
@@ -514,6 +515,15 @@ class SemanticOctoMap:
         self._shard_cap, self._n_attr = int(state["shard_capacity"]), int(state["rows_used"])
         self._warned_range = bool(state["warned_range"])
         self._tree_counts = None
+
+    def _range_cut(self) -> float:
+        """The range (m) a scan is cut to when its ray-casting grid would pass ``grid_cell_limit`` cells."""
+        return (int(self.grid_cell_limit ** (1.0 / 3.0)) - 6) / 2 * self.resolution
+
+    @property
+    def range_cut_m(self) -> float | None:
+        """The range scans were cut to because the resolution is too fine for them (None: never cut)."""
+        return self._range_cut() if self._warned_range else None
 
     @property
     def memory_bytes(self) -> int:

@@ -41,6 +41,7 @@ import torch.nn.functional as F  # noqa: N812  (the usual PyTorch alias)
 from torch import nn
 
 from semmap.errors import FormatError
+from semmap.files.safe import path_kind
 
 #: Branches per EESP unit (the "K" of the paper); also the group count of its 1x1 convolutions.
 EESP_BRANCHES = 4
@@ -412,7 +413,8 @@ def load_espnetv2(weights_path: str | Path, num_classes: int | None = None,
     (``full_resolution=False``: logits at half the input resolution, see :class:`ESPNetv2Seg`)."""
     path = Path(weights_path)
     if not path.is_file():
-        raise FormatError(f"{path}: ESPNetv2 weights file not found")
+        raise FormatError(f"{path}: ESPNetv2 weights file not found" if not path.exists()
+                          else f"{path}: {path_kind(path)}, expected an ESPNetv2 weights file (.pt)")
     from semmap.perception.networks.registry import check_finite_tensors, read_torch_file
 
     sd = read_torch_file(path, "PyTorch weights file")

@@ -25,6 +25,13 @@ class FramePoses:
         self.tracker = tracker  # online: tracked frame by frame, as the frames arrive
         self._used: list[tuple[float, str, np.ndarray]] = []
         self._gt = GroundTruthRecorder()
+        self.reach_m: float | None = None  # a camera farther from the origin adds nothing to a map: no pose
+        self.beyond_reach = 0  # frames given no pose for that
+
+    def limit_to(self, reach_m: float) -> None:
+        """Give no pose to a frame whose camera lies ``reach_m`` or more from the origin (what the maps can hold):
+        such a frame is skipped with a warning naming it, instead of adding nothing or overflowing a kernel."""
+        self.reach_m = float(reach_m)
 
     def __call__(self, frame: Frame) -> tuple[np.ndarray | None, str]:
         """(pose or None, why not)."""
@@ -38,7 +45,14 @@ class FramePoses:
             T, reason = found.pose, found.reason
         else:
             T, reason = frame.T_world_cam, "no ground-truth pose"
-        self._gt.add(frame)
+        if T is not None and self.reach_m is not None:
+            far = float(np.abs(np.asarray(T)[:3, 3]).max())
+            if far >= self.reach_m:
+                self.beyond_reach += 1
+                T, reason = None, (f"its camera lies {far:,.0f} m from the origin, beyond the ±{self.reach_m:,.0f} m "
+                                   "the maps can hold at this resolution")
+        if frame.T_world_cam is None or self.reach_m is None or np.abs(frame.T_world_cam[:3, 3]).max() < self.reach_m:
+            self._gt.add(frame)  # (ground truth that far away is left out of the score too)
         if T is not None:
             self._used.append((frame.timestamp, frame.name, T))
         return T, reason

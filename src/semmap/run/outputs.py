@@ -13,6 +13,7 @@ from semmap.eval.run_report import RunScorer
 from semmap.files.atomic import write_text_atomic
 from semmap.io.map_files import save_map_files
 from semmap.keys import TREE_MAX_VAL
+from semmap.limits import MemoryBudgetError
 from semmap.maps.base import SemanticMap
 from semmap.maps.registry import MapKind
 from semmap.object_stage import ObjectStage
@@ -63,7 +64,12 @@ def refine_maps(maps: list[SemanticMap], poses: list[np.ndarray], *, iterations:
         if m.label_set is None:
             continue
         before = scorer.map_3d(m)
-        r = refine_map(m, params, viewpoint=viewpoint)
+        try:
+            r = refine_map(m, params, viewpoint=viewpoint)
+        except MemoryBudgetError as exc:  # a refinement is not worth the map: kept as fused, with a warning
+            log.warning("the %s map is not refined: %s", m.kind.value, exc)
+            out[m.kind] = {"refined": 0, "changed": 0, "ms": 0.0, "skipped": str(exc)}
+            continue
         out[m.kind] = {**({"miou_3d_before": before["miou_3d"],
                            "voxel_accuracy_3d_before": before["voxel_accuracy_3d"]} if before else {}),
                        "refined": r.refined, "changed": r.changed, "ms": round(r.ms, 1)}
@@ -85,5 +91,9 @@ def warn_if_empty(primary: SemanticMap, config: RunConfig, points_integrated: in
         reasons.append(f"no depth pixel lies between --min-depth {m.min_depth} and --max-depth {m.max_depth} m")
     if 0 <= m.max_range < m.resolution:
         reasons.append(f"--max-range {m.max_range} m leaves every reading beyond range")
+    cut = getattr(primary, "range_cut_m", None) or getattr(getattr(primary, "geometry", None), "range_cut_m", None)
+    if cut is not None:
+        reasons.append(f"--resolution {m.resolution:g} m is too fine for the scans' range: readings beyond {cut:.2f} m "
+                       "were cut off; choose a coarser --resolution")
     log.warning("%d frames added nothing to the map: no voxel is occupied (%s)", len(poses),
                 "; ".join(reasons) or "check the poses and depth units")

@@ -10,6 +10,7 @@ from pathlib import Path
 from semmap.config import LoopMode, RunConfig, SemanticSource
 from semmap.datasets import Dataset
 from semmap.errors import ConfigError
+from semmap.files.safe import path_kind
 from semmap.interrupt import checked
 from semmap.perception.base import Preparable, Segmenter
 from semmap.perception.instances.base import InstanceSource
@@ -74,6 +75,18 @@ def semantics_source(config: RunConfig, segmenter: Segmenter | None, label_set: 
     return GROUND_TRUTH_LABELS
 
 
+def check_labels_exist(config: RunConfig, dataset: Dataset, first: FirstFrame, segmenter: Segmenter | None) -> None:
+    """``--semantics labels`` on a dataset without label images (no label folder, no label set, none on the first
+    frame) is refused in one line before mapping, not mapped without semantics."""
+    if segmenter is not None or config.semantics.source != SemanticSource.LABELS or config.input.labels is not None:
+        return
+    frame = first.frame
+    if dataset.label_set is None and frame is not None and frame.labels is None and frame.semantics is None:
+        raise ConfigError(f"{config.input.dataset}: --semantics labels, but the dataset has no label images (frame "
+                          f"{frame.name} has none); name a folder of them with --labels, or choose another "
+                          "--semantics")
+
+
 def prepare_segmenter(segmenter: Segmenter | None, first: FirstFrame) -> float:
     """Let a segmenter with a start-up cost pay it on the dataset's first frame; returns the seconds."""
     if not isinstance(segmenter, Preparable) or first.frame is None:
@@ -129,7 +142,7 @@ def pose_source_for(config: RunConfig, dataset: Dataset, *, instances: InstanceS
     path = Path(source)
     if not path.is_file():
         raise ConfigError(f"--poses must be {GROUND_TRUTH}, a tracker ({', '.join(METHODS + OBJECT_METHODS)}) or a "
-                          f"trajectory file; {path} does not exist")
+                          f"trajectory file; {path} {path_kind(path)}")
     return FramePoses(str(path), lookup=TrajectoryPoses.from_file(path, max_time_diff=config.poses.max_time_diff))
 
 

@@ -19,6 +19,7 @@ import numpy as np
 
 from semmap.errors import SimulationError
 from semmap.keys import coords_to_keys, pack_keys, unpack_keys
+from semmap.limits import BYTES_PER_GROUND_TRUTH_VOXEL, check_memory
 from semmap.sim.scene import Scene, SceneObject
 
 #: Lattice spacing = resolution / SAMPLES_PER_VOXEL.
@@ -76,6 +77,9 @@ def gt_voxels(scene: Scene, resolution: float) -> GroundTruthVoxels:
     normal = cross / np.maximum(2 * area, 1e-30)[:, None]
     longest = np.max(np.stack([np.linalg.norm(e1, axis=1), np.linalg.norm(e2, axis=1),
                                np.linalg.norm(e2 - e1, axis=1)], 1), axis=1)
+    surface_voxels = 2 * float(area.sum()) / resolution**2  # (a voxel on either side of a surface)
+    check_memory(f"--resolution {resolution:g} over the simulated scene's {float(area.sum()):,.0f} m² of surface "
+                 f"(about {surface_voxels:,.0f} ground-truth voxels)", surface_voxels * BYTES_PER_GROUND_TRUTH_VOXEL)
     n_div = np.maximum(1, np.ceil(longest * SAMPLES_PER_VOXEL / resolution)).astype(np.int64)
     pairs = np.stack([scene.tri_class.astype(np.int64), scene.tri_instance.astype(np.int64)], 1)
     seg_pairs, seg_of_tri = np.unique(pairs, axis=0, return_inverse=True)

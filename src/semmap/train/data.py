@@ -256,4 +256,9 @@ def gather(folders: list[Path], size: tuple[int, int], *, label_set: LabelSet | 
         target = LabelSet.generic(top + 1)
         log.info("no %s in the data; training %d generic classes", LABELSET_FILE, top + 1)
     class_map = ClassMap.load(class_map_path, target) if class_map_path is not None else None
-    return load_training_set(samples, size, target, class_map=class_map, need_depth=need_depth)
+    training = load_training_set(samples, size, target, class_map=class_map, need_depth=need_depth)
+    if not training.labels.any():
+        raise DatasetError(f"{', '.join(map(str, folders))}: every label pixel is 0 (unknown / void, never trained "
+                           f"on) in all {len(samples)} samples{' after --class-map' if class_map else ''}: nothing to "
+                           "learn; check the label images and the label set")
+    return training

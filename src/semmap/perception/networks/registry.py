@@ -12,6 +12,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from semmap.errors import ConfigError, FormatError
+from semmap.files.safe import path_kind
 from semmap.registry import Registry
 from semmap.types import LabelSet
 
@@ -164,7 +165,8 @@ def load_weights(path: str | Path, *, full_resolution: bool = False) -> NetworkW
     file when it is not one."""
     path = Path(path)
     if not path.is_file():
-        raise FormatError(f"{path}: network weights file not found")
+        raise FormatError(f"{path}: network weights file not found" if not path.exists()
+                          else f"{path}: {path_kind(path)}, expected a network weights file (.pt)")
     blob = read_torch_file(path, "network weights file")
     if not isinstance(blob, dict) or blob.get("format") != WEIGHTS_FORMAT:
         raise FormatError(f"{path}: not a semmap network weights file (no '{WEIGHTS_FORMAT}' marker)")
