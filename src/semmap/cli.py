@@ -587,7 +587,7 @@ def track(
             ("ms per frame", f"{summary['ms_per_frame']:.1f}"), ("trajectory", summary["trajectory"])]
     if "ate_rmse_m" in summary:
         rows += [("ATE (SE(3) aligned)", _cm(summary["ate_rmse_m"])), ("RPE per frame", _cm(summary["rpe_trans_m"])),
-                 ("Sim(3) scale", f"{summary['sim3_scale']:.4f}"), ("poses matched", str(summary["matched"]))]
+                 ("Sim(3) scale", _scale(summary["sim3_scale"])), ("poses matched", str(summary["matched"]))]
     else:
         rows.append(("ATE", "not scored (the sequence has no ground truth)"))
     if plot is not None:
@@ -715,11 +715,16 @@ def eval_traj(
     _summary_out(scores, as_json, f"semmap eval-traj: against {gt}", rows)
 
 
+def _scale(value: float | None) -> str:
+    """A Sim(3) scale, or why there is none (a static camera cannot be aligned)."""
+    return "- (alignment not possible)" if value is None else f"{value:.4f}"
+
+
 def _traj_rows(scores: dict) -> list[tuple[str, str]]:
     """``semmap eval-traj``'s table: ATE, RPE and scale per estimate, then the comparisons asked for."""
     def scored(s: dict) -> str:
         return (f"ATE {_cm(s['ate_rmse_m'])}, RPE {_cm(s['rpe_trans_m'])} / {s['rpe_rot_deg']:.2f}° per frame, "
-                f"Sim(3) scale {s['sim3_scale']:.4f}, {s['matched']} poses matched")
+                f"Sim(3) scale {_scale(s['sim3_scale'])}, {s['matched']} poses matched")
 
     if "estimates" not in scores:
         s = scores
@@ -727,7 +732,7 @@ def _traj_rows(scores: dict) -> list[tuple[str, str]]:
                 ("ATE mean / median / max", " / ".join(_cm(s[k]) for k in ("ate_mean_m", "ate_median_m",
                                                                           "ate_max_m"))),
                 ("RPE per frame", f"{_cm(s['rpe_trans_m'])}, {s['rpe_rot_deg']:.2f}°"),
-                ("Sim(3) scale", f"{s['sim3_scale']:.4f}"),
+                ("Sim(3) scale", _scale(s["sim3_scale"])),
                 ("poses matched", f"{s['matched']} (reference {s['gt_poses']}, estimate {s['est_poses']})"),
                 ("ground-truth path", f"{s['gt_path_length_m']:.2f} m")]
     rows = [(name, scored(s)) for name, s in scores["estimates"].items()]
