@@ -104,6 +104,9 @@ class MappingConfig(_Section):
     free_space: bool = Field(False, description="voxel grid: also ray-cast free space (occupancy OctoMap)")
     point_resolution: float = Field(0.01, **field_bounds("point_resolution"),
                                     description="filter cell of the point map (m)")
+    tsdf_voxel: float | None = Field(None, **field_bounds("resolution"),
+                                     description="voxel of the TSDF (m; None: the run's resolution)")
+    tsdf_truncation: float = Field(4.0, ge=1.0, le=64.0, description="TSDF truncation distance in voxels")
 
     @field_validator("maps", mode="before")
     @classmethod
