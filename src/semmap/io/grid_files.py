@@ -2,7 +2,8 @@
 
 A zip of numpy arrays (``numpy.savez_compressed``) and a JSON header: format, version, map kind, resolution,
 state dtype, fusion rule and settings, label set (and, for a voxel grid with free space, its occupancy
-OctoMap's cells; for the TSDF, its truncation and its voxels' keys, distances and weights).  ``save_grid -> load_grid`` gives back a map whose arrays are bit-identical.
+OctoMap's cells; for the TSDF, its truncation and its voxels' keys, distances and weights).
+``save_grid -> load_grid`` gives back a map whose arrays are bit-identical.
 """
 
 from __future__ import annotations

@@ -65,6 +65,8 @@ def voxel_of_vertex(vertices: np.ndarray, m: SemanticMap) -> tuple[np.ndarray, n
     """Index into ``m.cloud()`` of the occupied voxel each vertex takes its class from (-1: none), and whether it
     is the voxel holding the vertex (else the nearest occupied one of its 26 neighbours)."""
     sorted_packed, order, _ = _sorted_keys(m)
+    if len(sorted_packed) == 0:
+        return np.full(len(vertices), -1, np.int64), np.zeros(len(vertices), bool)
     keys = coords_to_keys(vertices, m.resolution)
     idx = _find(sorted_packed, keys)
     own = idx >= 0

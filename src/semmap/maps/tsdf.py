@@ -89,9 +89,10 @@ class TsdfMap(SemanticVoxelGrid):
 
     def mesh(self, min_weight: int = DEFAULT_MIN_WEIGHT) -> tuple[np.ndarray, np.ndarray]:
         """Marching cubes at the zero crossing: vertices (V, 3) float32 world metres (one per cut voxel edge, in
-        edge order) and triangles (F, 3) int32, counter-clockwise seen from the free side."""
+        edge order) and triangles (F, 3) int32 in voxel key order, counter-clockwise seen from the free side."""
         t = self.table
         used = t.used()
+        used = used[np.argsort(t.keys[used], kind="stable")]  # triangles in key order, whatever the table's layout
         tables = kern.case_tables()
         cases, ntri = kern.cube_cases(t.keys, t.logodds, t.attr, t.shard_cap, used, int(min_weight), tables)
         first = np.concatenate([[0], np.cumsum(ntri)[:-1]]).astype(np.int64)
@@ -100,7 +101,7 @@ class TsdfMap(SemanticVoxelGrid):
         positions = np.empty((3 * total, 3), np.float64)
         kern.cube_triangles(t.keys, t.logodds, t.shard_cap, used, cases, first, tables, kern.EDGES,
                             self.resolution, edge_ids, positions)
-        ids, index, inverse = np.unique(edge_ids, return_index=True, return_inverse=True)
+        _, index, inverse = np.unique(edge_ids, return_index=True, return_inverse=True)
         return positions[index].astype(np.float32), inverse.reshape(-1, 3).astype(np.int32)
 
     def state(self) -> MapState:

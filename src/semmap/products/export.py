@@ -2,7 +2,8 @@
 
 ``grid``: ``map.pgm``/``map.yaml`` (trinary) and ``costmap.png``/``costmap.yaml``/``costmap.npy`` (scale) for ROS
 map_server / nav2, and ``grid.json``. ``esdf``: ``esdf.npz`` (distance, observed, origin, resolution), a slice
-picture ``esdf_slice.png`` and ``esdf.json``. ``mesh``: the TSDF's semantic mesh ``mesh.ply`` and ``mesh.json``. Each folder is written whole or not at all, never over the map.
+picture ``esdf_slice.png`` and ``esdf.json``. ``mesh``: the TSDF's semantic mesh ``mesh.ply`` and
+``mesh.json``. Each folder is written whole or not at all, never over the map.
 """
 
 from __future__ import annotations
@@ -189,7 +190,7 @@ def export_mesh(map_path: Path, out: Path, *, min_weight: int = 1) -> dict:
         size = write_mesh_ply(stage / "mesh.ply", mesh)
         classified = mesh.labels != EMPTY_LABEL
         summary = {"map": str(found), "labels_from": (source or tsdf).kind.value, "vertices": len(mesh),
-                   "faces": int(len(mesh.faces)), "bytes": size, "resolution": mesh.resolution,
+                   "faces": len(mesh.faces), "bytes": size, "resolution": mesh.resolution,
                    "classified_share": round(float(classified.mean()) if len(mesh) else 0.0, 4),
                    "own_voxel_share": round(float(mesh.own_voxel.mean()) if len(mesh) else 0.0, 4),
                    "ms": round(mesh.ms, 1)}
