@@ -147,7 +147,7 @@ def test_export_mesh_rebuilds_the_runs_mesh_and_refuses_a_folder_without_tsdf(ru
     with pytest.raises(FormatError, match="--maps octomap,tsdf"):
         export_mesh(run_folder / "map.semmap", tmp_path / "x")
     (tmp_path / "empty").mkdir()
-    with pytest.raises(FormatError, match="no tsdf.semmap"):
+    with pytest.raises(FormatError, match=r"no tsdf\.semmap"):
         export_mesh(tmp_path / "empty", tmp_path / "y")
 
 
