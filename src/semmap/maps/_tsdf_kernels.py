@@ -109,12 +109,49 @@ def _pack(x: np.int64, y: np.int64, z: np.int64) -> np.int64:
 
 
 @nb.njit(cache=True)
+def merge_points(points: np.ndarray, inv_res: float) -> tuple[np.ndarray, np.ndarray]:
+    """The mean (M, 3) of the finite points (N, 3) in each voxel (in key order) and their number (M,) int32."""
+    n = points.shape[0]
+    packed = np.empty(n, np.int64)
+    m = 0
+    for i in range(n):
+        x, y, z = points[i, 0], points[i, 1], points[i, 2]
+        if not (math.isfinite(x) and math.isfinite(y) and math.isfinite(z)):
+            packed[i] = -1
+            continue
+        kx = min(max(np.int64(math.floor(x * inv_res)) + TREE_MAX_VAL, 0), 2 * TREE_MAX_VAL - 1)
+        ky = min(max(np.int64(math.floor(y * inv_res)) + TREE_MAX_VAL, 0), 2 * TREE_MAX_VAL - 1)
+        kz = min(max(np.int64(math.floor(z * inv_res)) + TREE_MAX_VAL, 0), 2 * TREE_MAX_VAL - 1)
+        packed[i] = _pack(kx, ky, kz)
+    order = np.argsort(packed, kind="mergesort")
+    means = np.zeros((n, 3), np.float64)
+    counts = np.zeros(n, np.int32)
+    prev = np.int64(-2)
+    for j in range(n):
+        i = order[j]
+        if packed[i] < 0:
+            continue
+        if packed[i] != prev:
+            prev = packed[i]
+            m += 1
+        means[m - 1, 0] += points[i, 0]
+        means[m - 1, 1] += points[i, 1]
+        means[m - 1, 2] += points[i, 2]
+        counts[m - 1] += 1
+    for j in range(m):
+        means[j] /= counts[j]
+    return means[:m], counts[:m]
+
+
+@nb.njit(cache=True)
 def integrate_rays(keys: np.ndarray, sdf: np.ndarray, weight: np.ndarray, counts: np.ndarray, shard_cap: int,
-                   fill_limit: int, points: np.ndarray, origin: np.ndarray, inv_res: float, trunc: float,
-                   max_weight: int, start: int, slots: np.ndarray, values: np.ndarray) -> int:
+                   fill_limit: int, points: np.ndarray, counts_per_ray: np.ndarray, origin: np.ndarray,
+                   inv_res: float, trunc: float, max_weight: int, start: int, slots: np.ndarray,
+                   values: np.ndarray) -> int:
     """Fuse the rays ``origin -> points[start:]`` into the table (the projective distance along each ray of every
-    voxel within ``trunc`` of its end point, a running mean with integer weights up to ``max_weight``); returns
-    the index of the first point not fused (``len(points)`` when all were), where the table must grow first."""
+    voxel within ``trunc`` of its end point, a running mean with integer weights up to ``max_weight``; a ray stands
+    for ``counts_per_ray`` points); returns the index of the first ray not fused (``len(points)`` when all were),
+    where the table must grow first."""
     res = 1.0 / inv_res
     ox, oy, oz = origin[0], origin[1], origin[2]
     for i in range(start, points.shape[0]):
@@ -171,11 +208,12 @@ def integrate_rays(keys: np.ndarray, sdf: np.ndarray, weight: np.ndarray, counts
                     break
                 vz += sz
                 tmz += tdz
+        c = counts_per_ray[i]
         for j in range(n):
             s = slots[j]
             w = max(weight[s], 0)
-            sdf[s] = (sdf[s] * w + values[j]) / (w + 1)
-            weight[s] = min(w + 1, max_weight)
+            sdf[s] = (sdf[s] * w + values[j] * c) / (w + c)
+            weight[s] = min(w + c, max_weight)
         if grow:
             return i + 1
     return points.shape[0]
