@@ -8,7 +8,8 @@ extraction over the same frames, on the 7-Scenes map at 2 cm (../shared) and a s
 The maps are built as `semmap run --maps octomap,tsdf` builds them (ground-truth poses); the timings are of what
 `semmap export grid|esdf|mesh` runs. The mesh row's error is the share of vertices (among those whose voxel, or
 nearest occupied voxel within one voxel, is occupied in the OctoMap) whose class differs from that voxel's, read
-with the OctoMap's own ``class_at`` and a KD-tree over its occupied voxels (not the mesh's lookup). The last line is JSON:
+with the OctoMap's own ``class_at`` and a KD-tree over its occupied voxels (not the mesh's lookup).
+The last line is JSON:
 ``{"bench": "products", "results": [{"scene", "product", "ms", "bytes", "error", "peer", "peer_ms"}]}``.
 """
 
@@ -118,7 +119,7 @@ def mesh_row(name: str, m, tsdf, peer) -> dict:
     agree = float((mesh.labels[judged] == truth[judged]).mean()) if judged.any() else 1.0
     return {"scene": name, "product": "mesh", "ms": round(ms, 1), "bytes": size, "error": round(1.0 - agree, 6),
             "peer": "open3d VoxelBlockGrid.extract_triangle_mesh", "peer_ms": round(peer_ms, 1),
-            "marching_cubes_ms": round(mc_ms, 1), "vertices": len(mesh), "faces": int(len(mesh.faces)),
+            "marching_cubes_ms": round(mc_ms, 1), "vertices": len(mesh), "faces": len(mesh.faces),
             "peer_vertices": int(pm.vertex.positions.shape[0]), "classified_share": round(float(judged.mean()), 4),
             "class_agreement": round(agree, 6)}
 
