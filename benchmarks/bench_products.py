@@ -1,11 +1,15 @@
 """Robot products against their peers in the same run: the navigation grid export, the exact ESDF against scipy's
-Euclidean distance transform (time and error), and the incremental ESDF update per frame against a full recompute,
-on the 7-Scenes map at 2 cm (../shared) and a simulated house at 5 cm.
+Euclidean distance transform (time and error), the incremental ESDF update per frame against a full recompute, and
+the semantic mesh (marching cubes over semmap's TSDF and per-vertex classes) against Open3D's VoxelBlockGrid mesh
+extraction over the same frames, on the 7-Scenes map at 2 cm (../shared) and a simulated house at 5 cm.
 
     python benchmarks/bench_products.py [--quick] [--frames N]
 
-The maps are built as `semmap run` builds them (ground-truth poses, the OctoMap); the timings are of what
-`semmap export grid|esdf` runs. The last line is JSON:
+The maps are built as `semmap run --maps octomap,tsdf` builds them (ground-truth poses); the timings are of what
+`semmap export grid|esdf|mesh` runs. The mesh row's error is the share of vertices (among those whose voxel, or
+nearest occupied voxel within one voxel, is occupied in the OctoMap) whose class differs from that voxel's, read
+with the OctoMap's own ``class_at`` and a KD-tree over its occupied voxels (not the mesh's lookup).
+The last line is JSON:
 ``{"bench": "products", "results": [{"scene", "product", "ms", "bytes", "error", "peer", "peer_ms"}]}``.
 """
 
@@ -35,19 +39,89 @@ def timed(fn, repeat: int = 3) -> tuple[float, object]:
 
 
 def build_map(frames, resolution: float, label_set, snapshots: int):
-    """The OctoMap of ``frames`` and the occupied keys after each of the last ``snapshots`` frames."""
+    """The OctoMap and TSDF of ``frames``, the occupied keys after each of the last ``snapshots`` frames, and
+    Open3D's VoxelBlockGrid of the same frames (same voxel and truncation)."""
     from semmap.maps.semantic_octomap import SemanticOctoMap
+    from semmap.maps.tsdf import TsdfMap
     from semmap.pipeline import Mapper
+    from semmap.types import TopKProbs
 
     m = SemanticOctoMap(resolution, label_set=label_set)
-    mapper = Mapper([m], min_depth=0.1, max_depth=4.0)
+    tsdf = TsdfMap(resolution, label_set=label_set)
+    mapper = Mapper([m, tsdf], min_depth=0.1, max_depth=4.0)
     frames = list(frames)
     keys = []
+    peer = Open3dTsdf(resolution, tsdf.truncation)
     for i, f in enumerate(frames):
-        mapper.integrate(f, f.T_world_cam, None)
+        sem = (TopKProbs.from_hard_labels(f.labels, 0.9, len(label_set))
+               if label_set is not None and f.labels is not None else None)
+        mapper.integrate(f, f.T_world_cam, sem)
+        peer.integrate(f)
         if i >= len(frames) - snapshots - 1:
             keys.append(m.voxels().keys)
-    return m, keys
+    return m, tsdf, peer, keys
+
+
+class Open3dTsdf:
+    """Open3D's CPU VoxelBlockGrid (tsdf, weight, colour) integrating the same depth and colour images."""
+
+    def __init__(self, voxel: float, truncation_voxels: float):
+        import open3d as o3d
+        import open3d.core as o3c
+
+        self.o3d, self.o3c, self.trunc = o3d, o3c, truncation_voxels
+        self.vbg = o3d.t.geometry.VoxelBlockGrid(("tsdf", "weight", "color"), (o3c.float32,) * 3, ((1), (1), (3)),
+                                                  voxel, 8, 20000, o3c.Device("CPU:0"))
+
+    def integrate(self, f) -> None:
+        o3d, o3c = self.o3d, self.o3c
+        depth = o3d.t.geometry.Image(o3c.Tensor(np.ascontiguousarray(f.depth, np.float32)))
+        color = o3d.t.geometry.Image(o3c.Tensor(np.ascontiguousarray(f.rgb, np.float32) / 255.0))
+        K = o3c.Tensor(f.intrinsics.K, o3c.float64)
+        E = o3c.Tensor(np.linalg.inv(f.T_world_cam), o3c.float64)
+        blocks = self.vbg.compute_unique_block_coordinates(depth, K, E, 1.0, 4.0, self.trunc)
+        self.vbg.integrate(blocks, depth, color, K, K, E, 1.0, 4.0, self.trunc)
+
+    def mesh(self):
+        return self.vbg.extract_triangle_mesh(1.0)
+
+
+def mesh_row(name: str, m, tsdf, peer) -> dict:
+    """The semantic mesh (marching cubes + labels from the OctoMap) against Open3D's mesh extraction; its error is
+    the share of classed vertices whose class is not their voxel's (own voxel by ``class_at``, else the nearest
+    occupied voxel within one voxel by a KD-tree)."""
+    from scipy.spatial import cKDTree
+
+    from semmap.io.mesh_ply import write_mesh_ply
+    from semmap.maps.mesh import semantic_mesh
+    from semmap.types import EMPTY_LABEL
+
+    ms, mesh = timed(lambda: semantic_mesh(tsdf, m), repeat=2)
+    mc_ms, _ = timed(tsdf.mesh, repeat=2)
+    peer_ms, pm = timed(peer.mesh, repeat=2)
+    with tempfile.TemporaryDirectory() as tmp:
+        size = write_mesh_ply(Path(tmp) / "mesh.ply", mesh)
+    v = mesh.vertices.astype(np.float64)
+    truth, _ = m.class_at(v)
+    cloud = m.cloud()
+    todo = truth == EMPTY_LABEL
+    if todo.any() and len(cloud):
+        res = m.resolution
+        d, j = cKDTree(cloud.centers).query(v[todo], k=27, distance_upper_bound=2 * res)
+        near = np.full(todo.sum(), EMPTY_LABEL, np.uint16)
+        for col in range(27):  # nearest occupied voxel among the 26 neighbours of the vertex's voxel
+            ok = np.isfinite(d[:, col]) & (near == EMPTY_LABEL)
+            ok[ok] &= np.all(np.abs(np.floor(cloud.centers[j[ok, col]] / res) - np.floor(v[todo][ok] / res)) <= 1,
+                             axis=1)
+            near[ok] = cloud.labels[j[ok, col]]
+        truth[todo] = near
+    judged = truth != EMPTY_LABEL
+    agree = float((mesh.labels[judged] == truth[judged]).mean()) if judged.any() else 1.0
+    return {"scene": name, "product": "mesh", "ms": round(ms, 1), "bytes": size, "error": round(1.0 - agree, 6),
+            "peer": "open3d VoxelBlockGrid.extract_triangle_mesh", "peer_ms": round(peer_ms, 1),
+            "marching_cubes_ms": round(mc_ms, 1), "vertices": len(mesh), "faces": len(mesh.faces),
+            "peer_vertices": int(pm.vertex.positions.shape[0]), "classified_share": round(float(judged.mean()), 4),
+            "class_agreement": round(agree, 6)}
 
 
 def spread_then_consecutive(frames, total: int, n: int, last: int):
@@ -90,8 +164,8 @@ def measure_scene(name: str, resolution: float, frames, label_set, snapshots: in
     from semmap.products.navgrid import navigation_grid
     from semmap.products.occupancy import OCCUPIED, occupancy_volume
 
-    m, history = build_map(frames, resolution, label_set, snapshots)
-    rows = []
+    m, tsdf, peer, history = build_map(frames, resolution, label_set, snapshots)
+    rows = [mesh_row(name, m, tsdf, peer)]
     grid_ms, grid = timed(lambda: navigation_grid(occupancy_volume(m)))
     with tempfile.TemporaryDirectory() as tmp:
         files = write_map(Path(tmp), "map", grid.occupancy, grid.resolution, grid.origin)

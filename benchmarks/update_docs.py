@@ -219,16 +219,21 @@ def products_section(bench: dict | None) -> list[str]:
     """The BENCHMARKS.md section on robot products (nothing when bench_products.py has not been run)."""
     if bench is None:
         return []
-    out = ["## Robot products: navigation grid and distance field", "",
+    out = ["## Robot products: navigation grid, distance field and semantic mesh", "",
            "`benchmarks/bench_products.py`: the OctoMap of each scene (ground-truth poses), then what `semmap export "
            "grid|esdf` computes. ESDF: semmap's exact transform against scipy's `distance_transform_edt` (signed, "
            "both sides) on the same volume; incremental: the update per frame from the voxels that flipped (the "
            "last frames of the sequence, one after another, 2 m maximum distance) against the full exact transform "
-           "of the same frame. Error: largest absolute difference (m).", "",
+           "of the same frame. Error: largest absolute difference (m). Mesh: semmap's TSDF (`--maps octomap,tsdf`) "
+           "meshed by marching cubes and labelled from the OctoMap (the whole step, as `semmap export mesh` runs "
+           "it) against Open3D's `VoxelBlockGrid.extract_triangle_mesh` over the same frames (same voxel and "
+           "truncation); its error is the share of classified vertices whose class is not that of the OctoMap "
+           "voxel they lie in (or the nearest occupied one within a voxel).", "",
            "| scene | product | ms | peer ms | × | error (m) |", "|---|---|---|---|---|---|"]
     for r in bench["results"]:
         ratio = f"{r['peer_ms'] / r['ms']:.1f}" if r.get("peer_ms") else "–"
         err = "–" if r["error"] is None else f"{r['error']:.1e}"
+        err += " (share)" if r["product"] == "mesh" and r["error"] is not None else ""
         out.append(f"| {r['scene']} | {r['product']} | {r['ms']} | {r.get('peer_ms') or '–'} | {ratio} | {err} |")
     return [*out, ""]
 

@@ -50,6 +50,8 @@ def make_map(kind: MapKind, labels: LabelSet) -> SemanticMap:
         return semmap.SemanticOctoMap(0.05, label_set=labels)
     if kind == MapKind.VOXELGRID:
         return semmap.SemanticVoxelGrid(0.05, label_set=labels, free_space=True)
+    if kind == MapKind.TSDF:
+        return semmap.TsdfMap(0.05, label_set=labels)
     return semmap.SemanticPointMap(0.02, label_set=labels, keyframes_only=False)
 
 

@@ -36,6 +36,8 @@ _EXPORTS = {
     "OccupancyParams": "semmap.maps.semantic_octomap",
     "SemanticVoxelGrid": "semmap.maps.voxel_grid",
     "SemanticPointMap": "semmap.maps.point_map",
+    "TsdfMap": "semmap.maps.tsdf",
+    "semantic_mesh": "semmap.maps.mesh",
     "FusionParams": "semmap.fusion.rules",
     "FusionRule": "semmap.fusion.rules",
     "get_map": "semmap.factories",
@@ -50,6 +52,7 @@ _EXPORTS = {
     "read_octomap": "semmap.io.octomap_files",
     "read_ply": "semmap.io.ply",
     "write_ply": "semmap.io.ply",
+    "write_mesh_ply": "semmap.io.mesh_ply",
     # errors
     "SemmapError": "semmap.errors",
     "ConfigError": "semmap.errors",

@@ -210,6 +210,11 @@ def run(
                                              rich_help_panel=_MAPS)] = False,
     point_resolution: Annotated[float, typer.Option(help="filter cell of the point map (m)", rich_help_panel=_MAPS)
                                 ] = _default(MappingConfig, "point_resolution"),
+    tsdf_voxel: Annotated[float | None, typer.Option(help="voxel of the TSDF (m; default: --resolution)",
+                                                     rich_help_panel=_MAPS)] = None,
+    tsdf_truncation: Annotated[float, typer.Option(help="TSDF truncation distance in voxels",
+                                                   rich_help_panel=_MAPS)] = _default(MappingConfig,
+                                                                                      "tsdf_truncation"),
     top_k: Annotated[int, typer.Option(help="classes per top-k set (1..8): the segmenter's sets and topk fusion",
                                        rich_help_panel=_MAPS)] = _default(SemanticsConfig, "k"),
     max_confidence: Annotated[float, typer.Option(help="cap on a voxel's top confidence (topk, max)",
@@ -261,7 +266,8 @@ def run(
                                         world_frame=world_frame, camera_frame=camera_frame)),
         mapping=MappingConfig(resolution=resolution, min_depth=min_depth, max_depth=max_depth,
                               max_range=max_range, pixel_stride=pixel_stride, maps=kinds, state_dtype=state_dtype,
-                              free_space=free_space, point_resolution=point_resolution),
+                              free_space=free_space, point_resolution=point_resolution, tsdf_voxel=tsdf_voxel,
+                              tsdf_truncation=tsdf_truncation),
         semantics=SemanticsConfig(source=semantics, label_confidence=label_confidence, lam=lam, k=top_k,
                                   max_confidence=max_confidence, segmenter=segmenter,
                                   weights=weights, trust_weights=trust_weights, segment_every=segment_every,
@@ -913,7 +919,8 @@ def diff(
 
 
 export_app = typer.Typer(no_args_is_help=True, help="Robot products from a finished map: a 2D navigation grid "
-                         "and semantic costmap (ROS map_server), a Euclidean signed distance field.")
+                         "and semantic costmap (ROS map_server), a Euclidean signed distance field, the semantic "
+                         "mesh of a TSDF.")
 app.add_typer(export_app, name="export")
 
 _ExportMap = Annotated[Path, typer.Argument(help="a map: .semmap (any kind) or a run folder")]
@@ -1041,6 +1048,22 @@ for _info in app.registered_commands:  # every command, present and future
 for _group in app.registered_groups:  # and every command of a sub-app (semmap export ...)
     for _info in _group.typer_instance.registered_commands:
         _info.callback = _numbers_checked(f"{_group.name} {_command_name(_info)}", _info.callback)
+
+
+@export_app.command("mesh")
+def export_mesh_command(
+    map_path: Annotated[Path, typer.Argument(help="a run folder of 'semmap run --maps ...,tsdf', or its tsdf.semmap")],
+    out: _ExportOut,
+    min_weight: Annotated[int, typer.Option(help="observations a TSDF voxel needs to count")] = 1,
+) -> None:
+    """The semantic mesh (mesh.ply: per-vertex colour, class, confidence and class probabilities) by marching cubes
+    over the TSDF, classes from the run folder's semantic map (its OctoMap first), else the TSDF's own."""
+    _setup_logging(False)
+    from semmap.products.export import export_mesh
+
+    s = export_mesh(map_path, out, min_weight=min_weight)
+    typer.echo(f"{out}: {s['vertices']:,} vertices, {s['faces']:,} triangles in {s['ms']:.0f} ms; classes from "
+               f"{s['labels_from']}, {100 * s['classified_share']:.1f}% of vertices classified")
 
 
 def main() -> None:

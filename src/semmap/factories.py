@@ -71,6 +71,11 @@ def get_map(kind: MapKind, config: RunConfig, label_set: LabelSet | None) -> Sem
 
         return SemanticPointMap(m.point_resolution, label_set=label_set, fusion=fusion,
                                 dtype=m.state_dtype or "float16")
+    if kind == MapKind.TSDF:
+        from semmap.maps.tsdf import TsdfMap
+
+        return TsdfMap(m.tsdf_voxel or m.resolution, label_set=label_set, fusion=fusion,
+                       dtype=m.state_dtype or "float32", truncation=m.tsdf_truncation)
     raise ConfigError(f"unknown map kind {kind!r}")
 
 

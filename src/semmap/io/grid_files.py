@@ -1,8 +1,9 @@
-"""Lossless files of the hashed semantic maps (``voxelgrid.semmap``, ``points.semmap``).
+"""Lossless files of the hashed semantic maps (``voxelgrid.semmap``, ``points.semmap``, ``tsdf.semmap``).
 
 A zip of numpy arrays (``numpy.savez_compressed``) and a JSON header: format, version, map kind, resolution,
 state dtype, fusion rule and settings, label set (and, for a voxel grid with free space, its occupancy
-OctoMap's cells).  ``save_grid -> load_grid`` gives back a map whose arrays are bit-identical.
+OctoMap's cells; for the TSDF, its truncation and its voxels' keys, distances and weights).
+``save_grid -> load_grid`` gives back a map whose arrays are bit-identical.
 """
 
 from __future__ import annotations
@@ -41,11 +42,14 @@ def save_grid(path: str | Path, m) -> int:
     }
     a = g.arrays()
     arrays = {name: getattr(a, name) for name in _GRID_FIELDS}
-    if m.kind == MapKind.VOXELGRID:
+    if m.kind in (MapKind.VOXELGRID, MapKind.TSDF):
         header.update({"occupancy": vars(m.occupancy), "max_range": m.max_range, "free_space": m.free_space})
         if m.geometry is not None:
             cells = m.geometry.cells()
             arrays["geo_packed"], arrays["geo_logodds"] = cells.packed, cells.logodds
+        if m.kind == MapKind.TSDF:
+            header["truncation"] = m.truncation
+            arrays["tsdf_packed"], arrays["tsdf_sdf"], arrays["tsdf_weight"] = m.field()
     else:
         header.update({"keyframes_only": m.keyframes_only, "frames_integrated": m.frames_integrated})
     arrays["header"] = np.frombuffer(json.dumps(header).encode("utf-8"), np.uint8)
@@ -90,7 +94,9 @@ def load_grid(path: str | Path):
         label_set = None if header["label_set"] is None else LabelSet.from_dict(header["label_set"])
         kind = MapKind(header["kind"])
         resolution, dtype = float(header["resolution"]), str(header["dtype"])
-        if kind == MapKind.VOXELGRID:
+        if kind == MapKind.TSDF:
+            m = _tsdf_of(path, header, arrays, resolution, label_set, fusion, dtype)
+        elif kind == MapKind.VOXELGRID:
             m = SemanticVoxelGrid(resolution, label_set=label_set, fusion=fusion, dtype=dtype,
                                   free_space=bool(header["free_space"]),
                                   occupancy=OccupancyParams(**header["occupancy"]),
@@ -99,12 +105,14 @@ def load_grid(path: str | Path):
             m = SemanticPointMap(resolution, label_set=label_set, fusion=fusion, dtype=dtype,
                                  keyframes_only=bool(header["keyframes_only"]))
             m.frames_integrated = int(header["frames_integrated"])
+    except FormatError:
+        raise
     except (KeyError, TypeError, ValueError, AttributeError, SemmapError) as exc:
         raise FormatError(f"{path}: malformed header ({exc})") from None
     grid = GridArrays(**{name: arrays[name] for name in _GRID_FIELDS})
     _check(path, grid, m)
     m.grid.load_arrays(grid)
-    if kind == MapKind.VOXELGRID and m.geometry is not None:
+    if kind != MapKind.POINTS and m.geometry is not None:
         if "geo_packed" not in arrays or "geo_logodds" not in arrays:
             raise FormatError(f"{path}: free-space map without its occupancy cells")
         n = arrays["geo_packed"].shape[0]
@@ -115,6 +123,26 @@ def load_grid(path: str | Path):
                                    np.zeros((0, 3), np.uint8), np.zeros(0, np.uint16),
                                    np.zeros((0, 3), np.uint16), np.zeros((0, 3), np.float32)),
             occupancy=m.occupancy, max_range=m.max_range)
+    return m
+
+
+def _tsdf_of(path: Path, header: dict, arrays: dict, resolution: float, label_set, fusion, dtype: str):
+    """An empty-grid TSDF with the file's field loaded (its keys unique and in range, distances finite)."""
+    from semmap.maps.tsdf import TsdfMap
+
+    m = TsdfMap(resolution, label_set=label_set, fusion=fusion, dtype=dtype, truncation=float(header["truncation"]))
+    try:
+        packed, sdf, weight = (np.asarray(arrays[n]) for n in ("tsdf_packed", "tsdf_sdf", "tsdf_weight"))
+    except KeyError:
+        raise FormatError(f"{path}: TSDF map without its field (tsdf_packed, tsdf_sdf, tsdf_weight)") from None
+    n = packed.shape[0]
+    if (packed.dtype != np.int64 or sdf.dtype != np.float32 or weight.dtype != np.int32 or packed.shape != (n,)
+            or sdf.shape != (n,) or weight.shape != (n,)):
+        raise FormatError(f"{path}: TSDF arrays must be (n,) int64 keys, float32 distances, int32 weights")
+    if n and (packed.min() < 0 or packed.max() >= 1 << 48 or np.unique(packed).size != n
+              or not np.isfinite(sdf).all() or weight.min() < 0):
+        raise FormatError(f"{path}: invalid TSDF voxels (duplicate or out-of-range keys, non-finite distances)")
+    m.load_field(packed, sdf, weight)
     return m
 
 

@@ -1,7 +1,8 @@
 """Every map's files in a run folder, written and read from the maps' public arrays (maps never import io/).
 
 ``save_map_files`` writes the files of any map kind (the OctoMap's ``map.ot`` / ``map.bt`` / ``map.semmap``, a
-voxel grid's or point map's ``<kind>.semmap`` and ``<kind>.ply``); ``save_map`` writes one lossless ``.semmap`` of
+voxel grid's or point map's ``<kind>.semmap`` and ``<kind>.ply``, the TSDF's ``tsdf.semmap`` and its semantic mesh
+``mesh.ply``); ``save_map`` writes one lossless ``.semmap`` of
 any kind and ``load_map`` reads any ``.semmap`` back (the Python API's pair).
 """
 
@@ -23,6 +24,7 @@ MAP_FILES: dict[MapKind, tuple[str, ...]] = {
     MapKind.OCTOMAP: ("map.ot", "map.bt", "map.semmap"),
     MapKind.VOXELGRID: ("voxelgrid.semmap", "voxelgrid.ply"),
     MapKind.POINTS: ("points.semmap", "points.ply"),
+    MapKind.TSDF: ("tsdf.semmap", "mesh.ply"),
 }
 
 
@@ -31,14 +33,22 @@ def native_file(kind: MapKind) -> str:
     return next(name for name in MAP_FILES[kind] if name.endswith(".semmap"))
 
 
-def save_map_files(m: SemanticMap, out_dir: str | Path) -> dict[str, int]:
-    """Write ``m``'s files (:data:`MAP_FILES`) into ``out_dir``, each atomically; returns ``{file name: bytes}``."""
+def save_map_files(m: SemanticMap, out_dir: str | Path, *, labels_from: SemanticMap | None = None
+                   ) -> dict[str, int]:
+    """Write ``m``'s files (:data:`MAP_FILES`) into ``out_dir``, each atomically; returns ``{file name: bytes}``.
+    A TSDF's mesh takes its classes from ``labels_from`` (the run's semantic map), else from the TSDF's own."""
     out_dir = Path(out_dir)
     if m.kind == MapKind.OCTOMAP:
         return _save_octomap(m, out_dir)
     if m.kind not in MAP_FILES:
         raise FormatError(f"no file format for map kind {m.kind!r}")
     name, ply = MAP_FILES[m.kind]
+    if m.kind == MapKind.TSDF:
+        from semmap.io.mesh_ply import write_mesh_ply
+        from semmap.maps.mesh import semantic_mesh
+
+        return {name: grid_files.save_grid(out_dir / name, m),
+                ply: write_mesh_ply(out_dir / ply, semantic_mesh(m, labels_from))}
     return {name: grid_files.save_grid(out_dir / name, m), ply: write_ply(out_dir / ply, m.cloud())}
 
 

@@ -28,11 +28,12 @@ class MapEntry:
     default_fusion: FusionRule  #: its paper's rule, used when ``--fusion`` is not given
     fusion_rules: tuple[FusionRule, ...]  #: the rules it can fuse with
     compile_kernels: Callable[[], None]
+    extra_files: tuple[str, ...] = ()  #: files it writes beside ``<stem>.*`` (the TSDF's ``mesh.ply``)
 
     def files(self) -> set[str]:
         """Names of the files its ``save`` may write in a run folder, and its preview."""
         return {f"{self.stem}.ot", f"{self.stem}.bt", f"{self.stem}.semmap", f"{self.stem}.ply",
-                f"preview_{self.name}.png"}
+                f"preview_{self.name}.png", *self.extra_files}
 
 
 def _octomap() -> type[SemanticMap]:
@@ -53,6 +54,12 @@ def _point_map() -> type[SemanticMap]:
     return SemanticPointMap
 
 
+def _tsdf() -> type[SemanticMap]:
+    from semmap.maps.tsdf import TsdfMap
+
+    return TsdfMap
+
+
 def _octomap_kernels() -> None:
     from semmap.maps.semantic_octomap import compile_kernels
 
@@ -65,6 +72,14 @@ def _grid_kernels() -> None:
     compile_kernels()
 
 
+def _tsdf_kernels() -> None:
+    from semmap.maps.semantic_grid import compile_kernels as grid_kernels
+    from semmap.maps.tsdf import compile_kernels
+
+    grid_kernels()
+    compile_kernels()
+
+
 #: Every map kind, in the order a run folder is searched for a map (the first is ``--maps``'s default).
 MAPS: Registry[MapEntry] = Registry("map", [
     MapEntry("octomap", _octomap, "semantic OctoMap: occupancy + free space + fused classes (maps.semantic_octomap)",
@@ -74,6 +89,9 @@ MAPS: Registry[MapEntry] = Registry("map", [
              default_fusion=FusionRule.BAYES, fusion_rules=tuple(FusionRule), compile_kernels=_grid_kernels),
     MapEntry("points", _point_map, "fine voxel-filtered semantic point map (maps.point_map)", stem="points",
              default_fusion=FusionRule.BAYES_PRIOR, fusion_rules=tuple(FusionRule), compile_kernels=_grid_kernels),
+    MapEntry("tsdf", _tsdf, "truncated signed distance field with a voxel grid's classes; writes the semantic mesh "
+             "mesh.ply (maps.tsdf)", stem="tsdf", default_fusion=FusionRule.BAYES, fusion_rules=tuple(FusionRule),
+             compile_kernels=_tsdf_kernels, extra_files=("mesh.ply",)),
 ])
 #: The maps ``semmap run --maps`` builds, as an enum (see :mod:`semmap.maps.base`).
 MapKind = MAPS.enum("MapKind", __name__, str_mixin=True)

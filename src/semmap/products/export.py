@@ -2,9 +2,10 @@
 
 ``grid``: ``map.pgm``/``map.yaml`` (trinary) and ``costmap.png``/``costmap.yaml``/``costmap.npy`` (scale)
 for ROS map_server / nav2, and ``grid.json``. ``esdf``: ``esdf.npz`` (distance, observed, origin, resolution),
-a slice picture ``esdf_slice.png`` and ``esdf.json``. ``scene-graph``: ``scene_graph.json`` (spark-dsg, as
-Hydra's tools read it) and ``graph.json`` (counts and relations). Each folder is written whole or not at all,
-never over its inputs.
+a slice picture ``esdf_slice.png`` and ``esdf.json``. ``mesh``: the TSDF's semantic mesh ``mesh.ply`` and
+``mesh.json``. ``scene-graph``: ``scene_graph.json`` (spark-dsg, as Hydra's tools read it) and ``graph.json``
+(counts and relations). ``semmap diff``: ``diff.json``, ``diff.ply``, ``diff.png``. Each folder is written whole
+or not at all, never over its inputs.
 """
 
 from __future__ import annotations
@@ -20,7 +21,7 @@ import numpy as np
 from semmap.errors import ConfigError, FormatError, OutputError
 from semmap.files.atomic import write_bytes_atomic, write_text_atomic
 from semmap.files.outputs import OutputKind, check_outputs
-from semmap.io.map_files import MAP_FILES, load_map
+from semmap.io.map_files import MAP_FILES, load_map, native_file
 from semmap.io.staged_run import StagedRun
 from semmap.maps.base import SemanticMap
 from semmap.maps.registry import MapKind
@@ -28,8 +29,9 @@ from semmap.products.esdf import Esdf, esdf_of
 from semmap.products.map_server import write_costmap, write_map
 from semmap.products.navgrid import GridOptions, NavigationGrid, navigation_grid
 from semmap.products.occupancy import occupancy_volume
+from semmap.types import EMPTY_LABEL
 
-SUMMARIES = ("grid.json", "esdf.json", "graph.json", "diff.json")
+SUMMARIES = ("grid.json", "esdf.json", "graph.json", "diff.json", "mesh.json")
 
 
 def load_product_map(path: Path) -> tuple[SemanticMap, Path]:
@@ -273,3 +275,46 @@ def export_diff(before: Path, after: Path, out: Path, *, match_radius: float = 1
         return summary
 
     return _staged(Path(out), [("BEFORE", Path(before)), ("AFTER", Path(after))], write)
+
+
+def _tsdf_and_labels(path: Path) -> tuple[SemanticMap, SemanticMap | None, Path]:
+    """The TSDF of a run folder (or a ``tsdf.semmap``) and the semantic map beside it that labels the mesh."""
+    tsdf_file = native_file(MapKind.TSDF)
+    hint = "map the sequence with semmap run --maps octomap,tsdf"
+    path = Path(path)
+    source = None
+    if path.is_dir():
+        if not (path / tsdf_file).is_file():
+            raise FormatError(f"{path}: folder has no {tsdf_file} ({hint})")
+        others = [native_file(k) for k in MapKind if k != MapKind.TSDF]
+        found = next((path / n for n in others if (path / n).is_file()), None)
+        source = None if found is None else load_map(found)
+        path = path / tsdf_file
+    tsdf = load_map(path)
+    if tsdf.kind != MapKind.TSDF:
+        raise FormatError(f"{path}: a {tsdf.kind.value} map holds no TSDF ({hint})")
+    return tsdf, source, path
+
+
+def export_mesh(map_path: Path, out: Path, *, min_weight: int = 1) -> dict:
+    """Write the semantic mesh of the TSDF at ``map_path`` (a run folder or ``tsdf.semmap``) into ``out``."""
+    from semmap.io.mesh_ply import write_mesh_ply
+    from semmap.maps.mesh import semantic_mesh
+
+    if not 1 <= int(min_weight) <= 10_000:
+        raise ConfigError(f"--min-weight must be 1..10000, got {min_weight}")
+    tsdf, source, found = _tsdf_and_labels(map_path)
+
+    def write(stage: Path) -> dict:
+        mesh = semantic_mesh(tsdf, source, min_weight=int(min_weight))
+        size = write_mesh_ply(stage / "mesh.ply", mesh)
+        classified = mesh.labels != EMPTY_LABEL
+        summary = {"map": str(found), "labels_from": (source or tsdf).kind.value, "vertices": len(mesh),
+                   "faces": len(mesh.faces), "bytes": size, "resolution": mesh.resolution,
+                   "classified_share": round(float(classified.mean()) if len(mesh) else 0.0, 4),
+                   "own_voxel_share": round(float(mesh.own_voxel.mean()) if len(mesh) else 0.0, 4),
+                   "ms": round(mesh.ms, 1)}
+        write_text_atomic(stage / "mesh.json", json.dumps(summary, indent=2) + "\n")
+        return summary
+
+    return _staged(Path(out), Path(map_path), write)

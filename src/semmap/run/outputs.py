@@ -28,8 +28,9 @@ def write_outputs(out: Path, maps: list[SemanticMap], poses: list[np.ndarray], c
     beside it; ``preview_<kind>.png`` of the others) and ``config.json``; (files by name, bytes by file name)."""
     out.mkdir(parents=True, exist_ok=True)
     sizes: dict[str, int] = {}
+    semantic = next((m for m in maps if m.kind != MapKind.TSDF), None)  # labels the TSDF's mesh
     for m in maps:
-        sizes.update(save_map_files(m, out))
+        sizes.update(save_map_files(m, out, labels_from=semantic if m.kind == MapKind.TSDF else None))
     files = {name: out / name for name in sizes}
     if objects is not None:
         sizes.update(objects.write(out, up_vector(poses)))
