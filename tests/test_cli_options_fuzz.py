@@ -52,6 +52,7 @@ REQUIRED = {
     "diff": [f"{NOWHERE}/a.semmap", f"{NOWHERE}/b.semmap", "--out", f"{NOWHERE}/out"],
     "export grid": [f"{NOWHERE}/map.semmap", "--out", f"{NOWHERE}/out"],
     "export esdf": [f"{NOWHERE}/map.semmap", "--out", f"{NOWHERE}/out"],
+    "export mesh": [f"{NOWHERE}/run", "--out", f"{NOWHERE}/out"],
     "export scene-graph": [f"{NOWHERE}/run", "--out", f"{NOWHERE}/out"],
 }
 

@@ -1015,6 +1015,22 @@ def export_esdf_command(
     n = s["size_voxels"]
     typer.echo(f"{out}: {n[0]}x{n[1]}x{n[2]} voxels at {s['resolution']} m in {s['ms']:.0f} ms; largest distance "
                f"{s['max_distance_m']} m")
+@export_app.command("mesh")
+def export_mesh_command(
+    map_path: Annotated[Path, typer.Argument(help="a run folder of 'semmap run --maps ...,tsdf', or its tsdf.semmap")],
+    out: _ExportOut,
+    min_weight: Annotated[int, typer.Option(help="observations a TSDF voxel needs to count")] = 1,
+) -> None:
+    """The semantic mesh (mesh.ply: per-vertex colour, class, confidence and class probabilities) by marching cubes
+    over the TSDF, classes from the run folder's semantic map (its OctoMap first), else the TSDF's own."""
+    _setup_logging(False)
+    from semmap.products.export import export_mesh
+
+    s = export_mesh(map_path, out, min_weight=min_weight)
+    typer.echo(f"{out}: {s['vertices']:,} vertices, {s['faces']:,} triangles in {s['ms']:.0f} ms; classes from "
+               f"{s['labels_from']}, {100 * s['classified_share']:.1f}% of vertices classified")
+
+
 def _numbers_checked(command: str, callback):
     """``callback`` of ``command`` with every numeric option checked against ``semmap.limits`` first, so a bad
     number is refused in one line naming the option before any work (the library checks them again)."""
@@ -1048,22 +1064,6 @@ for _info in app.registered_commands:  # every command, present and future
 for _group in app.registered_groups:  # and every command of a sub-app (semmap export ...)
     for _info in _group.typer_instance.registered_commands:
         _info.callback = _numbers_checked(f"{_group.name} {_command_name(_info)}", _info.callback)
-
-
-@export_app.command("mesh")
-def export_mesh_command(
-    map_path: Annotated[Path, typer.Argument(help="a run folder of 'semmap run --maps ...,tsdf', or its tsdf.semmap")],
-    out: _ExportOut,
-    min_weight: Annotated[int, typer.Option(help="observations a TSDF voxel needs to count")] = 1,
-) -> None:
-    """The semantic mesh (mesh.ply: per-vertex colour, class, confidence and class probabilities) by marching cubes
-    over the TSDF, classes from the run folder's semantic map (its OctoMap first), else the TSDF's own."""
-    _setup_logging(False)
-    from semmap.products.export import export_mesh
-
-    s = export_mesh(map_path, out, min_weight=min_weight)
-    typer.echo(f"{out}: {s['vertices']:,} vertices, {s['faces']:,} triangles in {s['ms']:.0f} ms; classes from "
-               f"{s['labels_from']}, {100 * s['classified_share']:.1f}% of vertices classified")
 
 
 def main() -> None:

@@ -135,9 +135,10 @@ class MappingConfig(_Section):
     cell_evidence: CellEvidence = Field(CellEvidence.MEAN, description="OctoMap: the class evidence a voxel takes "
                                         "from a frame: the mean of all its points' distributions (mean) or its first "
                                         "point's (first, OctoMap's discretized insert)")
-    tsdf_voxel: float | None = Field(None, **field_bounds("resolution"),
+    tsdf_voxel: float | None = Field(None, **field_bounds("resolution", "--tsdf-voxel"),
                                      description="voxel of the TSDF (m; None: the run's resolution)")
-    tsdf_truncation: float = Field(4.0, ge=1.0, le=64.0, description="TSDF truncation distance in voxels")
+    tsdf_truncation: float = Field(4.0, **field_bounds("tsdf_truncation", "--tsdf-truncation"),
+                                   description="TSDF truncation distance in voxels")
 
     @field_validator("maps", mode="before")
     @classmethod

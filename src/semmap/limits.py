@@ -88,6 +88,8 @@ LIMITS: dict[str, Limit] = {
     "distance": Limit(1e-3, 100.0, "distance (m)"),
     "coordinate": Limit(-1e4, 1e4, "coordinate (m)"),
     "inflation": Limit(0.0, 10.0, "radius (m)"),
+    "tsdf_truncation": Limit(1.0, 64.0, "voxels"),
+    "tsdf_weight": Limit(1, 1_000_000, "observations", integer=True),
 }
 
 # ------------------------------------------------------------------------------------ command-line options
@@ -150,6 +152,9 @@ OPTIONS: dict[str, OptionRule] = {
     "--door-width": OptionRule("distance"), "--region": OptionRule("coordinate", REGION),
     # eval-map
     "eval-map --every": OptionRule("every_positive"),
+    # the TSDF and its mesh
+    "--tsdf-voxel": OptionRule("resolution"), "--tsdf-truncation": OptionRule("tsdf_truncation"),
+    "--min-weight": OptionRule("tsdf_weight"),
 }
 
 
