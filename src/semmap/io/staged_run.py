@@ -14,10 +14,12 @@ import os
 import shutil
 from collections.abc import Callable
 from pathlib import Path
+from typing import TypeVar
 
 from semmap.errors import ConfigError
 
 LOG = logging.getLogger("semmap")
+T = TypeVar("T")
 CHECKPOINT = "checkpoint.npz"
 OWNER = "owner"
 
@@ -117,16 +119,23 @@ class StagedRun:
         return "nothing written"
 
 
-def write_staged(out: Path, write: Callable[[Path], dict[str, Path]]) -> dict[str, Path]:
+def run_staged(out: Path, write: Callable[[Path], T]) -> T:
     """A folder of outputs written like a run's: ``write(stage)`` fills the staging folder, which replaces ``out``
-    as a whole once complete; a failure (a full disk) or Ctrl-C leaves ``out`` as it was. Returns ``write``'s
-    ``{name: path}`` with the paths in ``out``."""
+    as a whole once complete; a failure (a full disk) or Ctrl-C leaves ``out`` as it was. Returns what ``write``
+    returned."""
     staged = StagedRun(Path(out))
     stage = staged.open()
     try:
-        files = write(stage)
+        result = write(stage)
         staged.commit()
     except BaseException:
         staged.abandon(keep_checkpoint=False)
         raise
-    return {name: staged.out / Path(path).relative_to(stage) for name, path in files.items()}
+    return result
+
+
+def write_staged(out: Path, write: Callable[[Path], dict[str, Path]]) -> dict[str, Path]:
+    """:func:`run_staged` for a ``write`` that returns ``{name: path}``; the paths come back inside ``out``."""
+    stage = staging_folder(Path(out))
+    files = run_staged(out, write)
+    return {name: Path(out) / Path(path).relative_to(stage) for name, path in files.items()}

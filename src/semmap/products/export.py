@@ -22,7 +22,7 @@ from semmap.errors import ConfigError, FormatError, OutputError
 from semmap.files.atomic import write_bytes_atomic, write_text_atomic
 from semmap.files.outputs import OutputKind, check_outputs
 from semmap.io.map_files import MAP_FILES, load_map, native_file
-from semmap.io.staged_run import StagedRun
+from semmap.io.staged_run import run_staged
 from semmap.maps.base import SemanticMap
 from semmap.maps.registry import MapKind
 from semmap.products.esdf import Esdf, esdf_of
@@ -55,15 +55,7 @@ def _staged(out: Path, inputs: Path | list[tuple[str, Path]], write: Callable[[P
     if out.is_dir() and any(out.iterdir()) and not any((out / s).is_file() for s in SUMMARIES):
         raise OutputError(f"--out {out}: holds other files (not an export of semmap); choose a new or empty folder "
                           f"(nothing was written)")
-    staged = StagedRun(out)
-    stage = staged.open()
-    try:
-        summary = write(stage)
-        staged.commit()
-    except BaseException:
-        staged.abandon(keep_checkpoint=False)
-        raise
-    return summary
+    return run_staged(out, write)
 
 
 def _bounds(region: tuple[float, ...] | None) -> tuple[np.ndarray, np.ndarray] | None:
