@@ -332,7 +332,7 @@ def room_map(tmp_path_factory) -> tuple[Path, Path]:
 
 @pytest.mark.parametrize(("args", "message"), [
     (["--mode", "ground", "--height", "nan"], "--height must be a finite number"),  # T34: was SIGSEGV
-    (["--init", "tracking", "--init-pose", "nan 0 0 0 0 0 1"], "--init-pose must be finite"),  # S7
+    (["--init", "tracking", "--init-pose", "nan 0 0 0 0 0 1"], "--init-pose must be 7 finite numbers"),  # S7
 ])
 def test_the_localize_command_refuses_nan_in_one_line(room_map, tmp_path, args, message) -> None:
     map_path, seq = room_map
