@@ -61,8 +61,11 @@ def tools(ctx: Ctx, _path: Path) -> None:
     fx.write(ctx.p("capped.sh"), CAPPED.format(gb=ctx.cap_gb, kb=ctx.cap_gb * 1024 * 1024))
     for f in (venv / "semmap", ctx.p("capped.sh")):
         f.chmod(0o755)
-    if not ctx.p("weights").exists():
-        os.symlink(REPO / "weights", ctx.p("weights"))
+    link = ctx.p("weights")
+    if link.is_symlink() and link.resolve() != (REPO / "weights").resolve():
+        link.unlink()  # a link to another checkout's weights (or a dangling one)
+    if not link.exists():
+        os.symlink(REPO / "weights", link)
 
 
 def simulate(*args: str):
