@@ -208,3 +208,12 @@ def test_cli_refusals_are_one_line_with_exit_code_1(seq):
     r = _cli("eval-traj", gt, gt, "--plot", "/dev/full")
     assert r.returncode == 1 and "semmap: error: --plot /dev/full: is a device" in r.stderr
     assert stat.S_ISCHR(os.stat("/dev/full").st_mode)
+
+
+def test_a_symlink_loop_as_input_is_not_a_traceback(tmp_path):
+    """Probe case in_symloop: resolving an input that is a link loop must not raise from pathlib."""
+    from semmap.files.outputs import OutputKind, check_outputs
+
+    loop = tmp_path / "seqloop"
+    loop.symlink_to(loop)
+    check_outputs([("--out", tmp_path / "out", OutputKind.FOLDER)], [("DATASET", loop)])  # nothing to refuse

@@ -54,7 +54,12 @@ class OutputKind(Enum):
 
 
 def _resolved(path: str | Path) -> Path:
-    return Path(os.path.abspath(Path(path).expanduser())).resolve(strict=False)
+    """The absolute path with links followed; a link loop stays as written (its reader names the loop later)."""
+    absolute = Path(os.path.abspath(Path(path).expanduser()))
+    try:
+        return absolute.resolve(strict=False)
+    except (RuntimeError, OSError):  # Python < 3.13 raises RuntimeError on a symlink loop
+        return absolute
 
 
 def _kind_of(mode: int) -> str:
