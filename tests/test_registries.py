@@ -133,7 +133,9 @@ def test_registry_lookup_lists_the_choices_in_one_line() -> None:
         with pytest.raises(ConfigError) as info:
             registry["no-such-thing"]
         message = str(info.value)
-        assert "\n" not in message and message.startswith(f"unknown {registry.family} 'no-such-thing'; choose from ")
+        prefix = f"{registry.option}: " if registry.option else ""  # the option that takes the name, if one does
+        assert "\n" not in message and message.startswith(f"{prefix}unknown {registry.family} 'no-such-thing'; "
+                                                           "choose from ")
         assert all(name in message for name in registry)
     assert "no-such-thing" not in TRACKERS and [] not in TRACKERS
 
@@ -236,7 +238,7 @@ def test_cli_defaults_are_the_configs() -> None:
 @pytest.mark.parametrize(("args", "message"), [
     (["--segmenter", "segnet"], "invalid option segmenter: unknown segmenter 'segnet'; choose from "),
     (["--instances", "yolo"], "invalid option instances: unknown instance source 'yolo'; choose from "),
-    (["--maps", "octomap,mesh"], "unknown map 'mesh'; choose from octomap, voxelgrid, points"),
+    (["--maps", "octomap,mesh"], "--maps: unknown map 'mesh'; choose from octomap, voxelgrid, points"),
     (["--format", "kitti"], "invalid option format: unknown dataset format 'kitti'; choose from auto, "),
 ])
 def test_cli_refuses_an_unknown_name_in_one_line(tmp_path: Path, args: list[str], message: str) -> None:

@@ -31,8 +31,9 @@ E = TypeVar("E", bound=Named)
 class Registry(Mapping[str, E]):
     """Entries of one family by name, in registration order (the order help texts list them)."""
 
-    def __init__(self, family: str, entries: Iterable[E], error: type[SemmapError] = ConfigError) -> None:
-        self.family, self.error = family, error
+    def __init__(self, family: str, entries: Iterable[E], error: type[SemmapError] = ConfigError, *,
+                 option: str = "") -> None:
+        self.family, self.error, self.option = family, error, option
         self._entries: dict[str, E] = {}
         for e in entries:
             if e.name in self._entries:
@@ -72,8 +73,9 @@ class Registry(Mapping[str, E]):
         return sep.join((*extra, *self._entries))
 
     def unknown(self, name: object, extra: Iterable[str] = ()) -> str:
-        """The one-line error for a name that is not registered."""
-        return f"unknown {self.family} {name!r}; choose from {self.choices(extra, ', ')}"
+        """The one-line error for a name that is not registered (naming the option that takes it, if one does)."""
+        where = f"{self.option}: " if self.option else ""
+        return f"{where}unknown {self.family} {name!r}; choose from {self.choices(extra, ', ')}"
 
     def describe(self) -> str:
         """One ``name: help`` line per entry (for ``--help`` epilogues and docs)."""

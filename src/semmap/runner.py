@@ -230,7 +230,10 @@ def evaluate_trajectories(gt: Path, est: list[Path], *, max_time_diff: float = 0
     reference = reference_trajectory(gt)
     estimates = named_trajectories(est)
     if len(estimates) == 1 and not (pairwise or reference2 or rotation_frames):
-        scores = evaluate_trajectory(reference, next(iter(estimates.values())), max_time_diff=max_time_diff)
+        try:
+            scores = evaluate_trajectory(reference, next(iter(estimates.values())), max_time_diff=max_time_diff)
+        except ConfigError as exc:
+            raise ConfigError(f"{est[0]} against {gt}: {exc}") from None
     else:
         scores = compare_trajectories(reference, estimates, pairwise=pairwise, rotation_frames=rotation_frames,
                                       reference2=None if reference2 is None else reference_trajectory(reference2),

@@ -211,8 +211,8 @@ def rotation_disagreement_deg(a: Trajectory, b: Trajectory, frames: int) -> floa
     frame; both hold the same frames in order. Rotation angles need no alignment and no scale, and a fixed rotation
     between the two cameras changes them only to second order."""
     if not 0 < frames < len(a):
-        raise ConfigError(f"relative rotations over {frames} frames need more than {frames} common frames "
-                          f"(have {len(a)})")
+        raise ConfigError(f"--rotation-frames {frames}: relative rotations over {frames} frames need more than "
+                          f"{frames} common frames (have {len(a)})")
     ra, rb = a.poses[:, :3, :3], b.poses[:, :3, :3]
     rel_a = np.transpose(ra[:-frames], (0, 2, 1)) @ ra[frames:]
     rel_b = np.transpose(rb[:-frames], (0, 2, 1)) @ rb[frames:]

@@ -92,7 +92,7 @@ MAPS: Registry[MapEntry] = Registry("map", [
     MapEntry("tsdf", _tsdf, "truncated signed distance field with a voxel grid's classes; writes the semantic mesh "
              "mesh.ply (maps.tsdf)", stem="tsdf", default_fusion=FusionRule.BAYES, fusion_rules=tuple(FusionRule),
              compile_kernels=_tsdf_kernels, extra_files=("mesh.ply",)),
-])
+], option="--maps")
 #: The maps ``semmap run --maps`` builds, as an enum (see :mod:`semmap.maps.base`).
 MapKind = MAPS.enum("MapKind", __name__, str_mixin=True)
 #: Each map's own rule (its paper's) when ``--fusion`` is not given.

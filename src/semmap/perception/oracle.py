@@ -131,7 +131,8 @@ class OracleSegmenter:
     def segment(self, frame: Frame) -> TopKProbs:
         """(H, W, k) top-k class distribution for ``frame``, derived from ``frame.labels``."""
         if frame.labels is None:
-            raise DatasetError(f"frame {frame.name or frame.index}: the oracle segmenter needs ground-truth labels")
+            raise DatasetError(f"frame {frame.name or frame.index}: the oracle segmenter (--semantics oracle, "
+                               f"--segmenter oracle) needs ground-truth labels; this sequence has none")
         gt = np.asarray(frame.labels).astype(np.int32)
         K = len(self._label_set)
         if gt.size and int(gt.max()) >= K:

@@ -83,7 +83,7 @@ TRACKERS: Registry[TrackerEntry] = Registry("tracker", [
                  objects=False, needs="open3d"),
     TrackerEntry("open3d-f2f-tensor", _open3d_tensor, "Open3D's tensor frame-to-frame RGB-D odometry (a peer)",
                  objects=False, needs="open3d"),
-])
+], option="--poses or track --method")
 #: Tracker names accepted by :func:`make_tracker`.
 METHODS: tuple[str, ...] = TRACKERS.names
 #: Pose sources ``X-objects``: tracker X with object-constrained keyframe poses (:mod:`semmap.object_slam`).

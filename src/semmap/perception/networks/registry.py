@@ -72,7 +72,7 @@ MODELS: Registry[NetworkEntry] = Registry("network", [
     NetworkEntry("rgbd-net", _rgbd_net(True), "RGB-D two-branch VGG-16 with step-by-step fusion and multi-scale "
                  "fusion module (needs depth)", uses_depth=True, backbone="vgg16"),
     NetworkEntry("rgb-only", _rgbd_net(False), "the RGB-D network's colour-only twin", backbone="vgg16"),
-])
+], option="--model")
 #: Marker and version of semmap's network weight files.
 WEIGHTS_FORMAT = "semmap-network"
 WEIGHTS_VERSION = 1
