@@ -16,7 +16,7 @@ from scipy.optimize import linear_sum_assignment
 
 from semmap.errors import ConfigError
 from semmap.maps.base import SemanticMap
-from semmap.products.occupancy import FREE, OCCUPIED, OccupancyVolume, map_keys, occupancy_volume
+from semmap.products.occupancy import FREE, OCCUPIED, OccupancyVolume, map_keys, volume_of_keys
 
 #: Colours of diff.ply: appeared, disappeared, changed class.
 CHANGE_COLORS = {"appeared": (40, 200, 60), "disappeared": (220, 40, 40), "relabelled": (50, 90, 230)}
@@ -39,14 +39,13 @@ def _common_volumes(a: SemanticMap, b: SemanticMap) -> tuple[OccupancyVolume, Oc
     if abs(float(a.resolution) - float(b.resolution)) > 1e-9:
         raise ConfigError(f"the maps have different resolutions ({a.resolution} m and {b.resolution} m); map both "
                           f"at one resolution to compare them")
-    keys = [np.concatenate([occ, free]) for occ, _, free in (map_keys(a), map_keys(b))]
-    both = np.concatenate(keys)
+    keys = (map_keys(a), map_keys(b))  # read once per map: the union box and both volumes come from them
+    both = np.concatenate([k for occ, _, free in keys for k in (occ, free)])
     if len(both) == 0:
         raise ConfigError("both maps are empty: nothing to compare")
-    res = float(a.resolution)
-    lo = (both.min(axis=0) - 32768 + 0.5) * res
-    hi = (both.max(axis=0) - 32768 + 0.5) * res
-    return occupancy_volume(a, (lo, hi)), occupancy_volume(b, (lo, hi))
+    lo, hi = both.min(axis=0), both.max(axis=0)
+    return tuple(volume_of_keys(k, float(m.resolution), lo, hi, getattr(m, "label_set", None))
+                 for k, m in zip(keys, (a, b), strict=True))  # type: ignore[return-value]
 
 
 def voxel_changes(a: SemanticMap, b: SemanticMap) -> VoxelChanges:

@@ -79,21 +79,28 @@ def occupancy_volume(m: SemanticMap, bounds: tuple[np.ndarray, np.ndarray] | Non
                      *, margin: int = 0) -> OccupancyVolume:
     """The dense volume of ``m`` over ``bounds`` ((min xyz, max xyz) in metres; default: everything the map
     knows), widened by ``margin`` voxels of unknown space on each side; refused beyond the memory budget."""
-    occ, labels, free = map_keys(m)
+    keys = map_keys(m)
     res = float(m.resolution)
-    lo, hi = _bounds_keys(bounds, res, occ, free)
-    lo, hi = lo - margin, hi + margin
+    lo, hi = _bounds_keys(bounds, res, keys[0], keys[2])
+    return volume_of_keys(keys, res, lo - margin, hi + margin, getattr(m, "label_set", None))
+
+
+def volume_of_keys(keys: tuple[np.ndarray, np.ndarray, np.ndarray], res: float, lo: np.ndarray, hi: np.ndarray,
+                   label_set: LabelSet | None) -> OccupancyVolume:
+    """The dense volume of :func:`map_keys`' (occupied, classes, free) over the key box ``lo``..``hi``
+    (inclusive); refused beyond the memory budget."""
+    occ, labels, free = keys
     shape = tuple(int(n) for n in hi - lo + 1)
     check_memory(f"a product volume of {shape[0]}x{shape[1]}x{shape[2]} voxels at {res} m",
                  float(np.prod(shape, dtype=np.float64)) * BYTES_PER_PRODUCT_VOXEL)
     state = np.full(shape, UNKNOWN, np.int8)
     cls = np.full(shape, EMPTY_LABEL, np.uint16)
-    for keys, value in ((free, FREE), (occ, OCCUPIED)):
-        idx = keys - lo
+    for k, value in ((free, FREE), (occ, OCCUPIED)):
+        idx = k - lo
         inside = np.all((idx >= 0) & (idx < np.array(shape)), axis=1)
         i = idx[inside]
         state[i[:, 0], i[:, 1], i[:, 2]] = value
         if value == OCCUPIED:
             cls[i[:, 0], i[:, 1], i[:, 2]] = labels[inside]
     origin = (lo.astype(np.float64) - TREE_MAX_VAL + 0.5) * res
-    return OccupancyVolume(state, cls, origin, res, getattr(m, "label_set", None))
+    return OccupancyVolume(state, cls, origin, res, label_set)
