@@ -236,10 +236,12 @@ def test_cli_defaults_are_the_configs() -> None:
 
 
 @pytest.mark.parametrize(("args", "message"), [
-    (["--segmenter", "segnet"], "invalid option segmenter: unknown segmenter 'segnet'; choose from "),
-    (["--instances", "yolo"], "invalid option instances: unknown instance source 'yolo'; choose from "),
+    (["--segmenter", "segnet"], "invalid --segmenter: unknown segmenter 'segnet'; choose from "),
+    (["--instances", "yolo"], "invalid --instances: unknown instance source 'yolo'; choose from "),
     (["--maps", "octomap,mesh"], "--maps: unknown map 'mesh'; choose from octomap, voxelgrid, points"),
-    (["--format", "kitti"], "invalid option format: unknown dataset format 'kitti'; choose from auto, "),
+    (["--format", "kitti"], "invalid --format: unknown dataset format 'kitti'; choose from auto, "),
+    (["--semantics", "magic"], "invalid --semantics: Input should be 'auto', "),
+    (["--backend", "magic"], "invalid --backend: "),
 ])
 def test_cli_refuses_an_unknown_name_in_one_line(tmp_path: Path, args: list[str], message: str) -> None:
     result = CliRunner().invoke(app, ["run", str(tmp_path), "--out", str(tmp_path / "out"), *args])

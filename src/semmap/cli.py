@@ -337,6 +337,10 @@ def _validated(make, source: Path | None = None):
 
     try:
         return make()
+    except SemmapError as exc:  # a limits check inside a validator: say which file the value came from
+        if source is None or str(source) in str(exc):
+            raise
+        raise SemmapError(f"{source}: {exc}") from None
     except ValidationError as exc:
         first = exc.errors()[0]
         where = ".".join(str(p) for p in first["loc"])
@@ -347,7 +351,27 @@ def _validated(make, source: Path | None = None):
                               ) from None
         if not where:  # a rule across options
             raise SemmapError(msg) from None
-        raise SemmapError(f"invalid option {where}: {msg}") from None
+        raise SemmapError(f"invalid {_option_of(exc.title, first['loc'])}: {msg}") from None
+
+
+#: configuration fields whose command-line option is not ``--`` + the field's name (section.field -> option)
+_FIELD_OPTIONS = {
+    "semantics.source": "--semantics", "semantics.k": "--top-k", "semantics.lam": "--lambda",
+    "poses.source": "--poses", "input.dataset": "dataset argument", "output.out": "--out",
+    "crf.enabled": "--crf", "crf.every": "--crf-every", "objects.weights": "--instance-weights",
+    "objects.errors": "--instance-errors",
+}
+
+
+def _option_of(model_title: str, loc: tuple) -> str:
+    """The command-line option a configuration field came from (``SemanticsConfig`` + ``source`` -> ``--semantics``)."""
+    from semmap import config as config_module
+
+    model = getattr(config_module, str(model_title), None)
+    section = str(getattr(model, "section", "") or "")
+    field = str(loc[-1]) if not isinstance(loc[-1], int) else str(loc[-2] if len(loc) > 1 else loc[-1])
+    key = f"{section.rsplit('.', 1)[-1]}.{field}" if section else ".".join(str(p) for p in loc)
+    return _FIELD_OPTIONS.get(key) or f"--{field.replace('_', '-')}"
 
 
 def _print_table(title: str, rows: list[tuple[str, str]]) -> None:
@@ -879,7 +903,7 @@ def batch(
     console.print(f"{summary['sequences']} sequences: {summary['done']} mapped, {summary['already_done']} already "
                   f"done, {summary['failed']} failed in {summary['seconds']:.1f} s; {md_path}")
     if summary["failed"]:
-        raise typer.Exit(1)
+        raise SemmapError(f"{summary['failed']} of {summary['sequences']} sequences failed; see {md_path}")
 
 
 @app.command()

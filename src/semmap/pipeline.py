@@ -28,7 +28,7 @@ from semmap.geometry import backproject_world, pixel_normals
 from semmap.interrupt import RunInterrupted, deferred_interrupts, stop_requested
 from semmap.io.staged_run import StagedRun
 from semmap.keys import TREE_MAX_VAL
-from semmap.limits import check_map_extent, check_map_growth
+from semmap.limits import BYTES_PER_VOXEL, check_map_extent, check_map_growth, human
 from semmap.maps.base import SemanticMap
 from semmap.maps.registry import MapKind, compile_kernels
 from semmap.object_stage import ObjectStage
@@ -63,6 +63,10 @@ from semmap.viz.rerun_log import NoVisualizer, Visualizer, get_visualizer
 log = logging.getLogger("semmap")
 #: Frames that add nothing to the map are named up to this many times per run.
 MAX_EMPTY_FRAME_WARNINGS = 5
+
+
+#: voxels one view may span before the run warns that mapping it will be slow (about 5 s per frame on 2 cores)
+SLOW_VIEW_CELLS = 20_000_000
 
 
 class Mapper:
@@ -129,6 +133,12 @@ class Mapper:
             if m.kind == MapKind.OCTOMAP:
                 extent = np.ptp(np.vstack([points.min(0), points.max(0), origin]), axis=0)
                 check_map_extent(m.resolution, tuple(extent), "the first frame's view")
+                # a view's rays fill about a third of its bounding box (a pyramid in its box)
+                cells = float(np.prod(np.maximum(extent, m.resolution) / m.resolution)) / 3
+                if cells > SLOW_VIEW_CELLS:
+                    log.warning("--resolution %g: one view spans about %.0f million voxels (about %s); expect "
+                                "minutes per frame and for writing the map files (--resolution %g: 8x fewer)",
+                                m.resolution, cells / 1e6, human(cells * BYTES_PER_VOXEL), 2 * m.resolution)
 
     def state(self) -> tuple[dict, dict[str, np.ndarray]]:
         """A checkpoint's mapper: its counters and keyframe schedule (the maps save their own state)."""
