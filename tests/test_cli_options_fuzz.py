@@ -50,6 +50,7 @@ REQUIRED = {
     "view": [f"{NOWHERE}/map.ot"],
     "eval-map": [f"{NOWHERE}/map.semmap", f"{NOWHERE}/seq"],
     "diff": [f"{NOWHERE}/a.semmap", f"{NOWHERE}/b.semmap", "--out", f"{NOWHERE}/out"],
+    "merge": [f"{NOWHERE}/a.semmap", f"{NOWHERE}/b.semmap", "--out", f"{NOWHERE}/out"],
     "export grid": [f"{NOWHERE}/map.semmap", "--out", f"{NOWHERE}/out"],
     "export esdf": [f"{NOWHERE}/map.semmap", "--out", f"{NOWHERE}/out"],
     "export mesh": [f"{NOWHERE}/run", "--out", f"{NOWHERE}/out"],

@@ -918,6 +918,34 @@ def diff(
                f"changed class ({v['observed_by_both']:,} seen by both){objects}")
 
 
+@app.command()
+def merge(
+    map_a: Annotated[Path, typer.Argument(metavar="A", help="a map: .semmap (OctoMap, voxel grid or point map) or a "
+                                          "run folder; the merged map is in its frame")],
+    map_b: Annotated[Path, typer.Argument(metavar="B", help="a map of the same place, kind, resolution and classes")],
+    out: Annotated[Path, typer.Option("--out", "-o", help="output: a folder (the map's files, transform.txt, "
+                                      "merge.json) or a .semmap file; never A or B")],
+    transform: Annotated[Path | None, typer.Option(help="text file of the 4x4 transform taking B's coordinates into "
+                                                   "A's frame (default: estimated from the occupied voxels)")] = None,
+    min_overlap: Annotated[float, typer.Option(help="refuse an estimated alignment unless this share of the smaller "
+                                               "map's occupied voxels meets the other map")] = 0.3,
+    as_json: _Json = False,
+) -> None:
+    """Merge two maps of one place: B aligned to A (a given transform, or FPFH + RANSAC then ICP, checked for a
+    sane overlap), evidence combined by the maps' own occupancy update and fusion rule."""
+    _setup_logging(False)
+    from semmap.products.merge import merge_map_files
+
+    s = merge_map_files(map_a, map_b, out, transform=transform, min_overlap=min_overlap)
+    al, occ = s["alignment"], s["occupied"]
+    rows = [("alignment", f"{al['source']}" + (f" (from the {al['start']})" if al["start"] else "")),
+            ("overlap", f"{100 * al['overlap']:.1f} % of the smaller map's occupied voxels, RMSE "
+                        f"{100 * al['rmse_m']:.2f} cm"),
+            ("occupied voxels", f"A {occ['a']:,}, B {occ['b']:,}, merged {occ['merged']:,}"),
+            ("written", str(out))]
+    _summary_out(s, as_json, f"semmap merge: {s['kind']} at {s['resolution']} m", rows)
+
+
 export_app = typer.Typer(no_args_is_help=True, help="Robot products from a finished map: a 2D navigation grid "
                          "and semantic costmap (ROS map_server), a Euclidean signed distance field, the semantic "
                          "mesh of a TSDF.")
