@@ -792,7 +792,8 @@ def eval_seg(
 def eval_map(
     map_path: Annotated[Path, typer.Argument(metavar="MAP", help="a .semmap map file (any map), or a run folder "
                                              "holding map.semmap")],
-    seq: Annotated[Path, typer.Argument(help="the labelled sequence it was built from (poses and label images)")],
+    seq: Annotated[Path | None, typer.Argument(help="the labelled sequence it was built from (poses and label "
+                                                    "images); may be left out with --gt-ply")] = None,
     format: Annotated[str, typer.Option(help=_FORMATS)] = AUTO,
     segmenter: Annotated[str | None, typer.Option(help="score this network's labels at the same pixels beside the "
                                                   "map's (precomputed --weights FOLDER: stored predictions); "
@@ -801,15 +802,37 @@ def eval_map(
     every: Annotated[int, typer.Option(help="score every N-th frame")] = 10,
     pixel_stride: Annotated[int, typer.Option(help="score every k-th pixel row and column")] = 1,
     max_frames: Annotated[int | None, typer.Option(help="read at most N frames")] = None,
+    gt_ply: Annotated[Path | None, typer.Option(help="labelled ground-truth points or mesh vertices (PLY, e.g. "
+                                                "ScanNet's *_vh_clean_2.labels.ply): mIoU, f.w. mIoU and mean class "
+                                                "accuracy over them, in the map's class ids")] = None,
+    gt_label_property: Annotated[str, typer.Option(help="the vertex property of --gt-ply holding the class")
+                                 ] = "label",
     out: Annotated[Path | None, typer.Option(help="also write the scores as JSON here")] = None,
 ) -> None:
     """A map scored at the pixels of a labelled sequence: the map's label at each pixel's 3D point against the true
-    label, beside the network's own label at the same pixels (MIoU, accuracy, MPA, coverage, the fusion ceiling)."""
+    label, beside the network's own label at the same pixels (MIoU, accuracy, MPA, coverage, the fusion ceiling);
+    with --gt-ply, at a dataset's labelled points or mesh vertices as the benchmarks score maps."""
     _setup_logging(False)
-    from semmap.run.eval_map import evaluate_map_file
+    from semmap.errors import ConfigError
+    from semmap.run.eval_map import evaluate_map_file, evaluate_map_points
 
-    scores = evaluate_map_file(map_path, seq, format=format, segmenter=segmenter, weights=weights, every=every,
-                               stride=pixel_stride, max_frames=max_frames, out=out)
+    if seq is None and gt_ply is None:
+        raise ConfigError("eval-map needs the labelled sequence SEQ, or --gt-ply, or both")
+    pixels = functools.partial(evaluate_map_file, map_path, seq, format=format, segmenter=segmenter, weights=weights,
+                               every=every, stride=pixel_stride, max_frames=max_frames)
+    points = functools.partial(evaluate_map_points, map_path, gt_ply, label_property=gt_label_property)
+    if gt_ply is None:
+        scores = pixels(out=out)
+    elif seq is None:
+        scores = points(out=out)
+    else:  # both: one JSON of both, its --out checked against every input first
+        from semmap.files.atomic import write_text_atomic
+        from semmap.files.outputs import OutputKind, check_outputs
+
+        check_outputs([("--out", out, OutputKind.FILE)], [("MAP", map_path), ("SEQ", seq), ("--gt-ply", gt_ply)])
+        scores = {**points(out=None), **pixels(out=None)}
+        if out is not None:
+            write_text_atomic(out, json.dumps(scores, indent=2))
     typer.echo(json.dumps(scores, indent=2))
 
 
