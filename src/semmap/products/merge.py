@@ -5,7 +5,7 @@ transform or an estimated one, and every voxel both maps hold combines their evi
   features and RANSAC) refined by point-to-plane ICP, beside ICP from the identity (maps of one SLAM session
   already share a frame); the result with the larger overlap wins. An estimate is refused unless the share of the
   smaller map's occupied voxels with a partner within one voxel reaches ``min_overlap`` and their RMSE stays
-  under half a voxel (two maps of different places, or of too little common space).
+  under 0.6 voxel (two maps of different places, or of too little common space).
 - Resampling: B's voxels are looked up at the centres of A's lattice moved back by ``T_A_B`` (nearest voxel), so
   a rotated B leaves neither holes nor two voxels in one cell; the identity keeps B's keys as they are.
 - Evidence: occupancy log-odds add and are clamped as OctoMap clamps them (the voxel grid's hit log-odds the same
@@ -39,8 +39,9 @@ from semmap.types import EMPTY_LABEL
 MERGEABLE = (MapKind.OCTOMAP, MapKind.VOXELGRID, MapKind.POINTS)
 #: Default least overlap of an estimated alignment: share of the smaller map's occupied voxels with a partner.
 DEFAULT_MIN_OVERLAP = 0.3
-#: Largest inlier RMSE of an estimated alignment, in voxels (aligned lattices: 0; a wrong fit: near one).
-MAX_RMSE_VOXELS = 0.5
+#: Largest RMSE of the partners' distances of an estimated alignment, in voxels: aligned lattices give 0, a turned
+#: lattice about 0.45 (cells meet off-centre), partners of a wrong fit spread over the whole voxel (about 0.77).
+MAX_RMSE_VOXELS = 0.6
 #: Partners are occupied voxels within this many voxels after alignment.
 PARTNER_VOXELS = 1.0
 #: Voxel keys and ``merge.json`` beside the merged map in an output folder.
