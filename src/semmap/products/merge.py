@@ -193,27 +193,76 @@ def _icp(src, dst, init: np.ndarray, resolution: float) -> np.ndarray:
                                            reg.TransformationEstimationPointToPoint(), criteria).transformation)
 
 
+#: RANSAC runs of the global registration per set of voxels (seeds 0, 1, ...): RANSAC ranks its hypotheses by
+#: geometry alone, so a run may settle on a turned fit that the classes reject; a few runs give the right one too.
+GLOBAL_TRIES = 4
+#: Global results refined by ICP: the best by their class-aware overlap within two voxels.
+GLOBAL_REFINED = 2
+#: Weight of the one-hot class beside the FPFH histogram (values up to ~100): features match within a class.
+CLASS_FEATURE_WEIGHT = 1000.0
+
+
+def _with_class_features(pc, fpfh, points: np.ndarray, labels: np.ndarray, num_classes: int):
+    """FPFH features of ``pc``'s points extended by the one-hot class of the nearest map voxel, so that RANSAC pairs
+    only voxels of one class (a room's geometry alone often fits turned by 180 degrees, its classes do not)."""
+    import open3d as o3d
+    from scipy.spatial import cKDTree
+
+    _, nearest = cKDTree(points).query(np.asarray(pc.points))
+    cls = np.where(labels[nearest] < num_classes, labels[nearest], 0).astype(np.int64)
+    onehot = np.zeros((num_classes, len(cls)))
+    onehot[cls, np.arange(len(cls))] = CLASS_FEATURE_WEIGHT
+    out = o3d.pipelines.registration.Feature()
+    out.data = np.vstack([np.asarray(fpfh.data), onehot])
+    return out
+
+
+def _global_subsets(label_set, la: np.ndarray, lb: np.ndarray) -> list[tuple[np.ndarray, np.ndarray]]:
+    """The voxels global registration looks at: all of them, and (when both maps hold enough) only the things,
+    without walls, floor and ceiling, whose symmetry (a rectangular room fits itself turned by 180 degrees) the
+    furniture breaks."""
+    from semmap.labels import STUFF_CLASSES
+
+    every = [(np.ones(len(la), bool), np.ones(len(lb), bool))]
+    if label_set is None:
+        return every
+    stuff = np.array([i for i, n in enumerate(label_set.names) if n in STUFF_CLASSES or i == 0], np.int64)
+    things = (~np.isin(la, stuff) & (la != EMPTY_LABEL), ~np.isin(lb, stuff) & (lb != EMPTY_LABEL))
+    return every + ([things] if min(int(things[0].sum()), int(things[1].sum())) >= 50 else [])
+
+
+def _global_of(pb: np.ndarray, lb: np.ndarray, pa: np.ndarray, la: np.ndarray, res: float, seed: int, label_set
+               ) -> tuple[np.ndarray, float]:
+    """One global registration (FPFH with classes, RANSAC) of B's voxels ``pb`` onto A's ``pa``, and its overlap."""
+    k = len(label_set) if label_set is not None else 1
+    voxel = max(2.0 * res, 0.05)  # features on a coarser cloud: FPFH needs neighbours, RANSAC fewer points
+    src_g, src_f = _cloud(pb, voxel, features=True)
+    dst_g, dst_f = _cloud(pa, voxel, features=True)
+    src_f, dst_f = _with_class_features(src_g, src_f, pb, lb, k), _with_class_features(dst_g, dst_f, pa, la, k)
+    g = _global(src_g, dst_g, src_f, dst_f, voxel, seed)
+    return g, overlap_of(np.asarray(src_g.points), np.asarray(dst_g.points), g, voxel)[0]
+
+
 def estimate_alignment(a: SemanticMap, b: SemanticMap, *, min_overlap: float = DEFAULT_MIN_OVERLAP,
                        seed: int = 0) -> Alignment:
     """``T_A_B`` from the occupied voxels (module docstring), refused in one line when the overlap is too small.
-    Candidates (the identity, ICP from it, ICP from the global registration) are ranked by the share of voxels
-    that meet a voxel of the same class within half a voxel (a shift by one voxel along a wall fits the geometry
-    as well, not the classes); the first of equals wins."""
+    Candidates (the identity, ICP from it, ICP from the best global registrations) are ranked by the share of
+    voxels that meet a voxel of the same class within half a voxel (a shift by one voxel along a wall fits the
+    geometry as well, not the classes); the first of equals wins."""
     res = float(a.resolution)
     (pa, la), (pb, lb) = occupied_centers(a), occupied_centers(b)
     if min(len(pa), len(pb)) < 10:
         raise ConfigError("a map has fewer than 10 occupied voxels: too little to align (give --transform)")
-    voxel = max(2.0 * res, 0.05)  # features on a coarser cloud: FPFH needs neighbours, RANSAC fewer points
-    src_g, src_f = _cloud(pb, voxel, features=True)
-    dst_g, dst_f = _cloud(pa, voxel, features=True)
-    g = _global(src_g, dst_g, src_f, dst_f, voxel, seed)
-    g_overlap = overlap_of(np.asarray(src_g.points), np.asarray(dst_g.points), g, voxel)[0]
     src, _ = _cloud(pb, max(res, 0.02), features=False)
     dst, _ = _cloud(pa, max(res, 0.02), features=False)
     ca, cb = _with_classes(pa, la), _with_classes(pb, lb)
+    rough = [_global_of(pb[ub], lb[ub], pa[ua], la[ua], res, seed + i, a.label_set)
+             for ua, ub in _global_subsets(a.label_set, la, lb) for i in range(GLOBAL_TRIES)]
+    rough.sort(key=lambda r: -overlap_of(cb, ca, r[0], res, 2.0)[0])
+    candidates = [("identity", np.eye(4), None), ("identity", _icp(src, dst, np.eye(4), res), None),
+                  *(("global", _icp(src, dst, g, res), g_overlap) for g, g_overlap in rough[:GLOBAL_REFINED])]
     best, best_score = None, -1.0
-    for start, T in (("identity", np.eye(4)), ("identity", _icp(src, dst, np.eye(4), res)),
-                     ("global", _icp(src, dst, g, res))):
+    for start, T, g_overlap in candidates:
         score = overlap_of(cb, ca, T, res, 0.5)[0]
         if score > best_score + 1e-9:
             best_score, best = score, Alignment(T, "estimated", *overlap_of(pb, pa, T, res), start, g_overlap)
