@@ -109,6 +109,12 @@ def test_the_ply_reader_takes_scannet_layouts(tmp_path, truth):
     (tmp_path / "cut.ply").write_bytes((tmp_path / "le.ply").read_bytes()[:-2000])
     with pytest.raises(FormatError, match="truncated"):
         read_labelled_vertices(tmp_path / "cut.ply")
+    for name, text in (("neg.ply", "ply\nformat ascii 1.0\nelement vertex -3\nproperty float x\nend_header\n"),
+                       ("odd.ply", "ply\nformat binary_middle_endian 1.0\nend_header\n"),
+                       ("no.ply", "not a ply at all\n")):
+        (tmp_path / name).write_text(text)
+        with pytest.raises(FormatError):
+            read_labelled_vertices(tmp_path / name)
 
 
 def test_eval_map_command_with_gt_ply(tmp_path, truth):

@@ -43,6 +43,8 @@ def _header(path: Path, raw) -> tuple[str, list[tuple[str, int, list[tuple[str, 
                 fmt = words[1]
             elif words[0] == "element":
                 elements.append((words[1], int(words[2]), []))
+                if elements[-1][1] < 0:
+                    raise ValueError(line)
             elif words[0] == "property" and elements:
                 is_list = words[1] == "list"
                 code = None if is_list else PLY_TYPES[words[1]]
