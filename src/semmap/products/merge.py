@@ -2,10 +2,11 @@
 transform or an estimated one, and every voxel both maps hold combines their evidence as the maps' own rules do.
 
 - Alignment: ``T_A_B`` from a text file, or estimated from the occupied voxels: global registration (Open3D FPFH
-  features and RANSAC) refined by point-to-plane ICP, beside ICP from the identity (maps of one SLAM session
-  already share a frame); the result with the larger overlap wins. An estimate is refused unless the share of the
-  smaller map's occupied voxels with a partner within one voxel reaches ``min_overlap`` and their RMSE stays
-  under 0.6 voxel (two maps of different places, or of too little common space).
+  features with each voxel's class, RANSAC over all voxels and over the things alone) refined by ICP, beside the
+  identity and ICP from it (maps of one SLAM session already share a frame); the candidate whose voxels most
+  often meet a voxel of their class wins. An estimate is refused unless the share of the smaller map's occupied
+  voxels with a partner within one voxel reaches ``min_overlap`` and their RMSE stays under 0.6 voxel (two maps
+  of different places, or of too little common space).
 - Resampling: B's voxels are looked up at the centres of A's lattice moved back by ``T_A_B`` (nearest voxel), so
   a rotated B leaves neither holes nor two voxels in one cell; the identity keeps B's keys as they are.
 - Evidence: occupancy log-odds add and are clamped as OctoMap clamps them (the voxel grid's hit log-odds the same
