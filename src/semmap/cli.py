@@ -816,7 +816,8 @@ def eval_seg(
 def eval_map(
     map_path: Annotated[Path, typer.Argument(metavar="MAP", help="a .semmap map file (any map), or a run folder "
                                              "holding map.semmap")],
-    seq: Annotated[Path, typer.Argument(help="the labelled sequence it was built from (poses and label images)")],
+    seq: Annotated[Path | None, typer.Argument(help="the labelled sequence it was built from (poses and label "
+                                                    "images); may be left out with --gt-ply")] = None,
     format: Annotated[str, typer.Option(help=_FORMATS)] = AUTO,
     segmenter: Annotated[str | None, typer.Option(help="score this network's labels at the same pixels beside the "
                                                   "map's (precomputed --weights FOLDER: stored predictions); "
@@ -825,15 +826,37 @@ def eval_map(
     every: Annotated[int, typer.Option(help="score every N-th frame")] = 10,
     pixel_stride: Annotated[int, typer.Option(help="score every k-th pixel row and column")] = 1,
     max_frames: Annotated[int | None, typer.Option(help="read at most N frames")] = None,
+    gt_ply: Annotated[Path | None, typer.Option(help="labelled ground-truth points or mesh vertices (PLY, e.g. "
+                                                "ScanNet's *_vh_clean_2.labels.ply): mIoU, f.w. mIoU and mean class "
+                                                "accuracy over them, in the map's class ids")] = None,
+    gt_label_property: Annotated[str, typer.Option(help="the vertex property of --gt-ply holding the class")
+                                 ] = "label",
     out: Annotated[Path | None, typer.Option(help="also write the scores as JSON here")] = None,
 ) -> None:
     """A map scored at the pixels of a labelled sequence: the map's label at each pixel's 3D point against the true
-    label, beside the network's own label at the same pixels (MIoU, accuracy, MPA, coverage, the fusion ceiling)."""
+    label, beside the network's own label at the same pixels (MIoU, accuracy, MPA, coverage, the fusion ceiling);
+    with --gt-ply, at a dataset's labelled points or mesh vertices as the benchmarks score maps."""
     _setup_logging(False)
-    from semmap.run.eval_map import evaluate_map_file
+    from semmap.errors import ConfigError
+    from semmap.run.eval_map import evaluate_map_file, evaluate_map_points
 
-    scores = evaluate_map_file(map_path, seq, format=format, segmenter=segmenter, weights=weights, every=every,
-                               stride=pixel_stride, max_frames=max_frames, out=out)
+    if seq is None and gt_ply is None:
+        raise ConfigError("eval-map needs the labelled sequence SEQ, or --gt-ply, or both")
+    pixels = functools.partial(evaluate_map_file, map_path, seq, format=format, segmenter=segmenter, weights=weights,
+                               every=every, stride=pixel_stride, max_frames=max_frames)
+    points = functools.partial(evaluate_map_points, map_path, gt_ply, label_property=gt_label_property)
+    if gt_ply is None:
+        scores = pixels(out=out)
+    elif seq is None:
+        scores = points(out=out)
+    else:  # both: one JSON of both, its --out checked against every input first
+        from semmap.files.atomic import write_text_atomic
+        from semmap.files.outputs import OutputKind, check_outputs
+
+        check_outputs([("--out", out, OutputKind.FILE)], [("MAP", map_path), ("SEQ", seq), ("--gt-ply", gt_ply)])
+        scores = {**points(out=None), **pixels(out=None)}
+        if out is not None:
+            write_text_atomic(out, json.dumps(scores, indent=2))
     typer.echo(json.dumps(scores, indent=2))
 
 
@@ -940,6 +963,34 @@ def diff(
                                     f"{o['moved']} moved")
     typer.echo(f"{out}: voxels {v['appeared']:,} appeared, {v['disappeared']:,} disappeared, {v['relabelled']:,} "
                f"changed class ({v['observed_by_both']:,} seen by both){objects}")
+
+
+@app.command()
+def merge(
+    map_a: Annotated[Path, typer.Argument(metavar="A", help="a map: .semmap (OctoMap, voxel grid or point map) or a "
+                                          "run folder; the merged map is in its frame")],
+    map_b: Annotated[Path, typer.Argument(metavar="B", help="a map of the same place, kind, resolution and classes")],
+    out: Annotated[Path, typer.Option("--out", "-o", help="output: a folder (the map's files, transform.txt, "
+                                      "merge.json) or a .semmap file; never A or B")],
+    transform: Annotated[Path | None, typer.Option(help="text file of the 4x4 transform taking B's coordinates into "
+                                                   "A's frame (default: estimated from the occupied voxels)")] = None,
+    min_overlap: Annotated[float, typer.Option(help="refuse an estimated alignment unless this share of the smaller "
+                                               "map's occupied voxels meets the other map")] = 0.3,
+    as_json: _Json = False,
+) -> None:
+    """Merge two maps of one place: B aligned to A (a given transform, or FPFH + RANSAC then ICP, checked for a
+    sane overlap), evidence combined by the maps' own occupancy update and fusion rule."""
+    _setup_logging(False)
+    from semmap.products.merge import merge_map_files
+
+    s = merge_map_files(map_a, map_b, out, transform=transform, min_overlap=min_overlap)
+    al, occ = s["alignment"], s["occupied"]
+    rows = [("alignment", f"{al['source']}" + (f" (from the {al['start']})" if al["start"] else "")),
+            ("overlap", f"{100 * al['overlap']:.1f} % of the smaller map's occupied voxels, RMSE "
+                        f"{100 * al['rmse_m']:.2f} cm"),
+            ("occupied voxels", f"A {occ['a']:,}, B {occ['b']:,}, merged {occ['merged']:,}"),
+            ("written", str(out))]
+    _summary_out(s, as_json, f"semmap merge: {s['kind']} at {s['resolution']} m", rows)
 
 
 export_app = typer.Typer(no_args_is_help=True, help="Robot products from a finished map: a 2D navigation grid "

@@ -150,8 +150,8 @@ OPTIONS: dict[str, OptionRule] = {
     "--z-min": OptionRule("coordinate"), "--z-max": OptionRule("coordinate"), "--floor": OptionRule("coordinate"),
     "--slice-z": OptionRule("coordinate"), "--inflation": OptionRule("inflation"), "--near": OptionRule("distance"),
     "--door-width": OptionRule("distance"), "--region": OptionRule("coordinate", REGION),
-    # eval-map
-    "eval-map --every": OptionRule("every_positive"),
+    # eval-map, merge
+    "eval-map --every": OptionRule("every_positive"), "--min-overlap": OptionRule("probability"),
     # the TSDF and its mesh
     "--tsdf-voxel": OptionRule("resolution"), "--tsdf-truncation": OptionRule("tsdf_truncation"),
     "--min-weight": OptionRule("tsdf_weight"),
