@@ -14,7 +14,8 @@ Mapping file (JSON)::
 
 Keys name a model class by name (case and surrounding spaces ignored; a model's ``"pot, flowerpot"`` is also
 ``pot``) or by id; values are a target label name, or null (the class is void). An optional ``"classes"`` lists
-the model classes the file was written for (documentation, and the classes of the tests' tiny models). Shipped examples: :func:`shipped_class_maps` (``class_maps/`` beside this file).
+the model classes the file was written for (documentation, and the classes of the tests' tiny models).
+Shipped examples: :func:`shipped_class_maps` (``class_maps/`` beside this file).
 """
 
 from __future__ import annotations
