@@ -160,7 +160,7 @@ def test_mask2former_semantic_scores_agree_with_its_post_processing(tmp_path):
     names = {0: "wall", 1: "floor", 2: "chair"}
     backbone = t.SwinConfig(embed_dim=8, depths=[1, 1, 1, 1], num_heads=[1, 1, 1, 1], window_size=4, image_size=64,
                             out_features=["stage1", "stage2", "stage3", "stage4"])
-    config = t.Mask2FormerConfig(backbone_config=backbone, hidden_dim=16, mask_feature_size=16, feature_size=16,
+    config = t.Mask2FormerConfig(backbone_config=backbone, hidden_dim=32, mask_feature_size=32, feature_size=32,
                                  num_queries=4, encoder_layers=1, decoder_layers=2, dim_feedforward=32,
                                  encoder_feedforward_dim=32, num_attention_heads=2, common_stride=4,
                                  id2label=names, label2id={v: k for k, v in names.items()})
