@@ -44,6 +44,12 @@ def _transformers():
         raise ConfigError(f"--segmenter hf: needs the transformers package: {HUB_HINT}") from None
     transformers.logging.set_verbosity_error()
     transformers.utils.logging.disable_progress_bar()
+    try:
+        import huggingface_hub
+
+        huggingface_hub.utils.logging.set_verbosity_error()  # no "Retrying in 8s" lines: one error at the end
+    except (ImportError, AttributeError):
+        pass
     return transformers
 
 
@@ -55,7 +61,12 @@ def _load(what: str, model_id: str, loader, **kwargs):
     """``loader.from_pretrained(model_id)``, or one line saying why not (offline, no such model, not a model)."""
     local = Path(model_id).is_dir()
     try:
-        return loader.from_pretrained(model_id, local_files_only=local or _offline(), **kwargs)
+        try:  # the local folder, or the hub cache first: no network where the model is already there
+            return loader.from_pretrained(model_id, local_files_only=True, **kwargs)
+        except OSError:
+            if local or _offline():
+                raise
+        return loader.from_pretrained(model_id, **kwargs)
     except (OSError, ValueError, KeyError, TypeError) as exc:
         first = (str(exc).strip().splitlines() or [type(exc).__name__])[0][:200]
         if local:
