@@ -275,7 +275,7 @@ def test_the_configuration_reads_the_model_after_the_colon():
 # --------------------------------------------------------------------------------------------------
 # class mappings
 # --------------------------------------------------------------------------------------------------
-@pytest.mark.parametrize("name", ["ade20k-150", "nyu40"])
+@pytest.mark.parametrize("name", ["ade20k-150", "nyu40", "coco-panoptic-133"])
 def test_shipped_class_maps_fit_the_classes_they_were_written_for(name):
     data = json.loads(shipped_class_maps()[name].read_text())
     fold = read_class_map(Path(name), data["classes"])

@@ -171,7 +171,7 @@ def run(
                                                           "(default: MODEL.json beside it)",
                                                           rich_help_panel=_SEMANTICS)] = None,
     class_map: Annotated[Path | None, typer.Option(help="JSON mapping of an onnx:/hf: model's classes to the map's "
-                                                   "labels (or a shipped one: ade20k-150, nyu40, coco)",
+                                                   "labels (or a shipped one: ade20k-150, nyu40, coco-panoptic-133)",
                                                    rich_help_panel=_SEMANTICS)] = None,
     segment_every: Annotated[int, typer.Option(help="segment every k-th frame (others add geometry and colour)",
                                                rich_help_panel=_SEMANTICS)] = _default(SemanticsConfig,

@@ -180,7 +180,8 @@ class SemanticsConfig(_Section):
     segmenter_config: Path | None = Field(None, description="JSON sidecar of an ONNX model (None: MODEL.json beside "
                                                             "it)")
     class_map: Path | None = Field(None, description="JSON mapping of a user model's classes to the map's labels "
-                                                     "(a file, or a shipped one by name: ade20k-150, nyu40, coco)")
+                                                     "(a file, or a shipped one by name: ade20k-150, nyu40, "
+                                                     "coco-panoptic-133)")
     weights: Path | None = Field(None, description="network weights, or the folder of precomputed predictions")
     trust_weights: bool = Field(False, description="use shipped weights whose sha256 differs from weights/manifest.json"
                                                    " (with a warning) instead of refusing them")

@@ -42,7 +42,7 @@ CLASS_MAP_DIR = Path(__file__).resolve().parent / "class_maps"
 
 
 def shipped_class_maps() -> dict[str, Path]:
-    """The example mapping files shipped with semmap, by stem (``ade20k-150``, ``nyu40``, ``coco``)."""
+    """The example mapping files shipped with semmap, by stem (``ade20k-150``, ``nyu40``, ``coco-panoptic-133``)."""
     return {p.stem: p for p in sorted(CLASS_MAP_DIR.glob("*.json"))}
 
 
