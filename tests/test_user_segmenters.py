@@ -15,7 +15,7 @@ from typer.testing import CliRunner
 
 from semmap.cli import app
 from semmap.config import SemanticsConfig
-from semmap.errors import ConfigError
+from semmap.errors import ConfigError, SemmapError
 from semmap.labels import INDOOR_LABELS
 from semmap.perception.class_map import read_class_map, shipped_class_maps
 from semmap.perception.registry import SegmenterName, make_segmenter
@@ -254,6 +254,15 @@ def test_the_cli_says_what_is_wrong_in_one_line(sim_seq, tmp_path):
                                  "--class-map", "ade20k-150"])
     assert isinstance(r.exception, ConfigError) and "--class-map" in str(r.exception)
     assert not (tmp_path / "o").exists()
+    (tmp_path / "models").mkdir()
+    model = _export(_Channels(), tmp_path / "models" / "m.onnx", torch.zeros(1, 3, 32, 32))
+    sidecar = _sidecar(model, labels=["a", "b", "c"])
+    for outputs, option in ((["--out", str(model.parent)], "--segmenter"),  # the model's folder
+                            (["--out", str(tmp_path / "o"), "--rerun", str(sidecar)], "--segmenter-config")):
+        r = CliRunner().invoke(app, ["run", str(sim_seq), *outputs, "--segmenter", f"onnx:{model}"])
+        assert isinstance(r.exception, SemmapError), r.output
+        assert option in str(r.exception) and "\n" not in str(r.exception)
+    assert model.is_file() and sidecar.read_text() == json.dumps({"labels": ["a", "b", "c"]})
 
 
 def test_an_offline_hub_id_is_refused_in_one_line():

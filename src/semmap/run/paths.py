@@ -20,9 +20,12 @@ def run_inputs(config: RunConfig) -> list[Named]:
     poses, s = config.poses.source, config.semantics
     model = Path(s.model) if s.model and Path(s.model).exists() else None  # (a hub id is no path)
     class_map = s.class_map if s.class_map is not None and s.class_map.exists() else None  # (or a shipped name)
+    sidecar = s.segmenter_config
+    if sidecar is None and model is not None and model.is_file():
+        sidecar = model.with_suffix(".json")  # an ONNX model's sidecar beside it
     return [("DATASET", config.input.dataset), ("--labels", config.input.labels),
             ("--weights", s.weights), ("--class-prior", s.class_prior), ("--segmenter", model),
-            ("--segmenter-config", s.segmenter_config), ("--class-map", class_map),
+            ("--segmenter-config", sidecar), ("--class-map", class_map),
             ("--instance-weights", config.objects.weights),
             ("--poses", None if poses in POSE_SOURCES else Path(poses))]
 
