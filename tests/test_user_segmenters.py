@@ -310,3 +310,25 @@ def test_a_class_map_adds_the_probabilities_of_classes_it_folds_together(tmp_pat
     path.write_text(json.dumps({"map": {"rug": "carpet"}}))
     with pytest.raises(ConfigError, match=r"map\.json: map\['rug'\] = 'carpet' is not a label"):
         read_class_map(path, ["floor", "rug"])
+
+
+def test_an_exported_network_runs_as_semmap_runs_it_itself(tmp_path):
+    """ESPNetv2 (random weights, small) through ``onnx:`` and a sidecar gives the probabilities semmap's own network
+    runner gives: the same resize, normalisation and sampling of a half-resolution, corner-aligned output."""
+    from semmap.perception.espnetv2 import ESPNetv2Seg
+    from semmap.perception.network import NetworkInput, NetworkSegmenter
+    from semmap.perception.voc import PASCAL_VOC, VOC_NAMES
+
+    torch.manual_seed(0)
+    net = ESPNetv2Seg(0.5, len(VOC_NAMES), full_resolution=False).eval()
+    model = _export(net, tmp_path / "esp.onnx", torch.zeros(1, 3, 48, 64))
+    _sidecar(model, input={"size": [64, 48], "mean": [0.485, 0.456, 0.406], "std": [0.229, 0.224, 0.225]},
+             output={"align_corners": True}, labels=list(VOC_NAMES))
+    ours = NetworkSegmenter(net, PASCAL_VOC, name="espnetv2", net_input=NetworkInput(size=(64, 48), short_side=None),
+                            k=3)
+    user = make_segmenter(f"onnx:{model}", k=3)
+    assert user.label_set.names == PASCAL_VOC.names
+    rgb = np.random.default_rng(2).integers(0, 255, (90, 120, 3), dtype=np.uint8)
+    a, b = ours.predict(rgb), user.predict(rgb)
+    assert (a.labels == b.labels).mean() > 0.999
+    np.testing.assert_allclose(a.probs, b.probs, atol=1e-4)
