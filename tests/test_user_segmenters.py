@@ -197,11 +197,17 @@ def test_the_sidecar_says_how_pixels_are_fed(tmp_path, layout, channels, first):
     assert (top.labels[..., 0] == first).all()
     expected = np.exp(1.0) / (np.exp(1.0) + 2 * np.exp(-1.0))
     np.testing.assert_allclose(top.probs[..., 0], expected, rtol=1e-3)
+    _sidecar(model, input={"layout": layout, "channels": channels}, output={"layout": layout, "kind": "probabilities"},
+             labels=["background", "a", "b"])  # pixel / 255 read as probabilities: (1, 0, 0), renormalised
+    top = make_segmenter(f"onnx:{model}", k=2).predict(rgb // 2)
+    assert (top.labels[..., 0] == first).all()
+    np.testing.assert_allclose(top.probs[..., 0], 1.0, rtol=1e-5)
 
 
 def _problem(tmp_path: Path, case: str) -> tuple[Path, Path | None]:
     """A model and sidecar with one mistake each (returns the model and an explicit --segmenter-config)."""
-    model = _export(_Channels(), tmp_path / "m.onnx", torch.zeros(1, 3, 32, 32))
+    dynamic = {"image": {2: "h", 3: "w"}} if case == "huge" else None
+    model = _export(_Channels(), tmp_path / "m.onnx", torch.zeros(1, 3, 32, 32), dynamic=dynamic)
     good = {"input": {"layout": "NCHW"}, "labels": ["a", "b", "c"]}
     if case == "missing sidecar":
         return model, None
@@ -217,6 +223,7 @@ def _problem(tmp_path: Path, case: str) -> tuple[Path, Path | None]:
               "labels": {"input": {"layout": "NCHW"}},
               "size": {**good, "input": {"size": [64, 48]}},
               "std": {**good, "input": {"std": [1, 0, 1]}},
+              "huge": {**good, "input": {"size": [90000, 90000]}},
               "json": None}[case]
     if fields is None:
         model.with_suffix(".json").write_text("{\"input\": ")
@@ -236,6 +243,7 @@ def _problem(tmp_path: Path, case: str) -> tuple[Path, Path | None]:
     ("size", ["m.json", "input.size", "64x48", "32x32"]),
     ("std", ["m.json", "input.std", "positive"]),
     ("json", ["m.json", "not valid JSON"]),
+    ("huge", ["m.json", "input.size"]),
 ])
 def test_sidecar_mistakes_are_one_line_naming_file_and_field(tmp_path, case, words):
     model, config = _problem(tmp_path, case)

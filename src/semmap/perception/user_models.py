@@ -33,6 +33,7 @@ import numpy as np
 from semmap.errors import ConfigError
 from semmap.files.safe import path_kind
 from semmap.geometry import onto_depth_grid
+from semmap.limits import check_network_input
 from semmap.perception.class_map import ClassFold, own_classes, read_class_map, read_json_object
 from semmap.perception.network import NetworkInput
 from semmap.types import EMPTY_LABEL, Frame, LabelSet, TopKProbs
@@ -63,6 +64,7 @@ class ModelSegmenter:
                  fold: ClassFold, *, k: int = 3, batch_size: int = 1, what: str = ""):
         if k < 1:
             raise ConfigError(f"k must be at least 1, got {k}")
+        _check_size(net_input, batch_size, f"{what or name} network input")
         self.name, self._run, self.net_input, self.fold = name, run, net_input, fold
         self.k, self.batch_size, self.what = k, max(1, int(batch_size)), what or name
 
@@ -125,6 +127,12 @@ class ModelSegmenter:
         t = time.perf_counter()
         self.segment(frame)
         return time.perf_counter() - t
+
+
+def _check_size(net_input: NetworkInput, batch_size: int, option: str) -> None:
+    """The network input's sides and a batch's memory within semmap's limits (a 4:3 image for a short side)."""
+    size = net_input.size or (net_input.short_side * 4 // 3, net_input.short_side)
+    check_network_input(int(size[0]), int(size[1]), max(1, int(batch_size)), option=option)
 
 
 def class_fold(names: Sequence[str], class_map: Path | None, where: str) -> ClassFold:
@@ -359,6 +367,7 @@ def onnx_segmenter(name: str, model: Path, *, config: Path | None = None, class_
     out = _pick(session.get_outputs(), side.output_name, "output", model, side.path, "output.name")
     net_input = _model_input(inp, side, model, input_size)
     _check_output(out, side, model)
+    _check_size(net_input, batch_size, "--input-size" if input_size is not None else f"{side.path}: input.size")
     dtype = np.dtype(_INPUT_TYPES[inp.type])
     fixed_batch = _fixed(inp.shape[0])
     batch = fixed_batch or batch_size
