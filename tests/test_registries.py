@@ -51,6 +51,9 @@ ALLOWED: dict[tuple[str, str], str] = {
     ("localization/run.py", "max"): "the largest localization error (a statistic)",
     ("sim/scene.py", "max"): "a bounding box's upper corner",
     ("config.py", "oracle"): "SemanticSource.ORACLE: a value of --semantics (where class probabilities come from)",
+    ("perception/network.py", "onnx"): "--backend onnx: the ONNX Runtime backend of semmap's networks (and its cache "
+                                       "folder), not the segmenter onnx:MODEL",
+    ("runner.py", "onnx"): "--backend onnx for the demo's network (the runtime, not the segmenter onnx:MODEL)",
     ("localization/sequence.py", "odometry"): "--motion odometry: a localization motion source (MOTION_SOURCES)",
     ("cli.py", "odometry"): "the default of localize --motion (a localization motion source)",
     ("eval/report_md.py", "points"): "the 'points' count of a report entry",

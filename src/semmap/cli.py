@@ -158,7 +158,8 @@ def run(
                                 ] = _default(SemanticsConfig, "label_confidence"),
     lam: Annotated[float, typer.Option("--lambda", help="penalty λ of the top-k fusion (Algorithm 1)",
                                        rich_help_panel=_SEMANTICS)] = _default(SemanticsConfig, "lam"),
-    segmenter: Annotated[str | None, typer.Option(help=f"{SEGMENTERS.choices()} (default: from --semantics)",
+    segmenter: Annotated[str | None, typer.Option(help=f"{SEGMENTERS.choices()} (onnx:MODEL.onnx, hf:MODEL_ID; "
+                                                       "default: from --semantics)",
                                                   rich_help_panel=_SEMANTICS)] = None,
     weights: Annotated[Path | None, typer.Option(help="network weights (espnetv2; semmap's networks default to the "
                                                  "shipped weights/), or the predictions folder (precomputed)",
@@ -166,6 +167,12 @@ def run(
     trust_weights: Annotated[bool, typer.Option("--trust-weights", help="use shipped weights whose sha256 differs "
                                                 "from weights/manifest.json (with a warning)",
                                                 rich_help_panel=_SEMANTICS)] = False,
+    segmenter_config: Annotated[Path | None, typer.Option(help="JSON sidecar of --segmenter onnx:MODEL.onnx "
+                                                          "(default: MODEL.json beside it)",
+                                                          rich_help_panel=_SEMANTICS)] = None,
+    class_map: Annotated[Path | None, typer.Option(help="JSON mapping of an onnx:/hf: model's classes to the map's "
+                                                   "labels (or a shipped one: ade20k-150, nyu40, coco-panoptic-133)",
+                                                   rich_help_panel=_SEMANTICS)] = None,
     segment_every: Annotated[int, typer.Option(help="segment every k-th frame (others add geometry and colour)",
                                                rich_help_panel=_SEMANTICS)] = _default(SemanticsConfig,
                                                                                        "segment_every"),
@@ -270,7 +277,8 @@ def run(
                               tsdf_truncation=tsdf_truncation),
         semantics=SemanticsConfig(source=semantics, label_confidence=label_confidence, lam=lam, k=top_k,
                                   max_confidence=max_confidence, segmenter=segmenter,
-                                  weights=weights, trust_weights=trust_weights, segment_every=segment_every,
+                                  weights=weights, trust_weights=trust_weights, segmenter_config=segmenter_config,
+                                  class_map=class_map, segment_every=segment_every,
                                   keyframes=keyframes,
                                   batch_size=batch_size, backend=backend, input_size=_size(input_size),
                                   fusion=fusion, class_prior=class_prior),

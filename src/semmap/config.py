@@ -21,7 +21,7 @@ from semmap.limits import check, field_bounds
 from semmap.maps.registry import MAPS, MapKind, own_rules
 from semmap.maps.semantic_octomap import CellEvidence
 from semmap.perception.instances.registry import INSTANCE_SOURCES, InstanceSourceName
-from semmap.perception.registry import SEGMENTERS, SegmenterName
+from semmap.perception.registry import SEGMENTERS, SegmenterName, split_segmenter
 from semmap.poses.track import GROUND_TRUTH, POSE_SOURCES, PoseSource
 from semmap.registry import check_name
 
@@ -175,6 +175,13 @@ class SemanticsConfig(_Section):
     oracle_preset: str = "cnn-like"
     seed: int = Field(0, **field_bounds("seed"))
     segmenter: SegmenterName | None = Field(None, description=f"{SEGMENTERS.choices()} (None: from source)")
+    model: str | None = Field(None, description="the user's own model of --segmenter NAME:MODEL (an ONNX file, a "
+                                                "Hugging Face model id or folder)")
+    segmenter_config: Path | None = Field(None, description="JSON sidecar of an ONNX model (None: MODEL.json beside "
+                                                            "it)")
+    class_map: Path | None = Field(None, description="JSON mapping of a user model's classes to the map's labels "
+                                                     "(a file, or a shipped one by name: ade20k-150, nyu40, "
+                                                     "coco-panoptic-133)")
     weights: Path | None = Field(None, description="network weights, or the folder of precomputed predictions")
     trust_weights: bool = Field(False, description="use shipped weights whose sha256 differs from weights/manifest.json"
                                                    " (with a warning) instead of refusing them")
@@ -196,6 +203,18 @@ class SemanticsConfig(_Section):
         for side in (v if isinstance(v, list | tuple) else (v,)):
             check("input_side", side, _label(cls.section, "input_size", "--input-size"))
         return v
+
+    @model_validator(mode="before")
+    @classmethod
+    def _model_after_colon(cls, data: object) -> object:
+        """``segmenter = "onnx:MODEL.onnx"`` is read as the segmenter ``onnx`` and its ``model``."""
+        if isinstance(data, dict) and isinstance(data.get("segmenter"), str):
+            name, model = split_segmenter(data["segmenter"])
+            if model is not None:
+                if data.get("model") not in (None, model):
+                    raise ValueError(f"two models: {model!r} (--segmenter) and {data['model']!r}")
+                data = {**data, "segmenter": name, "model": model}
+        return data
 
     @field_validator("segmenter", mode="before")
     @classmethod

@@ -69,9 +69,9 @@ def _segmenter(name: str | None, weights: Path | None, dataset):
         if weights is not None:
             raise ConfigError("--weights needs --segmenter (precomputed for a folder of predictions)")
         return None
-    from semmap.perception.registry import SEGMENTERS, make_segmenter
+    from semmap.perception.registry import SEGMENTERS, make_segmenter, split_segmenter
 
-    entry = SEGMENTERS[name]
+    entry = SEGMENTERS[split_segmenter(name)[0]]  # (onnx:MODEL.onnx, hf:MODEL_ID: the user's own model)
     label_set = dataset.label_set if entry.dataset_classes else None
     return make_segmenter(name, weights=weights, label_set=label_set)
 
