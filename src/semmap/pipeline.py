@@ -33,6 +33,7 @@ from semmap.maps.base import SemanticMap
 from semmap.maps.registry import MapKind, compile_kernels
 from semmap.object_stage import ObjectStage
 from semmap.perception.base import Segmenter
+from semmap.perception.calibration import apply_temperature
 from semmap.perception.instances.base import InstanceSource
 from semmap.perception.schedule import (
     Scheduler,
@@ -280,7 +281,7 @@ class Pipeline:
         self._viewer.finish(maps[0])
         warn_if_empty(maps[0], c, mapper.points_integrated, record.poses)
         self.scorer.align_to(pose_of)  # maps from estimated poses are scored in the ground truth's frame
-        crf = (refine_maps(maps, record.poses, iterations=c.crf.iterations, scorer=self.scorer)
+        crf = (refine_maps(maps, record.poses, params=c.crf.params(), scorer=self.scorer)
                if c.crf.enabled else {})
         files, sizes = write_outputs(stage, maps, record.poses, c, self._objects)
         return RunOutcome(record=record, maps=maps, pose_of=pose_of, dataset=str(c.input.dataset),
@@ -352,6 +353,11 @@ class Pipeline:
         """One frame into every map (and the object map, the CRF and the viewer), the moment its pose and
         semantics are there; its latency since it was read."""
         timings = record.timings
+        temperature = self.config.semantics.temperature
+        if sem is not None and temperature != 1.0:  # --temperature: softened or sharpened before anything uses it
+            t_temp = time.perf_counter()
+            sem = apply_temperature(sem, temperature, num_classes=None if label_set is None else len(label_set))
+            timings["temperature"] += (time.perf_counter() - t_temp) * 1e3
         if self.segmenter is not None and sem is not None:
             record.segmented += 1
             if frame.labels is not None:
@@ -372,7 +378,8 @@ class Pipeline:
         every = self.config.crf.every
         if self.config.crf.enabled and every and mapper.last_was_keyframe and mapper.keyframes % every == 0:
             t_crf = time.perf_counter()
-            refine_maps(mapper.maps, [*record.poses, T], iterations=self.config.crf.iterations, scorer=self.scorer)
+            refine_maps(mapper.maps, [*record.poses, T], params=self.config.crf.params(),
+                        scorer=self.scorer)
             timings["crf"] += (time.perf_counter() - t_crf) * 1e3
         record.poses.append(T)
         record.latency_ms.append((time.perf_counter() - record.arrival.pop(id(frame))) * 1e3)

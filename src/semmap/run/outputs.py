@@ -11,6 +11,7 @@ import numpy as np
 from semmap.config import RunConfig
 from semmap.eval.run_report import RunScorer
 from semmap.files.atomic import write_text_atomic
+from semmap.fusion.crf import CrfParams
 from semmap.io.map_files import save_map_files
 from semmap.keys import TREE_MAX_VAL
 from semmap.limits import MemoryBudgetError
@@ -52,13 +53,12 @@ def write_outputs(out: Path, maps: list[SemanticMap], poses: list[np.ndarray], c
     return files, sizes
 
 
-def refine_maps(maps: list[SemanticMap], poses: list[np.ndarray], *, iterations: int,
+def refine_maps(maps: list[SemanticMap], poses: list[np.ndarray], *, params: CrfParams,
                 scorer: RunScorer) -> dict[MapKind, dict]:
-    """3D dense CRF over every map with class distributions; per map: its accuracy before (when there is ground
-    truth), elements refined and changed, milliseconds."""
-    from semmap.fusion.crf import CrfParams, refine_map
+    """3D dense CRF (``params``: ``--crf-params``) over every map with class distributions; per map: its accuracy
+    before (when there is ground truth), elements refined and changed, milliseconds."""
+    from semmap.fusion.crf import refine_map
 
-    params = CrfParams(iterations=iterations)
     viewpoint = np.mean([np.asarray(T)[:3, 3] for T in poses], axis=0) if poses else None
     out: dict[MapKind, dict] = {}
     for m in maps:
