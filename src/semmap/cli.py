@@ -200,6 +200,9 @@ def run(
                                               rich_help_panel=_OUTPUT)] = False,
     rerun_map_every: Annotated[int, typer.Option(help="frames between two logs of the whole map to rerun",
                                                  rich_help_panel=_OUTPUT)] = _default(OutputConfig, "rerun_map_every"),
+    cloud: Annotated[bool, typer.Option("--cloud/--no-cloud", help="write cloud.ply, the dense coloured cloud of every "
+                                        "frame's points (one per --point-resolution cell) the report's storage table "
+                                        "compares the maps with", rich_help_panel=_OUTPUT)] = True,
     checkpoint_every: Annotated[int, typer.Option(help="save the run's state every N mapped frames (0: never), so "
                                                   "--resume can continue after a crash", rich_help_panel=_OUTPUT)] = 0,
     resume: Annotated[bool, typer.Option("--resume", help="continue a run that was killed, from its last checkpoint "
@@ -290,7 +293,7 @@ def run(
         crf=CrfConfig(enabled=crf, every=crf_every, **parse_crf_params(crf_params)),
         objects=ObjectsConfig(instances=instances, weights=instance_weights, errors=instance_errors),
         output=OutputConfig(out=out, color_mode=_color_mode(color_mode), rerun=rerun, rerun_spawn=rerun_spawn,
-                            rerun_map_every=rerun_map_every),
+                            rerun_map_every=rerun_map_every, cloud=cloud),
     ))
     with _interruptible():
         result = run_config(config, progress=progress_bar("mapping"),
