@@ -94,3 +94,24 @@ def test_property_order_kept_sums_kept_and_matches_the_scaled_softmax(logits, t,
     assert np.array_equal(out.labels, sets.labels)
     assert (np.diff(out.probs, axis=-1) <= 1e-6).all()  # still sorted by decreasing probability
     assert (out.probs.sum(-1) <= 1 + 1e-5).all()
+
+
+def test_a_run_fuses_the_tempered_sets(tmp_path) -> None:
+    """``semantics.temperature`` reaches fusion: label images softened at T = 4 leave the map less sure of the
+    same classes than at T = 1."""
+    from helpers import make_room_frames, room_label_set
+    from semmap.config import InputConfig, MappingConfig, OutputConfig, RunConfig
+    from semmap.io.tum_writer import write_tum_sequence
+    from semmap.pipeline import Pipeline
+
+    write_tum_sequence(tmp_path / "seq", make_room_frames(3), label_set=room_label_set())
+    clouds = {}
+    for t in (1.0, 4.0):
+        config = RunConfig(input=InputConfig(dataset=tmp_path / "seq"), mapping=MappingConfig(resolution=0.1),
+                           semantics=SemanticsConfig(source="labels", temperature=t),
+                           output=OutputConfig(out=tmp_path / f"out{t:g}", plots=False, preview=False, cloud=False))
+        result = Pipeline(config).run()
+        clouds[t] = result.maps[0].cloud()
+        assert ("temperature" in result.report["ms_per_frame"]) == (t != 1.0)
+    assert (clouds[1.0].labels == clouds[4.0].labels).mean() > 0.9  # (the top-k rule may flip a boundary voxel)
+    assert clouds[4.0].confidence.mean() < clouds[1.0].confidence.mean() - 0.05
