@@ -248,8 +248,8 @@ def run(
     memory_budget: _MemoryBudget = None,
 ) -> None:
     """Map an RGB-D sequence: writes map.ot, map.bt, map.semmap (and voxelgrid.* / points.* for --maps,
-    objects.json / objects.ply for --instances), preview.png, trajectory.txt, report.json, report.md and
-    config.json."""
+    objects.json / objects.ply for --instances), cloud.ply (the dense coloured cloud; --no-cloud: none), preview.png,
+    trajectory.txt, report.json, report.md and config.json."""
     _setup_logging(verbose)
     _budget(memory_budget)
     from semmap.config import (
