@@ -330,7 +330,7 @@ def temperature_sweep(fr: Frames, segmenters, temperatures: list[float], label_s
 
 
 def crf_sweep(fr: Frames, segmenters, label_set: LabelSet, prior, gt, viewpoint: np.ndarray,
-              point_resolution: float) -> list[dict]:
+              point_resolution: float, settings: dict[str, CrfParams]) -> list[dict]:
     """Each segmenter fused by every map with its own rule, then each CRF setting on the same fused map (restored
     from its state before each); the pixel gain of the CRF beside the fusion's."""
     rows = []
@@ -345,7 +345,7 @@ def crf_sweep(fr: Frames, segmenters, label_set: LabelSet, prior, gt, viewpoint:
             fused = {k: np.copy(v) for k, v in m.state().items()}
             rows.append({**before, "scene": fr.name, "preset": name, "temperature": 1.0, "crf_setting": "none",
                          "crf_gain": 0.0})
-            for setting, params in CRF_SETTINGS.items():
+            for setting, params in settings.items():
                 m.restore({k: np.copy(v) for k, v in fused.items()})
                 r = refine_map(m, params, viewpoint=viewpoint)
                 c = m.cloud()
@@ -380,13 +380,15 @@ def run_sweeps(args, rendered: list[Frames], label_set: LabelSet, point_resoluti
         others = rendered[:i] + rendered[i + 1:]
         prior = class_prior(others, len(label_set)) if others else None
         viewpoint = np.mean([o.origin for o in fr.obs], axis=0)
-        segmenters = sweep_segmenters(label_set, i, args.network)
+        segmenters = sweep_segmenters(label_set, args.first_scene + i, args.network)
         if temperatures:
             found = temperature_sweep(fr, segmenters, temperatures, label_set, prior, gt, viewpoint)
             print(sweep_table(found, "temperature"), flush=True)
             rows += found
         if args.crf_sweep:
-            found = crf_sweep(fr, segmenters, label_set, prior, gt, viewpoint, point_resolution)
+            settings = ({name: CRF_SETTINGS[name] for name in args.crf_settings.split(",")} if args.crf_settings
+                        else CRF_SETTINGS)
+            found = crf_sweep(fr, segmenters, label_set, prior, gt, viewpoint, point_resolution, settings)
             print(sweep_table(found, "crf_setting"), flush=True)
             rows += found
     return rows
@@ -400,13 +402,15 @@ def main() -> None:
     parser.add_argument("--temperatures", default=None, help="sweep these temperatures (e.g. 0.5,1,2,4) instead of "
                         "the presets")
     parser.add_argument("--crf-sweep", action="store_true", help="sweep the CRF settings instead of the presets")
+    parser.add_argument("--crf-settings", default=None, help="only these CRF_SETTINGS names (comma-separated)")
+    parser.add_argument("--first-scene", type=int, default=0, help="start at this scene (0-based)")
     parser.add_argument("--network", default=demo_network(), help="shipped network of the sweeps (default: the "
                         "demo's)")
     args = parser.parse_args()
     n, stride = (24, 12) if args.quick else (60, 5)
     if args.frames:
         n, stride = args.frames, max(1, n * stride // args.frames)
-    scenes = (QUICK_SCENES if args.quick else SCENES)[: args.scenes]
+    scenes = (QUICK_SCENES if args.quick else SCENES)[args.first_scene:][: args.scenes]
     point_resolution = 0.03 if args.quick else 0.02  # coarser than the map's 1 cm default: 45 CRFs over its points
     t_start = time.perf_counter()
     compile_kernels(list(MapKind))
