@@ -26,11 +26,12 @@ from semmap.types import EMPTY_LABEL
 class CrfParams:
     """Kernel widths (metres, colour units 0-255, unit-normal distance), Potts weights, mean-field iterations.
 
-    The defaults were tuned on simulated scenes at 5 cm voxels (wider kernels, lighter weights than
-    SemanticFusion's surfels; :data:`SEMANTICFUSION` holds theirs, docs/EXPERIMENTS.md measures both)."""
+    The defaults were tuned on simulated scenes at 5 cm voxels: SemanticFusion's appearance weight (10, the best of
+    the sweep on three scenes) with wider kernels and a lighter smoothness than its surfels'
+    (:data:`SEMANTICFUSION`; docs/EXPERIMENTS.md measures both)."""
 
     iterations: int = 5
-    appearance_weight: float = 4.0
+    appearance_weight: float = 10.0
     appearance_position_std: float = 0.15
     appearance_color_std: float = 20.0
     smoothness_weight: float = 2.0
