@@ -292,11 +292,12 @@ def table(results: list[dict], upper: dict[str, float]) -> str:
 
 
 # ------------------------------------------------------------------------------------------------- sweeps
-#: The CRF settings of ``--crf-sweep``: the default, SemanticFusion's, and one parameter of the default changed.
+#: The CRF settings of ``--crf-sweep``: the default, SemanticFusion's, and one parameter of the default changed
+#: (``appearance_weight=4``: the default before the sweep of docs/EXPERIMENTS.md).
 CRF_SETTINGS: dict[str, CrfParams] = {
     "default": CrfParams(), "semanticfusion": SEMANTICFUSION,
     **{f"{key}={value:g}": replace(CrfParams(), **{key: value}) for key, value in (
-        ("appearance_weight", 0.0), ("appearance_weight", 10.0), ("smoothness_weight", 0.0),
+        ("appearance_weight", 0.0), ("appearance_weight", 4.0), ("smoothness_weight", 0.0),
         ("smoothness_weight", 3.0), ("appearance_position_std", 0.05), ("appearance_position_std", 0.3),
         ("appearance_color_std", 10.0), ("appearance_color_std", 40.0), ("smoothness_position_std", 0.15),
         ("smoothness_normal_std", 0.1), ("smoothness_normal_std", 0.6), ("iterations", 10))},
