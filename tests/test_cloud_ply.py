@@ -40,7 +40,7 @@ def test_the_run_writes_cloud_ply_and_reports_its_real_size(room, tmp_path_facto
     report = json.loads((out / "report.json").read_text())
     size = path.stat().st_size
     assert report["dense_point_cloud_bytes"] == size == report["bytes_on_disk"]["cloud.ply"]
-    assert report["dense_point_cloud_points"] == len(v) > 100
+    assert report["dense_point_cloud_points"] == len(v) > 100 and report["dense_point_cloud_cell_m"] == 0.05
     assert len(v) < report["points_integrated"]  # voxel-filtered: one point per 5 cm cell, not every pixel
     xyz = np.stack([v["x"], v["y"], v["z"]], 1)
     keys = np.floor(xyz / 0.05 + 1e-3).astype(np.int64)
@@ -48,7 +48,7 @@ def test_the_run_writes_cloud_ply_and_reports_its_real_size(room, tmp_path_facto
     rgb = np.stack([v["red"], v["green"], v["blue"]], 1)
     assert rgb.std() > 0  # coloured from the frames
     md = (out / "report.md").read_text()
-    assert f"{size:,} |" in md and "cloud.ply" in md
+    assert f"{size:,} |" in md and f"cloud.ply, binary PLY: {len(v):,} points, one per 0.05 m cell" in md
     assert f"{report['bytes_on_disk']['map.bt']:,} |" in md and f"{report['bytes_on_disk']['map.ot']:,} |" in md
     assert result.files["cloud.ply"] == path
 

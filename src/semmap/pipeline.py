@@ -303,6 +303,7 @@ class Pipeline:
         return RunOutcome(record=record, maps=maps, pose_of=pose_of, dataset=str(c.input.dataset),
                           skipped=list(dataset.skipped), points_integrated=mapper.points_integrated, sizes=sizes,
                           cloud_points=None if mapper.cloud is None else mapper.cloud.num_voxels,
+                          cloud_cell_m=None if mapper.cloud is None else mapper.cloud.resolution,
                           files=files, out_dir=stage, online=c.mode == LoopMode.ONLINE,
                           segmenter=None if self.segmenter is None else self.segmenter.name, startup_s=startup_s,
                           segmenter_startup_s=segmenter_s, crf=crf,

@@ -40,11 +40,11 @@ def render_report_md(report: dict, *, title: str = "semmap run", plots: dict[str
     sizes = report["bytes_on_disk"]
     lines += ["## Storage", "", "| representation | size | bytes |", "|---|---|---|"]
     if "dense_point_cloud_bytes" in report:
-        points = report.get("dense_point_cloud_points")
-        what = f"{points:,} points, " if points is not None else ""
-        lines.append(f"| dense coloured point cloud (cloud.ply, binary PLY: {what}every frame's points "
-                     f"voxel-filtered) | {_kb(report['dense_point_cloud_bytes'])} | "
-                     f"{report['dense_point_cloud_bytes']:,} |")
+        points, cell = report.get("dense_point_cloud_points"), report.get("dense_point_cloud_cell_m")
+        what = (f"{points:,} points, " if points is not None else "") + (f"one per {cell:g} m cell of "
+                                                                         if cell is not None else "")
+        lines.append(f"| dense coloured point cloud (cloud.ply, binary PLY: {what}every frame's points) | "
+                     f"{_kb(report['dense_point_cloud_bytes'])} | {report['dense_point_cloud_bytes']:,} |")
     for name, what in _FILES:
         if name in sizes:
             lines.append(f"| {what} | {_kb(sizes[name])} | {sizes[name]:,} |")

@@ -284,6 +284,7 @@ class RunOutcome:
     objects: dict | None = None
     semantics: str | None = None  # where the classes came from, in words (``run.prepare.semantics_source``)
     cloud_points: int | None = None  # points of the dense coloured cloud written as ``cloud.ply`` (None: none)
+    cloud_cell_m: float | None = None  # its voxel filter's cell (m)
 
 
 def _frames_report(o: RunOutcome) -> dict:
@@ -316,7 +317,8 @@ def _cloud_report(o: RunOutcome) -> dict:
     """The dense coloured cloud as written (``cloud.ply``): its real size in bytes and its points."""
     if o.cloud_points is None or "cloud.ply" not in o.sizes:
         return {}
-    return {"dense_point_cloud_bytes": o.sizes["cloud.ply"], "dense_point_cloud_points": o.cloud_points}
+    return {"dense_point_cloud_bytes": o.sizes["cloud.ply"], "dense_point_cloud_points": o.cloud_points,
+            **({} if o.cloud_cell_m is None else {"dense_point_cloud_cell_m": o.cloud_cell_m})}
 
 
 def build_report(o: RunOutcome, scorer: RunScorer, resolution: float) -> dict:
