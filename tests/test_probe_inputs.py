@@ -442,7 +442,7 @@ def test_m5_a_crf_beyond_the_budget_is_refused_before_its_lattices_and_the_run_k
     with pytest.raises(MemoryBudgetError, match=r"--crf over the [0-9,]+ elements of the voxelgrid map with 7 classes "
                                                 r"needs about .* over the budget of 2\.1 MB"):
         refine_map(m, CrfParams())
-    out = refine_maps([m], [np.eye(4)], iterations=2, scorer=RunScorer(None, 0.02))
+    out = refine_maps([m], [np.eye(4)], params=CrfParams(iterations=2), scorer=RunScorer(None, 0.02))
     assert out[m.kind]["refined"] == 0 and "--crf" in out[m.kind]["skipped"]
     assert "the voxelgrid map is not refined: --crf over" in caplog.text
     assert np.array_equal(m.class_probs(), before)

@@ -27,6 +27,7 @@ from semmap.config import (
 )
 from semmap.datasets import AUTO, FORMATS
 from semmap.errors import SemmapError
+from semmap.fusion.crf import CRF_KEYS, parse_crf_params
 from semmap.fusion.rules import FusionRule
 from semmap.maps.registry import MAPS, own_rules
 from semmap.perception.instances.registry import INSTANCE_SOURCES
@@ -156,6 +157,10 @@ def run(
                                            rich_help_panel=_SEMANTICS)] = _default(SemanticsConfig, "source").value,
     label_confidence: Annotated[float, typer.Option(help="confidence of hard labels", rich_help_panel=_SEMANTICS)
                                 ] = _default(SemanticsConfig, "label_confidence"),
+    temperature: Annotated[float, typer.Option(help="fuse softmax(logits / T) of the segmenter's classes: > 1 softens "
+                                                    "over-confident probabilities, < 1 sharpens, 1 = as given",
+                                               rich_help_panel=_SEMANTICS)] = _default(SemanticsConfig,
+                                                                                       "temperature"),
     lam: Annotated[float, typer.Option("--lambda", help="penalty λ of the top-k fusion (Algorithm 1)",
                                        rich_help_panel=_SEMANTICS)] = _default(SemanticsConfig, "lam"),
     segmenter: Annotated[str | None, typer.Option(help=f"{SEGMENTERS.choices()} (onnx:MODEL.onnx, hf:MODEL_ID; "
@@ -202,6 +207,9 @@ def run(
                                               rich_help_panel=_OUTPUT)] = False,
     rerun_map_every: Annotated[int, typer.Option(help="frames between two logs of the whole map to rerun",
                                                  rich_help_panel=_OUTPUT)] = _default(OutputConfig, "rerun_map_every"),
+    cloud: Annotated[bool, typer.Option("--cloud/--no-cloud", help="write cloud.ply, the dense coloured cloud of every "
+                                        "frame's points (one per --point-resolution cell) the report's storage table "
+                                        "compares the maps with", rich_help_panel=_OUTPUT)] = True,
     checkpoint_every: Annotated[int, typer.Option(help="save the run's state every N mapped frames (0: never), so "
                                                   "--resume can continue after a crash", rich_help_panel=_OUTPUT)] = 0,
     resume: Annotated[bool, typer.Option("--resume", help="continue a run that was killed, from its last checkpoint "
@@ -233,6 +241,10 @@ def run(
                                       rich_help_panel=_MAPS)] = False,
     crf_every: Annotated[int, typer.Option(help="with --crf, also refine every N keyframes while mapping",
                                            rich_help_panel=_MAPS)] = _default(CrfConfig, "every"),
+    crf_params: Annotated[str | None, typer.Option(help="with --crf, its kernels as key=value,... (keys: "
+                                                        f"{', '.join(CRF_KEYS)}; 'semanticfusion' for "
+                                                        "SemanticFusion's values; docs/EXPERIMENTS.md)",
+                                                   rich_help_panel=_MAPS)] = None,
     instances: Annotated[str | None, typer.Option(help=f"{INSTANCE_SOURCES.choices()}: also build the object map "
                                                    "(objects.json, objects.ply)", rich_help_panel=_OBJECTS)] = None,
     instance_weights: Annotated[Path | None, typer.Option(help="Mask R-CNN weights (--instances maskrcnn)",
@@ -243,8 +255,8 @@ def run(
     memory_budget: _MemoryBudget = None,
 ) -> None:
     """Map an RGB-D sequence: writes map.ot, map.bt, map.semmap (and voxelgrid.* / points.* for --maps,
-    objects.json / objects.ply for --instances), preview.png, trajectory.txt, report.json, report.md and
-    config.json."""
+    objects.json / objects.ply for --instances), cloud.ply (the dense coloured cloud; --no-cloud: none), preview.png,
+    trajectory.txt, report.json, report.md and config.json."""
     _setup_logging(verbose)
     _budget(memory_budget)
     from semmap.config import (
@@ -276,6 +288,7 @@ def run(
                               free_space=free_space, point_resolution=point_resolution, tsdf_voxel=tsdf_voxel,
                               tsdf_truncation=tsdf_truncation),
         semantics=SemanticsConfig(source=semantics, label_confidence=label_confidence, lam=lam, k=top_k,
+                                  temperature=temperature,
                                   max_confidence=max_confidence, segmenter=segmenter,
                                   weights=weights, trust_weights=trust_weights, segmenter_config=segmenter_config,
                                   class_map=class_map, segment_every=segment_every,
@@ -285,10 +298,10 @@ def run(
         poses=PosesConfig(source=poses),
         mode=LoopMode.ONLINE if online else LoopMode.OFFLINE,
         online=OnlineConfig(rate=rate),
-        crf=CrfConfig(enabled=crf, every=crf_every),
+        crf=CrfConfig(enabled=crf, every=crf_every, **parse_crf_params(crf_params)),
         objects=ObjectsConfig(instances=instances, weights=instance_weights, errors=instance_errors),
         output=OutputConfig(out=out, color_mode=_color_mode(color_mode), rerun=rerun, rerun_spawn=rerun_spawn,
-                            rerun_map_every=rerun_map_every),
+                            rerun_map_every=rerun_map_every, cloud=cloud),
     ))
     with _interruptible():
         result = run_config(config, progress=progress_bar("mapping"),
