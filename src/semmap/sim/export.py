@@ -182,7 +182,7 @@ def render_frames(renderer: Renderer, poses: np.ndarray,
     """Frames (rgb, depth, labels, instances, pose) rendered lazily along ``poses`` at ``fps`` frames/s."""
     n = len(poses)
     for i, T in enumerate(poses):
-        view = renderer.render(T, frame_index=i)
+        view = renderer.render_in(poses, i, fps)
         stamp = i / fps
         yield Frame(index=i, timestamp=stamp, rgb=view.rgb, depth=view.depth, intrinsics=renderer.intrinsics,
                     T_world_cam=np.asarray(T, np.float64), labels=view.labels, instances=view.instances,
