@@ -172,6 +172,9 @@ def apply_colour(rgb: np.ndarray, depth: np.ndarray, fx: float, fy: float, cx: f
     each pixel's image motion. Clean parameters return ``rgb`` itself."""
     if params.is_clean:
         return rgb
+    if rgb.shape != (*depth.shape, 3) or rgb.dtype != np.uint8 or min(depth.shape) < 2:
+        raise SimulationError(f"colour image {rgb.shape} {rgb.dtype} does not match depth {depth.shape} "
+                              f"(expected uint8 (H, W, 3), at least 2x2)")
     v, w = (np.zeros(3), np.zeros(3)) if twist is None else twist
     g = gains(params, frame_index, fps)
     if params.auto_exposure > 0:
