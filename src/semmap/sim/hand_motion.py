@@ -40,7 +40,10 @@ SEVEN_SCENES_ANGULAR_Q_DEG = (1.7, 7.1, 12.6, 17.8, 24.8)
 QUANTILES = (5, 25, 50, 75, 95)
 #: Combined motion (linear + angular, each in its target median) per second at the median pace: 2 would hold
 #: when both medians were met at once; a little more because the base paths' mix of the two varies.
-PACE = 2.2
+PACE = 2.4
+#: Spread (std of the logarithm) of the jitter's slowly varying amplitude: 7-Scenes' per-frame angular speed
+#: reaches down to 1.7 deg/s (5 %), which an even shake of its size would never allow.
+JITTER_BURSTS = 0.8
 #: High-pass filter of the jitter measure (Gaussian sigma, frames).
 JITTER_HP_FRAMES = 2.0
 
@@ -72,7 +75,8 @@ class MotionParams:
 
 _PRESETS: dict[str, MotionParams] = {
     "clean": MotionParams(),
-    "kinect": MotionParams(hand=True, turns_per_min=0.75, turn_peak_deg_s=50.0, walls_per_min=1.0),
+    "kinect": MotionParams(hand=True, turns_per_min=0.5, turn_peak_deg_s=45.0, walls_per_min=0.75,
+                           wall_hold_s=(1.0, 2.5)),
     "hard": MotionParams(hand=True, speed_m_s=0.36, turn_deg_s=13.0, rate_sigma=0.4, turns_per_min=4.0,
                          turn_peak_deg_s=140.0, walls_per_min=3.0, wall_hold_s=(2.0, 4.0),
                          jitter_mm=(3.6, 2.9, 1.8), jitter_deg=(0.21, 0.2, 0.21)),
@@ -201,10 +205,11 @@ def _event_starts(rng: np.random.Generator, per_min: float, duration: float, gap
     return starts
 
 
-def _ramp(t: np.ndarray, start: float, ramp: float, hold: float) -> np.ndarray:
-    """0 -> 1 (raised cosine over ``ramp`` s), 1 for ``hold`` s, 1 -> 0 again: the weight of an excursion."""
+def _ramp(t: np.ndarray, start: float, ramp: float, hold: float, ramp_out: float | None = None) -> np.ndarray:
+    """0 -> 1 (raised cosine over ``ramp`` s), 1 for ``hold`` s, 1 -> 0 again (over ``ramp_out`` s, default
+    ``ramp``): the weight of an excursion."""
     up = np.clip((t - start) / ramp, 0.0, 1.0)
-    down = np.clip((t - start - ramp - hold) / ramp, 0.0, 1.0)
+    down = np.clip((t - start - ramp - hold) / (ramp if ramp_out is None else ramp_out), 0.0, 1.0)
     return 0.5 - 0.5 * np.cos(np.pi * (up - down))
 
 
@@ -226,7 +231,8 @@ def _add_turns(poses: np.ndarray, rng: np.random.Generator, p: MotionParams, fps
 
 def _add_wall_looks(poses: np.ndarray, rng: np.random.Generator, p: MotionParams, fps: float, raycaster,
                     tri_class: np.ndarray) -> np.ndarray:
-    """Stretches that turn to a bare wall nearby and look at it, then back to the path's view."""
+    """Stretches that turn to a bare wall nearby and look at it, then back to the path's view (the turn is split
+    into heading and pitch, each unwrapped over the stretch, so it stays continuous while the path turns)."""
     t = np.arange(len(poses)) / fps
     out = poses.copy()
     for start in _event_starts(rng, p.walls_per_min, t[-1], 6.0):
@@ -234,45 +240,62 @@ def _add_wall_looks(poses: np.ndarray, rng: np.random.Generator, p: MotionParams
         target = _bare_wall_view(poses[k], raycaster, tri_class)
         if target is None:
             continue
-        delta = Rotation.from_matrix(target) * Rotation.from_matrix(poses[k, :3, :3]).inv()
-        ramp = max(0.4, delta.magnitude() * math.pi / (2.0 * math.radians(p.turn_peak_deg_s)))
-        weight = _ramp(t, start, ramp, float(rng.uniform(*p.wall_hold_s)))
-        active = weight > 0
-        cur = Rotation.from_matrix(out[active, :3, :3])
-        to_wall = (Rotation.from_matrix(np.broadcast_to(target, (int(active.sum()), 3, 3))) * cur.inv()).as_rotvec()
-        out[active, :3, :3] = (Rotation.from_rotvec(to_wall * weight[active, None]) * cur).as_matrix()
+        yaw_t, pitch_t = _heading(target[None, :, 2])
+        yaw_all, pitch_all = _heading(poses[k:, :3, 2])
+        turn = np.hypot(np.unwrap(np.angle(np.exp(1j * (yaw_t[0] - yaw_all)))), pitch_t[0] - pitch_all)
+
+        def ramp_s(angle: float) -> float:  # a raised cosine turning ``angle`` peaks at turn_peak_deg_s
+            return max(0.4, angle * math.pi / (2.0 * math.radians(p.turn_peak_deg_s)))
+
+        ramp = ramp_s(float(turn[0]))
+        hold = float(rng.uniform(*p.wall_hold_s))
+        back = min(round((start + ramp + hold) * fps) - k, len(turn) - 1)
+        weight = _ramp(t, start, ramp, hold, ramp_s(float(turn[max(back, 0)])))
+        active = np.flatnonzero(weight > 0)
+        if len(active) == 0:
+            continue
+        yaw_c, pitch_c = _heading(out[active, :3, 2])
+        dyaw = np.unwrap(np.angle(np.exp(1j * (yaw_t - yaw_c))))
+        if abs(dyaw[0]) > math.pi:
+            dyaw -= 2 * math.pi * np.round(dyaw[0] / (2 * math.pi))
+        wa = weight[active]
+        about_z = Rotation.from_rotvec(np.outer(wa * dyaw, [0.0, 0.0, 1.0])).as_matrix()
+        about_x = Rotation.from_rotvec(np.outer(wa * (pitch_t - pitch_c), [1.0, 0.0, 0.0])).as_matrix()
+        out[active, :3, :3] = about_z @ out[active, :3, :3] @ about_x
     return out
 
 
+def _heading(forward: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Heading (about world z) and pitch (up positive) of (N, 3) viewing directions, radians."""
+    f = np.atleast_2d(forward)
+    return np.arctan2(f[:, 1], f[:, 0]), np.arcsin(np.clip(f[:, 2], -1.0, 1.0))
+
+
 def _bare_wall_view(pose: np.ndarray, raycaster, tri_class: np.ndarray) -> np.ndarray | None:
-    """Rotation of a camera at ``pose``'s position facing bare wall 0.6-2.5 m away (a cone of rays all on the
-    wall), the one needing the smallest turn; None when there is none."""
+    """Rotation of a camera at ``pose``'s position facing bare wall 0.6-3 m away (at least 80 % of a cone of rays
+    on the wall), the one needing the smallest turn (at most 120 degrees); None when there is none."""
     import open3d as o3d
 
     wall = INDOOR_LABELS.id_of("wall")
     eye = pose[:3, 3]
     fwd = pose[:3, 2]
     yaw0 = math.atan2(fwd[1], fwd[0])
-    yaws = yaw0 + np.radians(np.arange(-180, 180, 10.0))
-    spread = np.radians(np.array([-14.0, -7.0, 0.0, 7.0, 14.0]))
-    pitch = math.radians(-8.0)
-    dirs = []
-    for y in yaws:
-        for dy in spread:
-            for dp in (-0.2, 0.0, 0.15):
-                a, b = y + dy, pitch + dp
-                dirs.append([math.cos(b) * math.cos(a), math.cos(b) * math.sin(a), math.sin(b)])
-    dirs = np.asarray(dirs)
+    yaws = yaw0 + np.radians(np.arange(-120, 121, 10.0))
+    spread = np.radians(np.array([-12.0, -6.0, 0.0, 6.0, 12.0]))
+    pitch = math.radians(-5.0)
+    a = (yaws[:, None, None] + spread[None, :, None]) * np.ones((1, 1, 3))
+    b = pitch + np.array([-0.12, 0.0, 0.12])[None, None, :] * np.ones_like(a)
+    dirs = np.stack([np.cos(b) * np.cos(a), np.cos(b) * np.sin(a), np.sin(b)], -1).reshape(-1, 3)
     rays = np.concatenate([np.broadcast_to(eye, dirs.shape), dirs], 1).astype(np.float32)
     hit = raycaster.cast_rays(o3d.core.Tensor.from_numpy(np.ascontiguousarray(rays)))
     prim = hit["primitive_ids"].numpy().astype(np.int64)
     dist = hit["t_hit"].numpy()
     valid = (prim >= 0) & (prim < len(tri_class)) & np.isfinite(dist)
     cls = np.where(valid, tri_class[np.clip(prim, 0, len(tri_class) - 1)], -1)
-    ok = ((cls == wall) & (dist > 0.6) & (dist < 2.5)).reshape(len(yaws), -1).all(1)
+    ok = ((cls == wall) & (dist > 0.6) & (dist < 3.0)).reshape(len(yaws), -1).mean(1) >= 0.8
     if not ok.any():
         return None
-    best = int(np.argmin(np.where(ok, np.abs(np.angle(np.exp(1j * (yaws - yaw0)))), np.inf)))
+    best = int(np.argmin(np.where(ok, np.abs(yaws - yaw0), np.inf)))
     f = np.array([math.cos(pitch) * math.cos(yaws[best]), math.cos(pitch) * math.sin(yaws[best]), math.sin(pitch)])
     x = np.cross(f, [0.0, 0.0, 1.0])
     x /= np.linalg.norm(x)
@@ -285,17 +308,19 @@ def _bare_wall_view(pose: np.ndarray, raycaster, tri_class: np.ndarray) -> np.nd
 def _add_jitter(poses: np.ndarray, rng: np.random.Generator, p: MotionParams) -> np.ndarray:
     """Nearly white shake in the camera frame, scaled to the target high-pass standard deviation per axis."""
     n = len(poses)
-    trans = _shake(rng, n, p.jitter_sigma_frames[0], np.asarray(p.jitter_mm) / 1000.0)
-    rot = _shake(rng, n, p.jitter_sigma_frames[1], np.radians(p.jitter_deg))
+    envelope = np.exp(JITTER_BURSTS * _ou(rng, n, 10.0))[:, None]  # hands shake in bursts, not evenly
+    trans = _shake(rng, n, p.jitter_sigma_frames[0], np.asarray(p.jitter_mm) / 1000.0, envelope)
+    rot = _shake(rng, n, p.jitter_sigma_frames[1], np.radians(p.jitter_deg), envelope)
     out = poses.copy()
     out[:, :3, :3] = poses[:, :3, :3] @ Rotation.from_rotvec(rot).as_matrix()
     out[:, :3, 3] = poses[:, :3, 3] + np.einsum("nij,nj->ni", poses[:, :3, :3], trans)
     return out
 
 
-def _shake(rng: np.random.Generator, n: int, sigma_frames: float, target: np.ndarray) -> np.ndarray:
-    """(n, 3) Gaussian noise smoothed over ``sigma_frames`` whose high-pass std per axis is ``target``."""
-    x = rng.standard_normal((n, 3))
+def _shake(rng: np.random.Generator, n: int, sigma_frames: float, target: np.ndarray,
+           envelope: np.ndarray) -> np.ndarray:
+    """(n, 3) Gaussian noise times ``envelope``, smoothed over ``sigma_frames``, with high-pass std ``target``."""
+    x = rng.standard_normal((n, 3)) * envelope
     if sigma_frames > 0:
         x = gaussian_filter1d(x, sigma_frames, axis=0, mode="nearest")
     hp = x - gaussian_filter1d(x, JITTER_HP_FRAMES, axis=0, mode="nearest")
