@@ -17,9 +17,11 @@ is the renderer's image, unchanged):
 - **sensor noise**: shot noise (variance proportional to the signal) plus read noise, in 8-bit units;
 - **JPEG compression** (``cv2.imencode`` at ``jpeg_quality``, 4:2:0 like the 7-Scenes colour files).
 
-One numba kernel does the geometric part, gains, vignetting and noise (counter-based random numbers) in a single
-pass over the image; JPEG is one ``cv2`` encode and decode.
-Random numbers come from ``(seed, frame_index)``, so every frame is reproducible on its own.
+A Gaussian **lens blur** (``lens_blur_px``: optics, demosaicing and the sensor's downscaling soften a Kinect's
+colour image; 7-Scenes' frames are far less sharp than an ideal render) is applied first. One numba kernel then
+does the geometric part, gains, vignetting and noise in a single pass over the image (a counter-based hash picks
+each value's noise from a table of normal numbers, so threads share no generator); JPEG is one ``cv2`` encode
+and decode. Random numbers come from ``(seed, frame_index)``, so every frame is reproducible on its own.
 """
 
 from __future__ import annotations
@@ -45,6 +47,8 @@ FAR_DEPTH_M = 5.0
 #: Mean brightness (8-bit) auto-exposure steers towards.
 AE_TARGET = 118.0
 PRESETS: tuple[str, ...] = ("clean", "kinect", "hard")
+#: 65536 standard-normal numbers (fixed stream) that the noise of each pixel and channel is picked from.
+_NORMALS = np.random.default_rng(_NOISE_STREAM).standard_normal(65536).astype(np.float32)
 
 
 @dataclass(frozen=True)
@@ -52,6 +56,7 @@ class ColourParams:
     """What the colour camera does to the ideal image; every default is off (the renderer's image unchanged)."""
 
     exposure_s: float = 0.0  # exposure time (motion blur); 0 = instantaneous
+    lens_blur_px: float = 0.0  # Gaussian sigma of the optics' blur (pixels)
     readout_s: float = 0.0  # rolling-shutter readout, first to last row; 0 = global shutter
     time_offset_s: float = 0.0  # colour captured this long after the depth image
     offset_px: tuple[float, float] = (0.0, 0.0)  # colour-depth misregistration (x, y) in pixels
@@ -66,7 +71,7 @@ class ColourParams:
     seed: int = 0
 
     def __post_init__(self) -> None:
-        for name in ("exposure_s", "readout_s", "shot_noise", "read_noise", "exposure_drift",
+        for name in ("exposure_s", "lens_blur_px", "readout_s", "shot_noise", "read_noise", "exposure_drift",
                      "white_balance_drift"):
             value = getattr(self, name)
             if not (math.isfinite(value) and 0.0 <= value <= 10.0):
@@ -99,13 +104,15 @@ class ColourParams:
 
 #: The presets: ``kinect`` is a Kinect v1 colour camera as 7-Scenes recorded it (jpg quality 80 read from its
 #: files' quantisation tables, 4:2:0; residual misregistration ~3 px after registration, see
-#: ``datasets/sevenscenes.py``); ``hard`` is a worse camera in dimmer light (longer exposure, more noise).
+#: ``datasets/sevenscenes.py``; lens blur and noise chosen so that the Laplacian variance, mean gradient and
+#: noise estimate of simulated frames come near 7-Scenes', ``benchmarks/bench_realism_camera.py``); ``hard`` is
+#: a worse camera in dimmer light (longer exposure, more noise, softer optics, stronger compression).
 _PRESETS: dict[str, ColourParams] = {
     "clean": ColourParams(),
-    "kinect": ColourParams(exposure_s=0.012, readout_s=0.025, time_offset_s=0.008, offset_px=(1.5, 1.0),
-                           vignetting=0.25, auto_exposure=0.5, exposure_drift=0.06, white_balance_drift=0.03,
-                           shot_noise=0.25, read_noise=1.5, jpeg_quality=80),
-    "hard": ColourParams(exposure_s=0.025, readout_s=0.033, time_offset_s=0.017, offset_px=(3.0, 2.0),
+    "kinect": ColourParams(exposure_s=0.012, lens_blur_px=0.55, readout_s=0.025, time_offset_s=0.008,
+                           offset_px=(1.5, 1.0), vignetting=0.25, auto_exposure=0.5, exposure_drift=0.06,
+                           white_balance_drift=0.03, shot_noise=0.2, read_noise=1.2, jpeg_quality=80),
+    "hard": ColourParams(exposure_s=0.025, lens_blur_px=0.8, readout_s=0.033, time_offset_s=0.017, offset_px=(3.0, 2.0),
                          vignetting=0.4, auto_exposure=0.7, exposure_drift=0.12, white_balance_drift=0.06,
                          shot_noise=0.6, read_noise=3.0, jpeg_quality=60),
 }
@@ -185,10 +192,12 @@ def apply_colour(rgb: np.ndarray, depth: np.ndarray, fx: float, fy: float, cx: f
     k = params.vignetting
     vig_a = (1.0 - k) ** -0.5 - 1.0 if k > 0 else 0.0
     out = np.empty_like(rgb)
+    if params.lens_blur_px > 0:
+        rgb = cv2.GaussianBlur(rgb, (0, 0), params.lens_blur_px)
     _camera_kernel(np.ascontiguousarray(rgb), np.ascontiguousarray(depth, np.float32), fx, fy, cx, cy,
                    np.asarray(v, np.float64), np.asarray(w, np.float64), params.time_offset_s, params.exposure_s,
                    params.readout_s, float(params.offset_px[0]), float(params.offset_px[1]), g.astype(np.float32),
-                   vig_a, params.shot_noise, params.read_noise, np.uint64(key), out)
+                   vig_a, params.shot_noise, params.read_noise, np.uint64(key), _NORMALS, out)
     if params.jpeg_quality > 0:
         out = jpeg(out, params.jpeg_quality)
     return out
@@ -202,50 +211,51 @@ def jpeg(rgb: np.ndarray, quality: int) -> np.ndarray:
     return np.ascontiguousarray(cv2.imdecode(buf, cv2.IMREAD_COLOR)[:, :, ::-1])
 
 
-@nb.njit(cache=True, inline="always")
-def _normal(key, index):  # pragma: no cover - compiled
-    """Approximately standard-normal number of pixel sample ``index`` under ``key`` (splitmix64 hash, sum of four
-    16-bit uniforms): counter-based, so threads need no shared generator and every frame is reproducible."""
+@nb.njit(cache=True, inline="always", error_model="numpy")
+def _hash(key, index):  # pragma: no cover - compiled
+    """64 random bits for pixel ``index`` under ``key`` (splitmix64): counter-based, so threads share no generator
+    and every frame is reproducible on its own."""
     x = key + np.uint64(index) * np.uint64(0x9E3779B97F4A7C15)
     x = (x ^ (x >> np.uint64(30))) * np.uint64(0xBF58476D1CE4E5B9)
     x = (x ^ (x >> np.uint64(27))) * np.uint64(0x94D049BB133111EB)
-    x = x ^ (x >> np.uint64(31))
-    m = np.uint64(0xFFFF)
-    total = (x & m) + ((x >> np.uint64(16)) & m) + ((x >> np.uint64(32)) & m) + (x >> np.uint64(48))
-    return (float(total) - 131070.0) / 37837.2
+    return x ^ (x >> np.uint64(31))
 
 
-@nb.njit(cache=True, parallel=True)
+@nb.njit(cache=True, parallel=True, error_model="numpy", fastmath=True)
 def _camera_kernel(rgb, depth, fx, fy, cx, cy, v, w, t_offset, exposure, readout, off_x, off_y, gain, vig_a,
-                   shot, read, key, out):  # pragma: no cover - compiled
+                   shot, read, key, normals, out):  # pragma: no cover - compiled
     H, W = depth.shape
     corner2 = max(((W - 1 - cx) / fx) ** 2 + ((H - 1 - cy) / fy) ** 2, (cx / fx) ** 2 + (cy / fy) ** 2)
     noisy = shot > 0.0 or read > 0.0
+    read2 = read * read
+    m16 = np.uint64(0xFFFF)
+    g0 = float(gain[0])
+    g1 = float(gain[1])
+    g2 = float(gain[2])
+    v0, v1, v2 = v[0], v[1], v[2]
+    w0, w1, w2 = w[0], w[1], w[2]
+    ifx = 1.0 / fx
     for r in nb.prange(H):
         t_row = t_offset + (readout * (r / (H - 1.0) - 0.5) if H > 1 else 0.0)
         yn = (r - cy) / fy
         for u in range(W):
-            xn = (u - cx) / fx
+            xn = (u - cx) * ifx
             z = depth[r, u]
-            if not z > 0.0:
-                z = 5.0
-            X = xn * z
-            Y = yn * z
-            # velocity of the (static) point in the moving camera's frame: -v - w x P
-            dX = -v[0] - (w[1] * z - w[2] * Y)
-            dY = -v[1] - (w[2] * X - w[0] * z)
-            dZ = -v[2] - (w[0] * Y - w[1] * X)
-            du = fx * (dX - xn * dZ) / z
-            dv = fy * (dY - yn * dZ) / z
+            iz = 1.0 / z if z > 0.0 else 0.2  # nothing hit: 5 m
+            # motion field of a static point seen by a camera moving with (v, w): translation scales with 1/z
+            du = fx * ((xn * v2 - v0) * iz + w0 * xn * yn - w1 * (1.0 + xn * xn) + w2 * yn)
+            dv = fy * ((yn * v2 - v1) * iz + w0 * (1.0 + yn * yn) - w1 * xn * yn - w2 * xn)
             # the colour pixel at time t shows what the ideal image holds at (u, r) - motion * t
             bx = u + off_x - du * t_row
             by = r + off_y - dv * t_row
             n = min(int(math.sqrt(du * du + dv * dv) * exposure) + 1, 24)
+            step = exposure / n
+            s0 = 0.5 * step - 0.5 * exposure
             a0 = 0.0
             a1 = 0.0
             a2 = 0.0
             for k in range(n):
-                s = ((k + 0.5) / n - 0.5) * exposure
+                s = s0 + k * step
                 x = min(max(bx - du * s, 0.0), W - 1.0)
                 y = min(max(by - dv * s, 0.0), H - 1.0)
                 x0 = min(int(x), W - 2)
@@ -263,10 +273,16 @@ def _camera_kernel(rgb, depth, fx, fy, cx, cy, v, w, t_offset, exposure, readout
                 a2 += w00 * rgb[y0, x0, 2] + w01 * rgb[y0, x0 + 1, 2] + w10 * rgb[y0 + 1, x0, 2] \
                     + w11 * rgb[y0 + 1, x0 + 1, 2]
             rad2 = (xn * xn + yn * yn) / corner2
-            scale = 1.0 / (n * (1.0 + vig_a * rad2) * (1.0 + vig_a * rad2))
-            base = 3 * (r * W + u)
-            for c in range(3):
-                val = (a0 if c == 0 else (a1 if c == 1 else a2)) * scale * gain[c]
-                if noisy:
-                    val += math.sqrt(shot * max(val, 0.0) + read * read) * _normal(key, base + c)
-                out[r, u, c] = int(min(max(val + 0.5, 0.0), 255.0))
+            vig = 1.0 + vig_a * rad2
+            scale = 1.0 / (n * vig * vig)
+            a0 *= scale * g0
+            a1 *= scale * g1
+            a2 *= scale * g2
+            if noisy:  # three 16-bit indices of one hash pick standard-normal numbers from the table
+                h = _hash(key, r * W + u)
+                a0 += math.sqrt(shot * max(a0, 0.0) + read2) * normals[h & m16]
+                a1 += math.sqrt(shot * max(a1, 0.0) + read2) * normals[(h >> np.uint64(16)) & m16]
+                a2 += math.sqrt(shot * max(a2, 0.0) + read2) * normals[(h >> np.uint64(32)) & m16]
+            out[r, u, 0] = int(min(max(a0 + 0.5, 0.0), 255.0))
+            out[r, u, 1] = int(min(max(a1 + 0.5, 0.0), 255.0))
+            out[r, u, 2] = int(min(max(a2 + 0.5, 0.0), 255.0))
