@@ -133,7 +133,7 @@ def test_wall_looks_make_the_camera_see_more_wall(office):
 
     raycaster = scene_raycaster(office)
     base = replace(motion_params("kinect"), turns_per_min=0.0, walls_per_min=0.0)
-    walls = replace(base, walls_per_min=6.0)
+    walls = replace(base, walls_per_min=12.0, wall_hold_s=(2.0, 3.0))
 
     def wall_share(mp: MotionParams) -> float:
         poses = make_trajectory(office, "walk", 600, seed=5, motion=mp)

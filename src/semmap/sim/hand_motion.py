@@ -6,7 +6,7 @@ one (all randomness from the trajectory's generator):
 
 - **pace**: the camera moves along the base path at a rate that wanders (log-normal, ``rate_sigma``, correlation
   time ``rate_time_s``) around the 7-Scenes medians of linear and angular speed (``speed_m_s``,
-  ``turn_deg_s``); at the path's end it turns back along it;
+  ``turn_deg_s``), now and then pausing (``pauses_per_min``); at the path's end it turns back along it;
 - **fast turns**: now and then (``turns_per_min``) the camera swings ``turn_deg`` about the vertical at up to
   ``turn_peak_deg_s``, holds, and swings back;
 - **bare walls**: now and then (``walls_per_min``) it turns to a nearby stretch of bare wall (found by casting
@@ -40,10 +40,12 @@ SEVEN_SCENES_ANGULAR_Q_DEG = (1.7, 7.1, 12.6, 17.8, 24.8)
 QUANTILES = (5, 25, 50, 75, 95)
 #: Combined motion (linear + angular, each in its target median) per second at the median pace: 2 would hold
 #: when both medians were met at once; a little more because the base paths' mix of the two varies.
-PACE = 2.4
+PACE = 2.6
 #: Spread (std of the logarithm) of the jitter's slowly varying amplitude: 7-Scenes' per-frame angular speed
 #: reaches down to 1.7 deg/s (5 %), which an even shake of its size would never allow.
-JITTER_BURSTS = 0.8
+JITTER_BURSTS = 1.0
+#: A wall look is left out when the view would have to turn further than this from the path's view at any time.
+WALL_MAX_TURN_DEG = 120.0
 #: High-pass filter of the jitter measure (Gaussian sigma, frames).
 JITTER_HP_FRAMES = 2.0
 
@@ -57,6 +59,7 @@ class MotionParams:
     turn_deg_s: float = 8.1  # median smoothed angular speed
     rate_sigma: float = 0.45  # spread of the pace (std of its logarithm)
     rate_time_s: float = 1.5  # correlation time of the pace
+    pauses_per_min: float = 0.0  # the hand stops for 0.5-1.5 s (the pace drops to a tenth)
     turns_per_min: float = 0.0
     turn_deg: tuple[float, float] = (50.0, 90.0)
     turn_peak_deg_s: float = 90.0
@@ -69,15 +72,16 @@ class MotionParams:
     def __post_init__(self) -> None:
         if not (self.speed_m_s > 0 and self.turn_deg_s > 0 and self.rate_time_s > 0 and self.turn_peak_deg_s > 0):
             raise SimulationError("hand motion speeds and times must be positive")
-        if self.rate_sigma < 0 or self.turns_per_min < 0 or self.walls_per_min < 0:
+        if min(self.rate_sigma, self.turns_per_min, self.walls_per_min, self.pauses_per_min) < 0:
             raise SimulationError("hand motion spreads and event rates must be non-negative")
 
 
 _PRESETS: dict[str, MotionParams] = {
     "clean": MotionParams(),
-    "kinect": MotionParams(hand=True, turns_per_min=0.5, turn_peak_deg_s=45.0, walls_per_min=0.75,
+    "kinect": MotionParams(hand=True, pauses_per_min=2.0, turns_per_min=0.5, turn_peak_deg_s=45.0, walls_per_min=0.75,
                            wall_hold_s=(1.0, 2.5)),
-    "hard": MotionParams(hand=True, speed_m_s=0.36, turn_deg_s=13.0, rate_sigma=0.4, turns_per_min=4.0,
+    "hard": MotionParams(hand=True, speed_m_s=0.36, turn_deg_s=13.0, rate_sigma=0.4, pauses_per_min=2.0,
+                         turns_per_min=4.0,
                          turn_peak_deg_s=140.0, walls_per_min=3.0, wall_hold_s=(2.0, 4.0),
                          jitter_mm=(3.6, 2.9, 1.8), jitter_deg=(0.21, 0.2, 0.21)),
 }
@@ -146,6 +150,9 @@ def _paced_times(base: np.ndarray, rng: np.random.Generator, p: MotionParams, fp
     g = v / p.speed_m_s + w / math.radians(p.turn_deg_s)  # base motion per second, in target medians
     g = np.maximum(np.append(g, g[-1]), 0.05)
     rate = np.exp(p.rate_sigma * _ou(rng, n, p.rate_time_s * fps) - 0.5 * p.rate_sigma ** 2)
+    t = np.arange(n) / fps
+    for start in _event_starts(rng, p.pauses_per_min, t[-1], 2.0):
+        rate *= 1.0 - 0.9 * _ramp(t, start, 0.3, float(rng.uniform(0.5, 1.5)))
     dt = 1.0 / fps
     end = (n - 1) * dt
     tau = np.zeros(n)
@@ -232,37 +239,51 @@ def _add_turns(poses: np.ndarray, rng: np.random.Generator, p: MotionParams, fps
 def _add_wall_looks(poses: np.ndarray, rng: np.random.Generator, p: MotionParams, fps: float, raycaster,
                     tri_class: np.ndarray) -> np.ndarray:
     """Stretches that turn to a bare wall nearby and look at it, then back to the path's view (the turn is split
-    into heading and pitch, each unwrapped over the stretch, so it stays continuous while the path turns)."""
+    into heading and pitch, each unwrapped over the stretch, so it stays continuous while the path turns). The
+    wall is sought from the middle of the stretch, then from its start; a stretch whose view would have to turn
+    further than WALL_MAX_TURN_DEG from the path's at any time is left out."""
     t = np.arange(len(poses)) / fps
     out = poses.copy()
     for start in _event_starts(rng, p.walls_per_min, t[-1], 6.0):
-        k = int(start * fps)
-        target = _bare_wall_view(poses[k], raycaster, tri_class)
-        if target is None:
-            continue
-        yaw_t, pitch_t = _heading(target[None, :, 2])
-        yaw_all, pitch_all = _heading(poses[k:, :3, 2])
-        turn = np.hypot(np.unwrap(np.angle(np.exp(1j * (yaw_t[0] - yaw_all)))), pitch_t[0] - pitch_all)
-
-        def ramp_s(angle: float) -> float:  # a raised cosine turning ``angle`` peaks at turn_peak_deg_s
-            return max(0.4, angle * math.pi / (2.0 * math.radians(p.turn_peak_deg_s)))
-
-        ramp = ramp_s(float(turn[0]))
         hold = float(rng.uniform(*p.wall_hold_s))
-        back = min(round((start + ramp + hold) * fps) - k, len(turn) - 1)
-        weight = _ramp(t, start, ramp, hold, ramp_s(float(turn[max(back, 0)])))
-        active = np.flatnonzero(weight > 0)
-        if len(active) == 0:
-            continue
-        yaw_c, pitch_c = _heading(out[active, :3, 2])
-        dyaw = np.unwrap(np.angle(np.exp(1j * (yaw_t - yaw_c))))
-        if abs(dyaw[0]) > math.pi:
-            dyaw -= 2 * math.pi * np.round(dyaw[0] / (2 * math.pi))
-        wa = weight[active]
-        about_z = Rotation.from_rotvec(np.outer(wa * dyaw, [0.0, 0.0, 1.0])).as_matrix()
-        about_x = Rotation.from_rotvec(np.outer(wa * (pitch_t - pitch_c), [1.0, 0.0, 0.0])).as_matrix()
-        out[active, :3, :3] = about_z @ out[active, :3, :3] @ about_x
+        k0 = int(start * fps)
+        for k in (min(int((start + 0.5 + 0.5 * hold) * fps), len(poses) - 1), k0):
+            target = _bare_wall_view(poses[k], raycaster, tri_class)
+            turn = None if target is None else _wall_turn(out, t, start, hold, target, p, fps)
+            if turn is not None:
+                active, weight, dyaw, dpitch = turn
+                about_z = Rotation.from_rotvec(np.outer(weight * dyaw, [0.0, 0.0, 1.0])).as_matrix()
+                about_x = Rotation.from_rotvec(np.outer(weight * dpitch, [1.0, 0.0, 0.0])).as_matrix()
+                out[active, :3, :3] = about_z @ out[active, :3, :3] @ about_x
+                break
     return out
+
+
+def _wall_turn(poses: np.ndarray, t: np.ndarray, start: float, hold: float, target: np.ndarray, p: MotionParams,
+               fps: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None:
+    """Frames, weights and the heading and pitch turns (radians) that make ``poses`` face ``target`` from
+    ``start`` for ``hold`` seconds (raised-cosine ramps peaking at ``turn_peak_deg_s``), or None when too far."""
+    k = int(start * fps)
+    yaw_t, pitch_t = _heading(target[None, :, 2])
+    yaw_all, pitch_all = _heading(poses[k:, :3, 2])
+    turn = np.hypot(np.unwrap(np.angle(np.exp(1j * (yaw_t[0] - yaw_all)))), pitch_t[0] - pitch_all)
+
+    def ramp_s(angle: float) -> float:  # a raised cosine turning ``angle`` peaks at turn_peak_deg_s
+        return max(0.4, angle * math.pi / (2.0 * math.radians(p.turn_peak_deg_s)))
+
+    ramp = ramp_s(float(turn[0]))
+    back = min(round((start + ramp + hold) * fps) - k, len(turn) - 1)
+    weight = _ramp(t, start, ramp, hold, ramp_s(float(turn[max(back, 0)])))
+    active = np.flatnonzero(weight > 0)
+    if len(active) == 0:
+        return None
+    yaw_c, pitch_c = _heading(poses[active, :3, 2])
+    dyaw = np.unwrap(np.angle(np.exp(1j * (yaw_t - yaw_c))))
+    if abs(dyaw[0]) > math.pi:
+        dyaw -= 2 * math.pi * np.round(dyaw[0] / (2 * math.pi))
+    if np.abs(dyaw).max() > math.radians(WALL_MAX_TURN_DEG):  # the path turns away meanwhile: no spinning
+        return None
+    return active, weight[active], dyaw, pitch_t - pitch_c
 
 
 def _heading(forward: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
