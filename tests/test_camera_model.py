@@ -213,3 +213,18 @@ def test_simulated_sequence_names_its_camera_and_hand(tmp_path):
     assert info["colour_camera"]["jpeg_quality"] == 80 and info["hand_motion"]["hand"] is True
     assert camera_info(None, None) == {}
     assert camera_info(colour_params("clean"), motion_params("clean")) == {}  # clean sequences stay as they were
+
+
+def test_colour_does_not_depend_on_the_thread_count():
+    import numba
+
+    rgb = _texture(2)
+    p = colour_params("hard", 1)
+    twist = (np.array([0.2, 0.0, 0.1]), np.array([0.1, 0.8, 0.0]))
+    before = numba.get_num_threads()
+    try:
+        numba.set_num_threads(1)
+        one = _apply(rgb, p, twist, frame=7)
+    finally:
+        numba.set_num_threads(before)
+    assert np.array_equal(one, _apply(rgb, p, twist, frame=7))
