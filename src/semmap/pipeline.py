@@ -50,6 +50,7 @@ from semmap.run.paths import check_run_paths, staged_output
 from semmap.run.prepare import (
     FirstFrame,
     check_labels_exist,
+    dynamic_classes,
     label_set_for,
     pose_source_for,
     pose_source_to_resume,
@@ -68,12 +69,16 @@ MAX_EMPTY_FRAME_WARNINGS = 5
 class Mapper:
     """Integrates frames into maps: back-project, transform, attach colour and class sets, hand to every map."""
 
-    def __init__(self, maps: list[SemanticMap], *, min_depth: float, max_depth: float, pixel_stride: int = 1):
+    def __init__(self, maps: list[SemanticMap], *, min_depth: float, max_depth: float, pixel_stride: int = 1,
+                 dynamic: Iterable[int] = ()):
         if not maps:
             raise ConfigError("a mapping run needs at least one map")
         self.maps = maps
         self.min_depth, self.max_depth, self.pixel_stride = min_depth, max_depth, pixel_stride
+        self.dynamic = tuple(sorted({int(c) for c in dynamic}))  # classes whose points only clear free space
+        self._is_dynamic = dynamic_table(self.dynamic)
         self.points_integrated = 0
+        self.points_cleared = 0  # points of dynamic classes (their rays cleared, nothing was added)
         self.keyframes = 0
         self.last_was_keyframe = False
         self._keyframe_of = Scheduler(SegmentationSchedule(keyframes=True))
@@ -98,6 +103,16 @@ class Mapper:
         if semantics is not None:
             flat = semantics.reshape_flat()
             point_sem = TopKProbs(np.take(flat.labels, pixels, axis=0), np.take(flat.probs, pixels, axis=0))
+        # points whose most probable class is dynamic (people) only clear free space
+        clear = None
+        if self._is_dynamic is not None and point_sem is not None:
+            moving = self._is_dynamic[point_sem.labels[:, 0]]
+            if moving.any():
+                keep = ~moving
+                clear, points_world, colors, pixels = (points_world[moving], points_world[keep], colors[keep],
+                                                       pixels[keep])
+                point_sem = TopKProbs(point_sem.labels[keep], point_sem.probs[keep])
+                self.points_cleared += len(clear)
         # keyframes (the camera moved 10 cm or turned 10° since the last one) and, on them, normals if a map asks
         keyframe = self._keyframe_of.due(T_world_cam)
         self.keyframes += keyframe
@@ -105,7 +120,7 @@ class Mapper:
         normals = (pixel_normals(frame.depth, frame.intrinsics, T_world_cam, pixels)
                    if self._normals and keyframe else None)
         obs = Observation(points_world, np.asarray(T_world_cam, np.float64)[:3, 3].copy(), colors, point_sem,
-                          normals=normals, frame_index=frame.index, keyframe=keyframe)
+                          normals=normals, frame_index=frame.index, keyframe=keyframe, clear_points=clear)
         ms = {"backproject": (time.perf_counter() - t0) * 1e3}
         # each map fuses the same observation (the OctoMap ray-casts free space from the camera centre)
         for i, m in enumerate(self.maps):
@@ -133,12 +148,14 @@ class Mapper:
     def state(self) -> tuple[dict, dict[str, np.ndarray]]:
         """A checkpoint's mapper: its counters and keyframe schedule (the maps save their own state)."""
         return ({"points_integrated": self.points_integrated, "keyframes": self.keyframes,
-                 "last_was_keyframe": self.last_was_keyframe}, self._keyframe_of.state())
+                 "last_was_keyframe": self.last_was_keyframe, "points_cleared": self.points_cleared},
+                self._keyframe_of.state())
 
     def restore(self, meta: dict, arrays: dict[str, np.ndarray]) -> None:
         """Continue from :meth:`state`."""
         self.points_integrated, self.keyframes = int(meta["points_integrated"]), int(meta["keyframes"])
         self.last_was_keyframe = bool(meta["last_was_keyframe"])
+        self.points_cleared = int(meta.get("points_cleared", 0))
         self._keyframe_of.restore(arrays)
 
     def integrate_arrays(self, rgb: np.ndarray, depth_m: np.ndarray, intrinsics: CameraIntrinsics | np.ndarray,
@@ -150,6 +167,16 @@ class Mapper:
         classes = next((len(m.label_set) for m in self.maps if m.label_set is not None), None)
         sem = class_sets(semantics, frame.depth.shape, num_classes=classes, k=k, label_confidence=label_confidence)
         return self.integrate(frame, frame.T_world_cam, sem)
+
+
+def dynamic_table(classes: Iterable[int]) -> np.ndarray | None:
+    """(65536,) bool: is a point's top class (a uint16 id, EMPTY_LABEL included) dynamic; None when none is."""
+    ids = np.asarray(list(classes), np.int64)
+    if ids.size == 0:
+        return None
+    table = np.zeros(1 << 16, bool)
+    table[ids] = True
+    return table
 
 
 def semantics_for(frame: Frame, source: SemanticSource, *, label_set: LabelSet | None, label_confidence: float,
@@ -262,7 +289,8 @@ class Pipeline:
         check_labels_exist(c, dataset, first, self.segmenter)
         segmenter_s = prepare_segmenter(self.segmenter, first)  # and an ONNX export / session out of the first frame's
         mapper = Mapper([get_map(kind, c, label_set) for kind in c.mapping.maps], min_depth=c.mapping.min_depth,
-                        max_depth=c.mapping.max_depth, pixel_stride=c.mapping.pixel_stride)
+                        max_depth=c.mapping.max_depth, pixel_stride=c.mapping.pixel_stride,
+                        dynamic=dynamic_classes(c, label_set))
         resumed = (self._checkpoints.resume(mapper, lambda: pose_source_to_resume(c, dataset)) if self.resume
                    else None)
         if resumed is not None:  # the maps, poses and sums of the last checkpoint; its frames are not read again

@@ -106,6 +106,7 @@ class InsertStats:
     hits: int = 0
     free_cells: int = 0
     ray_steps: int = 0
+    clear_rays: int = 0  #: rays of clear-only points (dynamic classes), one per end cell
     range_limited: bool = False
     ms: dict[str, float] = field(default_factory=dict)
 
@@ -278,18 +279,22 @@ class SemanticOctoMap:
 
     # ------------------------------------------------------------------ insertion
     def insert_points(self, points: np.ndarray, origin: np.ndarray, *, colors: np.ndarray | None = None,
-                      semantics: TopKProbs | None = None) -> InsertStats:
+                      semantics: TopKProbs | None = None, clear: np.ndarray | None = None) -> InsertStats:
         """Insert one scan: world points (N, 3) seen from sensor ``origin`` (3,), optional colours (N, 3)
-        uint8 and per-point top-k class distributions (N, k).  Points are used as float32, like OctoMap."""
+        uint8 and per-point top-k class distributions (N, k).  Points are used as float32, like OctoMap.
+        ``clear`` (M, 3) are clear-only points (dynamic classes): their rays mark free cells as the others' do,
+        but their end cells get no hit, colour or class (without them the insertion is OctoMap's exactly)."""
         t0 = time.perf_counter()
         pts, org, col, sem_l, sem_p = self._validated(points, origin, colors, semantics)
-        stats = InsertStats(points=len(pts))
+        stats, n = InsertStats(points=len(pts)), len(pts)
+        if clear is not None and len(clear):
+            pts = np.concatenate([pts, self._validated(clear, origin, None, None)[0].astype(pts.dtype)])
         if len(pts) == 0:
             return stats
         res, rf = self.resolution, 1.0 / self.resolution
         threads = nb.get_num_threads()
 
-        # 1. keys and bounding box; the scan grid around them
+        # 1. keys and bounding box (of the clear-only points too); the scan grid around them
         buf = self._point_buffers(len(pts))
         keys, valid = buf.keys[: len(pts)], buf.valid[: len(pts)]
         boxes = kern.point_keys(pts, rf, threads, keys, valid)
@@ -307,12 +312,10 @@ class SemanticOctoMap:
 
         try:  # the scratch grid must come back all-zero even if something below fails
             # 2. voxel filter and ray targets: the first point of each endpoint cell represents it
-            m = kern.scan_endpoints(keys, valid, grid, g0x, g0y, g0z, gnx, gny, gnz, org, res, max_range,
+            m = kern.scan_endpoints(keys[:n], valid[:n], grid, g0x, g0y, g0z, gnx, gny, gnz, org, res, max_range,
                                     buf.first, buf.packed, buf.targets, buf.hit)
             first, packed, targets, hit = buf.first[:m], buf.packed[:m], buf.targets[:m], buf.hit[:m]
-            outside = self._far_endpoints(keys, valid, lo, hi) if max_range >= 0 else None
-            if outside is not None and outside.size:
-                targets = np.concatenate([targets, kern.far_targets(keys, outside, org, res, max_range)])
+            targets = self._more_targets(targets, keys, valid, n, (lo, hi), org, max_range, stats)
             t2 = time.perf_counter()
             stats.ms["voxel_filter"] = (t2 - t1) * 1e3
 
@@ -344,7 +347,7 @@ class SemanticOctoMap:
             k = self.fusion.k
             update, finish = self._entry.kernels()
             if sem_l is not None and self.cell_evidence == CellEvidence.MEAN:  # one measurement per cell
-                sem_l, sem_p = self._cell_means(keys, valid, packed, sem_l, sem_p)
+                sem_l, sem_p = self._cell_means(keys[:n], valid[:n], packed, sem_l, sem_p)
                 col = None if col is None else np.ascontiguousarray(col[first])
                 first = np.arange(m, dtype=np.int64)
             kern.update_attributes(rows, first,
@@ -362,6 +365,22 @@ class SemanticOctoMap:
         classes = self._num_classes or kern.max_class_id(sem_l, int(EMPTY_LABEL)) + 1
         return kern.cell_mean_sets(keys, valid, packed, packed.shape[0], sem_l, sem_p, max(int(classes), 1),
                                    int(EMPTY_LABEL))
+
+    def _more_targets(self, targets: np.ndarray, keys: np.ndarray, valid: np.ndarray, n: int,
+                      box: tuple[np.ndarray, np.ndarray], org: np.ndarray, max_range: float,
+                      stats: InsertStats) -> np.ndarray:
+        """The ray targets beside the grid's endpoint cells: max-range readings beyond the range-limited grid,
+        and one target per cell of the clear-only points (``keys[n:]``): its centre, or the max-range point."""
+        more = []
+        outside = self._far_endpoints(keys[:n], valid[:n], *box) if max_range >= 0 else None
+        if outside is not None and outside.size:
+            more.append(kern.far_targets(keys, outside, org, self.resolution, max_range))
+        if keys.shape[0] > n:
+            ok = np.flatnonzero(valid[n:])
+            _, first = np.unique(pack_keys(keys[n:][ok]), return_index=True)
+            stats.clear_rays = int(first.size)
+            more.append(kern.far_targets(keys, np.sort(ok[first]) + n, org, self.resolution, max_range))
+        return np.concatenate([targets, *more]) if more else targets
 
     def _validated(self, points, origin, colors, semantics):
         """Inputs as contiguous arrays of the kernels' dtypes, or a ConfigError saying what is wrong."""
@@ -685,7 +704,8 @@ class SemanticOctoMap:
     def integrate(self, obs: Observation) -> dict[str, float]:
         """Insert one frame's observation (:meth:`insert_points`); milliseconds per insertion step."""
         self._tree_counts = None
-        return self.insert_points(obs.points_world, obs.origin, colors=obs.colors, semantics=obs.semantics).ms
+        return self.insert_points(obs.points_world, obs.origin, colors=obs.colors, semantics=obs.semantics,
+                                  clear=obs.clear_points).ms
 
     def cloud(self) -> MapCloud:
         """Occupied voxels: centres, mean colours, top class and its confidence, sorted by key."""

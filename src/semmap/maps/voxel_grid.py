@@ -63,10 +63,12 @@ class SemanticVoxelGrid(OnSemanticGrid):
 
     # ------------------------------------------------------------------ the map interface
     def integrate(self, obs: Observation) -> dict[str, float]:
-        """Fuse every point of the frame; with free space, also ray-cast it into the occupancy OctoMap."""
+        """Fuse every point of the frame; with free space, also ray-cast it into the occupancy OctoMap (the
+        clear-only points of dynamic classes too: they clear its free space, and are never voxels)."""
         ms = self.grid.integrate_points(obs.points_world, colors=obs.colors, semantics=obs.semantics)
         if self.geometry is not None:
-            ms["free_space"] = sum(self.geometry.insert_points(obs.points_world, obs.origin).ms.values())
+            ms["free_space"] = sum(self.geometry.insert_points(obs.points_world, obs.origin,
+                                                               clear=obs.clear_points).ms.values())
         return ms
 
     def _occupied(self, a: GridArrays) -> np.ndarray:
