@@ -420,6 +420,8 @@ def simulate(
     changes: Annotated[int, typer.Option(help="the same scene a while later: N objects moved, removed or added "
                                               "(in turn); changes.json records them (for semmap diff)")] = 0,
     changes_seed: Annotated[int, typer.Option(help="seed of which objects change and where")] = 1,
+    people: Annotated[int, typer.Option(help="people walking to and fro through the scene (labelled person; not "
+                                             "in the 3D ground truth: semmap run keeps them out of the map)")] = 0,
     memory_budget: _MemoryBudget = None,
 ) -> None:
     """Render a procedural indoor scene to a TUM RGB-D folder with labels, instances, objects and scene.json."""
@@ -435,7 +437,7 @@ def simulate(
         root = simulate_sequence(out, scene_seed=scene_seed, kind=kind, size=size, trajectory=trajectory,
                                  frames=frames, noise=noise, progress=callback, image_size=stored, symmetric=symmetric,
                                  trajectory_seed=trajectory_seed, layout=format or LAYOUTS[0],
-                                 changes=changes, changes_seed=changes_seed)
+                                 changes=changes, changes_seed=changes_seed, people=people)
     _console().print(f"wrote {frames} frames to {root} (map it with: semmap run {root} --out OUT)")
 
 

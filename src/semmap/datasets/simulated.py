@@ -18,8 +18,10 @@ class SimulatedDataset:
     """Frames (rgb, depth, labels, instances, ground-truth pose) of ``poses`` through ``scene``, rendered lazily."""
 
     def __init__(self, scene: Scene, poses: np.ndarray, *, noise: bool = True, seed: int = 0,
-                 intrinsics: CameraIntrinsics | None = None, name: str = "simulated") -> None:
-        self.scene = scene
+                 intrinsics: CameraIntrinsics | None = None, name: str = "simulated", people: int = 0,
+                 fps: float = 30.0) -> None:
+        self.scene = scene  # the static scene (walking ``people`` are rendered, never part of it)
+        self.people, self.fps = int(people), float(fps)
         self.poses = np.asarray(poses, np.float64)
         self.noise = noise
         self.seed = seed
@@ -55,7 +57,7 @@ class SimulatedDataset:
 
     def __iter__(self) -> Iterator[Frame]:
         yield from simulate_frames(self.scene, self.poses, noise=self.noise, seed=self.seed,
-                                   intrinsics=self._intrinsics)
+                                   intrinsics=self._intrinsics, people=self.people, fps=self.fps)
 
 
 def scene_of_folder(root) -> Scene | None:
