@@ -132,3 +132,19 @@ def test_an_unknown_dynamic_class_is_refused_in_one_line(tmp_path):
         dynamic_classes(config, INDOOR_LABELS)
     default = RunConfig(input=InputConfig(dataset=tmp_path), output=OutputConfig(out=tmp_path / "o"))
     assert dynamic_classes(default, INDOOR_LABELS) == (PERSON,) and dynamic_classes(default, None) == ()
+
+
+def test_simulate_people_keeps_the_static_scene_and_its_ground_truth(tmp_path):
+    import json
+
+    from semmap.datasets.simulated import scene_of_folder
+    from semmap.sim.export import simulate_sequence
+
+    root = simulate_sequence(tmp_path / "seq", size="medium", frames=3, image_size=(80, 60), people=1, noise=False)
+    info = json.loads((root / "scene.json").read_text())
+    assert [p["class"] for p in info["people"]] == ["person"] and len(info["people"][0]["path"]) > 2
+    scene = scene_of_folder(root)  # the static scene, regenerated: the walker is not part of it
+    assert scene is not None and scene.n_triangles == info["n_triangles"]
+    assert "person" not in {o["class"] for o in json.loads((root / "objects.json").read_text())}
+    with pytest.raises(Exception, match="--people"):
+        simulate_sequence(tmp_path / "bad", frames=1, people=9)

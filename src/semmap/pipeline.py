@@ -130,6 +130,12 @@ class Mapper:
         self._check_growth(frame)
         return ms
 
+    def dynamic_report(self, label_set: LabelSet | None) -> dict | None:
+        """The dynamic classes by name and the points of theirs that only cleared free space (None: no class)."""
+        if not self.dynamic or label_set is None:
+            return None
+        return {"classes": [label_set.names[c] for c in self.dynamic], "points_cleared": self.points_cleared}
+
     def _check_growth(self, frame: Frame) -> None:
         """After each frame, refuse to go on once the maps would pass the memory budget with one more frame like
         it (the first view's estimate cannot see a long or wide sequence coming)."""
@@ -317,7 +323,8 @@ class Pipeline:
                           segmenter=None if self.segmenter is None else self.segmenter.name, startup_s=startup_s,
                           segmenter_startup_s=segmenter_s, crf=crf,
                           semantics=semantics_source(c, self.segmenter, label_set, dataset.label_set),
-                          objects=None if self._objects is None else self._objects.report(mapper.keyframes))
+                          objects=None if self._objects is None else self._objects.report(mapper.keyframes),
+                          dynamic=mapper.dynamic_report(label_set))
 
     def _write(self, outcome: RunOutcome) -> dict:
         """The report of the run (``report.json``, ``.md``, ``.html``, plots) into the staging folder."""
