@@ -78,7 +78,7 @@ class Mapper:
         self.dynamic = tuple(sorted({int(c) for c in dynamic}))  # classes whose points only clear free space
         self._is_dynamic = dynamic_table(self.dynamic)
         self.points_integrated = 0
-        self.points_cleared = 0  # points of dynamic classes (their rays cleared, nothing was added)
+        self.points_cleared = 0  # of those, points of dynamic classes (their rays cleared, nothing was added)
         self.keyframes = 0
         self.last_was_keyframe = False
         self._keyframe_of = Scheduler(SegmentationSchedule(keyframes=True))
@@ -126,7 +126,7 @@ class Mapper:
         for i, m in enumerate(self.maps):
             steps = m.integrate(obs)
             ms.update(steps if i == 0 else {f"{m.kind.value}:{k}": v for k, v in steps.items()})
-        self.points_integrated += len(points_world)
+        self.points_integrated += len(points_world) + (0 if clear is None else len(clear))  # (cleared ones too)
         self._check_growth(frame)
         return ms
 
