@@ -148,3 +148,22 @@ def test_simulate_people_keeps_the_static_scene_and_its_ground_truth(tmp_path):
     assert "person" not in {o["class"] for o in json.loads((root / "objects.json").read_text())}
     with pytest.raises(Exception, match="--people"):
         simulate_sequence(tmp_path / "bad", frames=1, people=9)
+
+
+def test_decay_lets_unseen_evidence_fade_so_that_one_miss_clears_it():
+    wall = np.stack(np.meshgrid(np.linspace(-0.4, 0.4, 17), np.linspace(-0.4, 0.4, 17), [1.5]), -1).reshape(-1, 3)
+    behind = np.stack(np.meshgrid(np.linspace(-1.2, 1.2, 49), np.linspace(-1.2, 1.2, 49), [3.0]), -1).reshape(-1, 3)
+    elsewhere = wall + np.array([0.0, 0.0, -3.0])  # a view away from the wall (behind the sensor)
+    held = {}
+    for decay in (0.0, 0.5):
+        m = SemanticOctoMap(RES, decay=decay)
+        m.insert_points(wall, np.zeros(3))
+        for _ in range(4):
+            m.insert_points(elsewhere, np.zeros(3))
+        lo = m._logodds[m._slots_of(wall)]
+        held[decay] = lo
+        m.insert_points(behind, np.zeros(3))  # one scan through the wall's place
+        assert (m.state_at(wall) == (OCCUPIED if decay == 0.0 else FREE)).all()
+    assert np.allclose(held[0.0], m.occupancy.hit_log) and np.allclose(held[0.5], m.occupancy.hit_log / 16)
+    with pytest.raises(ConfigError, match="--decay"):
+        SemanticOctoMap(RES, decay=1.0)

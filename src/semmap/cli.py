@@ -215,6 +215,9 @@ def run(
     tsdf_truncation: Annotated[float, typer.Option(help="TSDF truncation distance in voxels",
                                                    rich_help_panel=_MAPS)] = _default(MappingConfig,
                                                                                       "tsdf_truncation"),
+    decay: Annotated[float, typer.Option(help="share of log-odds an OctoMap cell not observed in a frame loses "
+                                              "towards unknown (0: none)", rich_help_panel=_MAPS)
+                     ] = _default(MappingConfig, "decay"),
     dynamic: Annotated[str, typer.Option(help="dynamic classes, comma-separated (the whole list, e.g. person,chair; "
                                               "none for no class): their points clear free space along their "
                                               "rays but never occupy a voxel", rich_help_panel=_MAPS)
@@ -271,7 +274,7 @@ def run(
         mapping=MappingConfig(resolution=resolution, min_depth=min_depth, max_depth=max_depth,
                               max_range=max_range, pixel_stride=pixel_stride, maps=kinds, state_dtype=state_dtype,
                               free_space=free_space, point_resolution=point_resolution, tsdf_voxel=tsdf_voxel,
-                              tsdf_truncation=tsdf_truncation, dynamic=dynamic),
+                              tsdf_truncation=tsdf_truncation, dynamic=dynamic, decay=decay),
         semantics=SemanticsConfig(source=semantics, label_confidence=label_confidence, lam=lam, k=top_k,
                                   max_confidence=max_confidence, segmenter=segmenter,
                                   weights=weights, trust_weights=trust_weights, segment_every=segment_every,

@@ -142,6 +142,9 @@ class MappingConfig(_Section):
                                      description="voxel of the TSDF (m; None: the run's resolution)")
     tsdf_truncation: float = Field(4.0, **field_bounds("tsdf_truncation", "--tsdf-truncation"),
                                    description="TSDF truncation distance in voxels")
+    decay: float = Field(0.0, **field_bounds("decay", "--decay"),
+                         description="OctoMap (and the voxel grid's free space): share of log-odds a cell not "
+                                     "observed in a frame loses towards unknown (0: none, OctoMap's update)")
     dynamic: tuple[str, ...] = Field(DEFAULT_DYNAMIC, description="dynamic classes (--dynamic): points whose most "
                                      "probable class is one of them only clear free space, never occupy a voxel")
 

@@ -86,6 +86,7 @@ LIMITS: dict[str, Limit] = {
     "memory": Limit(1 << 20, 1 << 50, "bytes of memory"),
     "changes": Limit(0, 50, "objects changed", integer=True),
     "people": Limit(0, 8, "walking people", integer=True),
+    "decay": Limit(0.0, 0.99, "share of log-odds lost per frame unseen"),
     "distance": Limit(1e-3, 100.0, "distance (m)"),
     "coordinate": Limit(-1e4, 1e4, "coordinate (m)"),
     "inflation": Limit(0.0, 10.0, "radius (m)"),
@@ -156,6 +157,8 @@ OPTIONS: dict[str, OptionRule] = {
     # the TSDF and its mesh
     "--tsdf-voxel": OptionRule("resolution"), "--tsdf-truncation": OptionRule("tsdf_truncation"),
     "--min-weight": OptionRule("tsdf_weight"),
+    # dynamic scenes
+    "--decay": OptionRule("decay"),
 }
 
 

@@ -178,9 +178,12 @@ class SemanticOctoMap:
     def __init__(self, resolution: float = 0.05, *, occupancy: OccupancyParams | None = None,
                  fusion: FusionParams | None = None, label_set: LabelSet | None = None,
                  max_range: float = -1.0, grid_cell_limit: int = GRID_CELL_LIMIT, color_mode: str = "class",
-                 cell_evidence: CellEvidence | str = CellEvidence.MEAN) -> None:
+                 cell_evidence: CellEvidence | str = CellEvidence.MEAN, decay: float = 0.0) -> None:
         if not (math.isfinite(resolution) and 0.001 <= resolution <= 10.0):
             raise ConfigError(f"resolution must be between 0.001 and 10 m, got {resolution}")
+        if not (math.isfinite(decay) and 0.0 <= decay < 1.0):
+            raise ConfigError(f"--decay must be in [0, 1) (log-odds lost per frame unseen), got {decay}")
+        self.decay = float(decay)  # cells a scan does not observe lose this share of their log-odds (0: OctoMap)
         self.resolution = float(resolution)
         self.occupancy = occupancy or OccupancyParams()
         self.fusion = fusion or FusionParams()
@@ -334,7 +337,7 @@ class SemanticOctoMap:
         t4 = time.perf_counter()
         stats.ms["collect"] = (t4 - t3) * 1e3
 
-        # 5. occupancy log-odds (misses, then hits), attribute rows of first hits
+        # 5. occupancy log-odds (misses, then hits), attribute rows of first hits; unseen cells decay (--decay)
         slots = self._update_occupancy(buf.free, n_free, packed, hit, threads)
         self._ensure_attributes(self._n_attr + int(np.count_nonzero(self._attr[slots[hit]] < 0)))  # first hits
         rows = buf.rows[:m]
@@ -455,11 +458,19 @@ class SemanticOctoMap:
             grown = True
         if grown:  # slots recorded before the table moved are stale
             slots = ht.lookup_many(self._keys, self._shard_cap, hits)
+        if self.decay > 0.0:
+            self._decay_unseen(free[:n_free], slots)
         if hits is packed:
             return slots
         out = np.zeros(packed.shape[0], np.int64)
         out[hit] = slots
         return out
+
+    def _decay_unseen(self, free: np.ndarray, hit_slots: np.ndarray) -> None:
+        """``decay``: the log-odds of every cell this scan neither hit nor crossed move towards 0 (unknown) by that
+        share, so that old evidence gives way sooner to what later scans see."""
+        seen = np.concatenate([ht.lookup_many(self._keys, self._shard_cap, free), hit_slots])
+        kern.decay_unseen(self._keys, self._logodds, seen, np.float32(1.0 - self.decay))
 
     def _update_cells(self, cells: np.ndarray, n: int, delta: np.float32, slots: np.ndarray, threads: int, *,
                       more: int = 0) -> bool:
@@ -801,6 +812,9 @@ def compile_kernels() -> float:
         m = SemanticOctoMap(0.05, label_set=LabelSet.generic(4), max_range=max_range)
         m.insert_points(pts, np.zeros(3), colors=colors, semantics=TopKProbs(labels, probs))  # grows the table
         m.insert_points(pts, np.array([1e6, 0.0, 0.0]), colors=colors)  # hits only
+    decaying = SemanticOctoMap(0.05, decay=0.1)
+    for origin in (np.zeros(3), np.array([0.0, 0.0, 0.5])):
+        decaying.insert_points(pts, origin)
     first = SemanticOctoMap(0.05, label_set=LabelSet.generic(4), cell_evidence=CellEvidence.FIRST)
     first.insert_points(pts, np.zeros(3), colors=colors, semantics=TopKProbs(labels, probs))
     m.state_at(pts[:8])

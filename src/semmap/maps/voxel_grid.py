@@ -49,12 +49,12 @@ class SemanticVoxelGrid(OnSemanticGrid):
 
     def __init__(self, resolution: float = 0.05, *, label_set: LabelSet | None = None,
                  fusion: FusionParams | None = None, dtype: str = "float32", free_space: bool = False,
-                 occupancy: OccupancyParams | None = None, max_range: float = -1.0) -> None:
+                 occupancy: OccupancyParams | None = None, max_range: float = -1.0, decay: float = 0.0) -> None:
         self.grid = SemanticGrid(resolution, label_set=label_set, fusion=fusion or FusionParams(FusionRule.BAYES),
                                  dtype=dtype)
         self.occupancy = occupancy or OccupancyParams()
         self.max_range = float(max_range)
-        self.geometry = (SemanticOctoMap(resolution, occupancy=self.occupancy, max_range=max_range)
+        self.geometry = (SemanticOctoMap(resolution, occupancy=self.occupancy, max_range=max_range, decay=decay)
                          if free_space else None)
 
     @property
