@@ -230,6 +230,13 @@ def run(
     tsdf_truncation: Annotated[float, typer.Option(help="TSDF truncation distance in voxels",
                                                    rich_help_panel=_MAPS)] = _default(MappingConfig,
                                                                                       "tsdf_truncation"),
+    decay: Annotated[float, typer.Option(help="share of log-odds an OctoMap cell not observed in a frame loses "
+                                              "towards unknown (0: none)", rich_help_panel=_MAPS)
+                     ] = _default(MappingConfig, "decay"),
+    dynamic: Annotated[str, typer.Option(help="dynamic classes, comma-separated (the whole list, e.g. person,chair; "
+                                              "none for no class): their points clear free space along their "
+                                              "rays but never occupy a voxel", rich_help_panel=_MAPS)
+                       ] = ",".join(_default(MappingConfig, "dynamic")),
     top_k: Annotated[int, typer.Option(help="classes per top-k set (1..8): the segmenter's sets and topk fusion",
                                        rich_help_panel=_MAPS)] = _default(SemanticsConfig, "k"),
     max_confidence: Annotated[float, typer.Option(help="cap on a voxel's top confidence (topk, max)",
@@ -286,7 +293,7 @@ def run(
         mapping=MappingConfig(resolution=resolution, min_depth=min_depth, max_depth=max_depth,
                               max_range=max_range, pixel_stride=pixel_stride, maps=kinds, state_dtype=state_dtype,
                               free_space=free_space, point_resolution=point_resolution, tsdf_voxel=tsdf_voxel,
-                              tsdf_truncation=tsdf_truncation),
+                              tsdf_truncation=tsdf_truncation, dynamic=dynamic, decay=decay),
         semantics=SemanticsConfig(source=semantics, label_confidence=label_confidence, lam=lam, k=top_k,
                                   temperature=temperature,
                                   max_confidence=max_confidence, segmenter=segmenter,
@@ -461,6 +468,8 @@ def simulate(
     changes: Annotated[int, typer.Option(help="the same scene a while later: N objects moved, removed or added "
                                               "(in turn); changes.json records them (for semmap diff)")] = 0,
     changes_seed: Annotated[int, typer.Option(help="seed of which objects change and where")] = 1,
+    people: Annotated[int, typer.Option(help="people walking to and fro through the scene (labelled person; not "
+                                             "in the 3D ground truth: semmap run keeps them out of the map)")] = 0,
     memory_budget: _MemoryBudget = None,
 ) -> None:
     """Render a procedural indoor scene to a TUM RGB-D folder with labels, instances, objects and scene.json."""
@@ -476,7 +485,7 @@ def simulate(
         root = simulate_sequence(out, scene_seed=scene_seed, kind=kind, size=size, trajectory=trajectory,
                                  frames=frames, noise=noise, progress=callback, image_size=stored, symmetric=symmetric,
                                  trajectory_seed=trajectory_seed, layout=format or LAYOUTS[0],
-                                 changes=changes, changes_seed=changes_seed)
+                                 changes=changes, changes_seed=changes_seed, people=people)
     _console().print(f"wrote {frames} frames to {root} (map it with: semmap run {root} --out OUT)")
 
 

@@ -26,6 +26,9 @@ from semmap.perception.registry import SEGMENTERS, SegmenterName, split_segmente
 from semmap.poses.track import GROUND_TRUTH, POSE_SOURCES, PoseSource
 from semmap.registry import check_name
 
+#: Classes whose points only clear free space unless ``--dynamic`` says otherwise (people walk about).
+DEFAULT_DYNAMIC: tuple[str, ...] = ("person",)
+
 
 class ColorMode(str, Enum):
     """What colour an occupied voxel shows in the ``.ot`` file."""
@@ -140,6 +143,21 @@ class MappingConfig(_Section):
                                      description="voxel of the TSDF (m; None: the run's resolution)")
     tsdf_truncation: float = Field(4.0, **field_bounds("tsdf_truncation", "--tsdf-truncation"),
                                    description="TSDF truncation distance in voxels")
+    decay: float = Field(0.0, **field_bounds("decay", "--decay"),
+                         description="OctoMap (and the voxel grid's free space): share of log-odds a cell not "
+                                     "observed in a frame loses towards unknown (0: none, OctoMap's update)")
+    dynamic: tuple[str, ...] = Field(DEFAULT_DYNAMIC, description="dynamic classes (--dynamic): points whose most "
+                                     "probable class is one of them only clear free space, never occupy a voxel")
+
+    @field_validator("dynamic", mode="before")
+    @classmethod
+    def _class_names(cls, v: object) -> object:
+        """``"person,chair"`` or a list of names; ``none`` (or nothing) for no dynamic class."""
+        names = v.split(",") if isinstance(v, str) else v
+        if isinstance(names, list | tuple):
+            names = tuple(str(n).strip() for n in names if str(n).strip())
+            return () if names in ((), ("none",)) else names
+        return v
 
     @field_validator("maps", mode="before")
     @classmethod

@@ -60,12 +60,13 @@ def get_map(kind: MapKind, config: RunConfig, label_set: LabelSet | None) -> Sem
 
         return SemanticOctoMap(m.resolution, label_set=label_set, max_range=m.max_range, occupancy=occupancy,
                                fusion=fusion, color_mode=config.output.color_mode.value,
-                               cell_evidence=m.cell_evidence)
+                               cell_evidence=m.cell_evidence, decay=m.decay)
     if kind == MapKind.VOXELGRID:
         from semmap.maps.voxel_grid import SemanticVoxelGrid
 
         return SemanticVoxelGrid(m.resolution, label_set=label_set, fusion=fusion, dtype=m.state_dtype or "float32",
-                                 free_space=m.free_space, occupancy=occupancy, max_range=m.max_range)
+                                 free_space=m.free_space, occupancy=occupancy, max_range=m.max_range,
+                                 decay=m.decay)
     if kind == MapKind.POINTS:
         from semmap.maps.point_map import SemanticPointMap
 

@@ -85,6 +85,8 @@ LIMITS: dict[str, Limit] = {
     "pose_number": Limit(-1e5, 1e5, "metres or quaternion component"),
     "memory": Limit(1 << 20, 1 << 50, "bytes of memory"),
     "changes": Limit(0, 50, "objects changed", integer=True),
+    "people": Limit(0, 8, "walking people", integer=True),
+    "decay": Limit(0.0, 0.99, "share of log-odds lost per frame unseen"),
     "distance": Limit(1e-3, 100.0, "distance (m)"),
     "coordinate": Limit(-1e4, 1e4, "coordinate (m)"),
     "inflation": Limit(0.0, 10.0, "radius (m)"),
@@ -151,7 +153,7 @@ OPTIONS: dict[str, OptionRule] = {
     # batch
     "--workers": OptionRule("workers"), "--cpus-per-run": OptionRule("cpus_per_run"),
     # simulate --changes, diff, export
-    "--changes": OptionRule("changes"), "--changes-seed": OptionRule("seed"),
+    "--changes": OptionRule("changes"), "--changes-seed": OptionRule("seed"), "--people": OptionRule("people"),
     "--match-radius": OptionRule("distance"), "--move-threshold": OptionRule("distance"),
     "--z-min": OptionRule("coordinate"), "--z-max": OptionRule("coordinate"), "--floor": OptionRule("coordinate"),
     "--slice-z": OptionRule("coordinate"), "--inflation": OptionRule("inflation"), "--near": OptionRule("distance"),
@@ -161,6 +163,8 @@ OPTIONS: dict[str, OptionRule] = {
     # the TSDF and its mesh
     "--tsdf-voxel": OptionRule("resolution"), "--tsdf-truncation": OptionRule("tsdf_truncation"),
     "--min-weight": OptionRule("tsdf_weight"),
+    # dynamic scenes
+    "--decay": OptionRule("decay"),
 }
 
 

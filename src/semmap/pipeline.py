@@ -53,6 +53,7 @@ from semmap.run.paths import check_run_paths, staged_output
 from semmap.run.prepare import (
     FirstFrame,
     check_labels_exist,
+    dynamic_classes,
     label_set_for,
     pose_source_for,
     pose_source_to_resume,
@@ -76,14 +77,17 @@ class Mapper:
     """Integrates frames into maps: back-project, transform, attach colour and class sets, hand to every map."""
 
     def __init__(self, maps: list[SemanticMap], *, min_depth: float, max_depth: float, pixel_stride: int = 1,
-                 cloud_resolution: float | None = None):
+                 cloud_resolution: float | None = None, dynamic: Iterable[int] = ()):
         if not maps:
             raise ConfigError("a mapping run needs at least one map")
         self.maps = maps
         # the dense coloured cloud every point builds, voxel-filtered (cloud.ply: the storage the maps replace)
         self.cloud = SemanticGrid(cloud_resolution, label_set=None) if cloud_resolution else None
         self.min_depth, self.max_depth, self.pixel_stride = min_depth, max_depth, pixel_stride
+        self.dynamic = tuple(sorted({int(c) for c in dynamic}))  # classes whose points only clear free space
+        self._is_dynamic = dynamic_table(self.dynamic)
         self.points_integrated = 0
+        self.points_cleared = 0  # of those, points of dynamic classes (their rays cleared, nothing was added)
         self.keyframes = 0
         self.last_was_keyframe = False
         self._keyframe_of = Scheduler(SegmentationSchedule(keyframes=True))
@@ -108,6 +112,16 @@ class Mapper:
         if semantics is not None:
             flat = semantics.reshape_flat()
             point_sem = TopKProbs(np.take(flat.labels, pixels, axis=0), np.take(flat.probs, pixels, axis=0))
+        # points whose most probable class is dynamic (people) only clear free space
+        clear = None
+        if self._is_dynamic is not None and point_sem is not None:
+            moving = self._is_dynamic[point_sem.labels[:, 0]]
+            if moving.any():
+                keep = ~moving
+                clear, points_world, colors, pixels = (points_world[moving], points_world[keep], colors[keep],
+                                                       pixels[keep])
+                point_sem = TopKProbs(point_sem.labels[keep], point_sem.probs[keep])
+                self.points_cleared += len(clear)
         # keyframes (the camera moved 10 cm or turned 10° since the last one) and, on them, normals if a map asks
         keyframe = self._keyframe_of.due(T_world_cam)
         self.keyframes += keyframe
@@ -115,19 +129,25 @@ class Mapper:
         normals = (pixel_normals(frame.depth, frame.intrinsics, T_world_cam, pixels)
                    if self._normals and keyframe else None)
         obs = Observation(points_world, np.asarray(T_world_cam, np.float64)[:3, 3].copy(), colors, point_sem,
-                          normals=normals, frame_index=frame.index, keyframe=keyframe)
+                          normals=normals, frame_index=frame.index, keyframe=keyframe, clear_points=clear)
         ms = {"backproject": (time.perf_counter() - t0) * 1e3}
         # each map fuses the same observation (the OctoMap ray-casts free space from the camera centre)
         for i, m in enumerate(self.maps):
             steps = m.integrate(obs)
             ms.update(steps if i == 0 else {f"{m.kind.value}:{k}": v for k, v in steps.items()})
-        if self.cloud is not None:
+        if self.cloud is not None:  # the dense cloud keeps what the maps keep (no dynamic points)
             t_cloud = time.perf_counter()
             self.cloud.integrate_points(points_world, colors=colors)
             ms["cloud"] = (time.perf_counter() - t_cloud) * 1e3
-        self.points_integrated += len(points_world)
+        self.points_integrated += len(points_world) + (0 if clear is None else len(clear))  # (cleared ones too)
         self._check_growth(frame)
         return ms
+
+    def dynamic_report(self, label_set: LabelSet | None) -> dict | None:
+        """The dynamic classes by name and the points of theirs that only cleared free space (None: no class)."""
+        if not self.dynamic or label_set is None:
+            return None
+        return {"classes": [label_set.names[c] for c in self.dynamic], "points_cleared": self.points_cleared}
 
     def _check_growth(self, frame: Frame) -> None:
         """After each frame, refuse to go on once the maps would pass the memory budget with one more frame like
@@ -157,12 +177,13 @@ class Mapper:
         if self.cloud is not None:
             arrays.update(prefixed("cloud", self.cloud.state()))
         return ({"points_integrated": self.points_integrated, "keyframes": self.keyframes,
-                 "last_was_keyframe": self.last_was_keyframe}, arrays)
+                 "last_was_keyframe": self.last_was_keyframe, "points_cleared": self.points_cleared}, arrays)
 
     def restore(self, meta: dict, arrays: dict[str, np.ndarray]) -> None:
         """Continue from :meth:`state`."""
         self.points_integrated, self.keyframes = int(meta["points_integrated"]), int(meta["keyframes"])
         self.last_was_keyframe = bool(meta["last_was_keyframe"])
+        self.points_cleared = int(meta.get("points_cleared", 0))
         self._keyframe_of.restore({k: v for k, v in arrays.items() if not k.startswith("cloud/")})
         if self.cloud is not None:
             self.cloud.restore(section(arrays, "cloud"))
@@ -176,6 +197,16 @@ class Mapper:
         classes = next((len(m.label_set) for m in self.maps if m.label_set is not None), None)
         sem = class_sets(semantics, frame.depth.shape, num_classes=classes, k=k, label_confidence=label_confidence)
         return self.integrate(frame, frame.T_world_cam, sem)
+
+
+def dynamic_table(classes: Iterable[int]) -> np.ndarray | None:
+    """(65536,) bool: is a point's top class (a uint16 id, EMPTY_LABEL included) dynamic; None when none is."""
+    ids = np.asarray(list(classes), np.int64)
+    if ids.size == 0:
+        return None
+    table = np.zeros(1 << 16, bool)
+    table[ids] = True
+    return table
 
 
 def semantics_for(frame: Frame, source: SemanticSource, *, label_set: LabelSet | None, label_confidence: float,
@@ -289,7 +320,8 @@ class Pipeline:
         segmenter_s = prepare_segmenter(self.segmenter, first)  # and an ONNX export / session out of the first frame's
         mapper = Mapper([get_map(kind, c, label_set) for kind in c.mapping.maps], min_depth=c.mapping.min_depth,
                         max_depth=c.mapping.max_depth, pixel_stride=c.mapping.pixel_stride,
-                        cloud_resolution=c.mapping.point_resolution if c.output.cloud else None)
+                        cloud_resolution=c.mapping.point_resolution if c.output.cloud else None,
+                        dynamic=dynamic_classes(c, label_set))
         resumed = (self._checkpoints.resume(mapper, lambda: pose_source_to_resume(c, dataset)) if self.resume
                    else None)
         if resumed is not None:  # the maps, poses and sums of the last checkpoint; its frames are not read again
@@ -318,7 +350,8 @@ class Pipeline:
                           segmenter=None if self.segmenter is None else self.segmenter.name, startup_s=startup_s,
                           segmenter_startup_s=segmenter_s, crf=crf,
                           semantics=semantics_source(c, self.segmenter, label_set, dataset.label_set),
-                          objects=None if self._objects is None else self._objects.report(mapper.keyframes))
+                          objects=None if self._objects is None else self._objects.report(mapper.keyframes),
+                          dynamic=mapper.dynamic_report(label_set))
 
     def _write(self, outcome: RunOutcome) -> dict:
         """The report of the run (``report.json``, ``.md``, ``.html``, plots) into the staging folder."""

@@ -347,7 +347,8 @@ class Observation:
     normal and instance of their pixel, and the sensor origin the rays start from.
 
     ``semantics`` is None on frames that were not segmented (they still add geometry and colour);
-    ``normals`` is filled only when a map asks for them (``needs_normals``).
+    ``normals`` is filled only when a map asks for them (``needs_normals``); ``clear_points`` are the points of
+    dynamic classes (people): their rays clear free space, but they add no hit, colour or class to any map.
     """
 
     points_world: np.ndarray  # (N, 3) float32 metres, world frame
@@ -358,6 +359,7 @@ class Observation:
     instances: np.ndarray | None = None  # (N,) int32 instance id of each point's pixel, 0 = none
     frame_index: int = 0
     keyframe: bool = True  # the camera moved enough since the last keyframe (maps may update only then)
+    clear_points: np.ndarray | None = None  # (M, 3) float32 world points whose rays only clear (dynamic classes)
 
     def __post_init__(self) -> None:
         n = self.points_world.shape[0]
@@ -367,6 +369,8 @@ class Observation:
                                 ("instances", self.instances, ())):
             if arr is not None and arr.shape != (n, *tail):
                 raise ConfigError(f"observation {what} must be {(n, *tail)}, got {arr.shape}")
+        if self.clear_points is not None and (self.clear_points.ndim != 2 or self.clear_points.shape[1] != 3):
+            raise ConfigError(f"observation clear-only points must be (M, 3), got {self.clear_points.shape}")
         if self.semantics is not None and self.semantics.labels.shape[0] != n:
             raise ConfigError(f"observation class sets cover {self.semantics.labels.shape[0]} points, not {n}")
 

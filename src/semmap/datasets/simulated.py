@@ -22,8 +22,9 @@ class SimulatedDataset:
 
     def __init__(self, scene: Scene, poses: np.ndarray, *, noise: bool = True, seed: int = 0,
                  intrinsics: CameraIntrinsics | None = None, name: str = "simulated",
-                 colour: ColourParams | None = None) -> None:
-        self.scene = scene
+                 colour: ColourParams | None = None, people: int = 0, fps: float = 30.0) -> None:
+        self.scene = scene  # the static scene (walking ``people`` are rendered, never part of it)
+        self.people, self.fps = int(people), float(fps)
         self.poses = np.asarray(poses, np.float64)
         self.noise = noise
         self.seed = seed
@@ -63,7 +64,7 @@ class SimulatedDataset:
 
     def __iter__(self) -> Iterator[Frame]:
         yield from simulate_frames(self.scene, self.poses, noise=self.noise, seed=self.seed,
-                                   intrinsics=self._intrinsics, colour=self.colour)
+                                   intrinsics=self._intrinsics, colour=self.colour, people=self.people, fps=self.fps)
 
 
 def scene_of_folder(root) -> Scene | None:

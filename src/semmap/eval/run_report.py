@@ -285,6 +285,7 @@ class RunOutcome:
     semantics: str | None = None  # where the classes came from, in words (``run.prepare.semantics_source``)
     cloud_points: int | None = None  # points of the dense coloured cloud written as ``cloud.ply`` (None: none)
     cloud_cell_m: float | None = None  # its voxel filter's cell (m)
+    dynamic: dict | None = None  # the dynamic classes and the points that only cleared free space (None: no class)
 
 
 def _frames_report(o: RunOutcome) -> dict:
@@ -339,6 +340,8 @@ def build_report(o: RunOutcome, scorer: RunScorer, resolution: float) -> dict:
         report["online"] = online_report(o.record, o.pose_of, resolution, o.out_dir, o.files)
     if o.objects is not None:
         report["objects"] = o.objects
+    if o.dynamic is not None:
+        report["dynamic"] = o.dynamic
     primary = o.maps[0]
     report.update(scorer.evaluate(primary, o.record, o.segmenter))
     report.update(o.record.pixels.report(primary))  # the map against the network at the same pixels

@@ -479,6 +479,22 @@ def cell_mean_sets(keys: np.ndarray, valid: np.ndarray, packed: np.ndarray, m: i
 
 
 @nb.njit(cache=True, nogil=True)
+def decay_unseen(keys: np.ndarray, logodds: np.ndarray, seen: np.ndarray, factor: np.float32) -> int:
+    """Multiply the log-odds of every stored cell whose slot is not in ``seen`` (-1 entries ignored) by
+    ``factor`` (towards 0, unknown); returns the number of cells decayed."""
+    mark = np.zeros(keys.shape[0], np.bool_)
+    for i in range(seen.shape[0]):
+        if seen[i] >= 0:
+            mark[seen[i]] = True
+    n = 0
+    for s in range(keys.shape[0]):
+        if keys[s] != -1 and not mark[s]:
+            logodds[s] = logodds[s] * factor
+            n += 1
+    return n
+
+
+@nb.njit(cache=True, nogil=True)
 def max_class_id(labels: np.ndarray, empty: int) -> int:
     """Largest class id in a (N, k) uint16 array, empty slots aside (-1 when there is none)."""
     flat = labels.reshape(-1)

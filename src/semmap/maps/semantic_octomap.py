@@ -106,6 +106,7 @@ class InsertStats:
     hits: int = 0
     free_cells: int = 0
     ray_steps: int = 0
+    clear_rays: int = 0  #: rays of clear-only points (dynamic classes), one per end cell
     range_limited: bool = False
     ms: dict[str, float] = field(default_factory=dict)
 
@@ -177,9 +178,12 @@ class SemanticOctoMap:
     def __init__(self, resolution: float = 0.05, *, occupancy: OccupancyParams | None = None,
                  fusion: FusionParams | None = None, label_set: LabelSet | None = None,
                  max_range: float = -1.0, grid_cell_limit: int = GRID_CELL_LIMIT, color_mode: str = "class",
-                 cell_evidence: CellEvidence | str = CellEvidence.MEAN) -> None:
+                 cell_evidence: CellEvidence | str = CellEvidence.MEAN, decay: float = 0.0) -> None:
         if not (math.isfinite(resolution) and 0.001 <= resolution <= 10.0):
             raise ConfigError(f"resolution must be between 0.001 and 10 m, got {resolution}")
+        if not (math.isfinite(decay) and 0.0 <= decay < 1.0):
+            raise ConfigError(f"--decay must be in [0, 1) (log-odds lost per frame unseen), got {decay}")
+        self.decay = float(decay)  # cells a scan does not observe lose this share of their log-odds (0: OctoMap)
         self.resolution = float(resolution)
         self.occupancy = occupancy or OccupancyParams()
         self.fusion = fusion or FusionParams()
@@ -278,18 +282,22 @@ class SemanticOctoMap:
 
     # ------------------------------------------------------------------ insertion
     def insert_points(self, points: np.ndarray, origin: np.ndarray, *, colors: np.ndarray | None = None,
-                      semantics: TopKProbs | None = None) -> InsertStats:
+                      semantics: TopKProbs | None = None, clear: np.ndarray | None = None) -> InsertStats:
         """Insert one scan: world points (N, 3) seen from sensor ``origin`` (3,), optional colours (N, 3)
-        uint8 and per-point top-k class distributions (N, k).  Points are used as float32, like OctoMap."""
+        uint8 and per-point top-k class distributions (N, k).  Points are used as float32, like OctoMap.
+        ``clear`` (M, 3) are clear-only points (dynamic classes): their rays mark free cells as the others' do,
+        but their end cells get no hit, colour or class (without them the insertion is OctoMap's exactly)."""
         t0 = time.perf_counter()
         pts, org, col, sem_l, sem_p = self._validated(points, origin, colors, semantics)
-        stats = InsertStats(points=len(pts))
+        stats, n = InsertStats(points=len(pts)), len(pts)
+        if clear is not None and len(clear):
+            pts = np.concatenate([pts, self._validated(clear, origin, None, None)[0].astype(pts.dtype)])
         if len(pts) == 0:
             return stats
         res, rf = self.resolution, 1.0 / self.resolution
         threads = nb.get_num_threads()
 
-        # 1. keys and bounding box; the scan grid around them
+        # 1. keys and bounding box (of the clear-only points too); the scan grid around them
         buf = self._point_buffers(len(pts))
         keys, valid = buf.keys[: len(pts)], buf.valid[: len(pts)]
         boxes = kern.point_keys(pts, rf, threads, keys, valid)
@@ -307,12 +315,10 @@ class SemanticOctoMap:
 
         try:  # the scratch grid must come back all-zero even if something below fails
             # 2. voxel filter and ray targets: the first point of each endpoint cell represents it
-            m = kern.scan_endpoints(keys, valid, grid, g0x, g0y, g0z, gnx, gny, gnz, org, res, max_range,
+            m = kern.scan_endpoints(keys[:n], valid[:n], grid, g0x, g0y, g0z, gnx, gny, gnz, org, res, max_range,
                                     buf.first, buf.packed, buf.targets, buf.hit)
             first, packed, targets, hit = buf.first[:m], buf.packed[:m], buf.targets[:m], buf.hit[:m]
-            outside = self._far_endpoints(keys, valid, lo, hi) if max_range >= 0 else None
-            if outside is not None and outside.size:
-                targets = np.concatenate([targets, kern.far_targets(keys, outside, org, res, max_range)])
+            targets = self._more_targets(targets, keys, valid, n, (lo, hi), org, max_range, stats)
             t2 = time.perf_counter()
             stats.ms["voxel_filter"] = (t2 - t1) * 1e3
 
@@ -331,7 +337,7 @@ class SemanticOctoMap:
         t4 = time.perf_counter()
         stats.ms["collect"] = (t4 - t3) * 1e3
 
-        # 5. occupancy log-odds (misses, then hits), attribute rows of first hits
+        # 5. occupancy log-odds (misses, then hits), attribute rows of first hits; unseen cells decay (--decay)
         slots = self._update_occupancy(buf.free, n_free, packed, hit, threads)
         self._ensure_attributes(self._n_attr + int(np.count_nonzero(self._attr[slots[hit]] < 0)))  # first hits
         rows = buf.rows[:m]
@@ -344,7 +350,7 @@ class SemanticOctoMap:
             k = self.fusion.k
             update, finish = self._entry.kernels()
             if sem_l is not None and self.cell_evidence == CellEvidence.MEAN:  # one measurement per cell
-                sem_l, sem_p = self._cell_means(keys, valid, packed, sem_l, sem_p)
+                sem_l, sem_p = self._cell_means(keys[:n], valid[:n], packed, sem_l, sem_p)
                 col = None if col is None else np.ascontiguousarray(col[first])
                 first = np.arange(m, dtype=np.int64)
             kern.update_attributes(rows, first,
@@ -362,6 +368,22 @@ class SemanticOctoMap:
         classes = self._num_classes or kern.max_class_id(sem_l, int(EMPTY_LABEL)) + 1
         return kern.cell_mean_sets(keys, valid, packed, packed.shape[0], sem_l, sem_p, max(int(classes), 1),
                                    int(EMPTY_LABEL))
+
+    def _more_targets(self, targets: np.ndarray, keys: np.ndarray, valid: np.ndarray, n: int,
+                      box: tuple[np.ndarray, np.ndarray], org: np.ndarray, max_range: float,
+                      stats: InsertStats) -> np.ndarray:
+        """The ray targets beside the grid's endpoint cells: max-range readings beyond the range-limited grid,
+        and one target per cell of the clear-only points (``keys[n:]``): its centre, or the max-range point."""
+        more = []
+        outside = self._far_endpoints(keys[:n], valid[:n], *box) if max_range >= 0 else None
+        if outside is not None and outside.size:
+            more.append(kern.far_targets(keys, outside, org, self.resolution, max_range))
+        if keys.shape[0] > n:
+            ok = np.flatnonzero(valid[n:])
+            _, first = np.unique(pack_keys(keys[n:][ok]), return_index=True)
+            stats.clear_rays = int(first.size)
+            more.append(kern.far_targets(keys, np.sort(ok[first]) + n, org, self.resolution, max_range))
+        return np.concatenate([targets, *more]) if more else targets
 
     def _validated(self, points, origin, colors, semantics):
         """Inputs as contiguous arrays of the kernels' dtypes, or a ConfigError saying what is wrong."""
@@ -436,11 +458,19 @@ class SemanticOctoMap:
             grown = True
         if grown:  # slots recorded before the table moved are stale
             slots = ht.lookup_many(self._keys, self._shard_cap, hits)
+        if self.decay > 0.0:
+            self._decay_unseen(free[:n_free], slots)
         if hits is packed:
             return slots
         out = np.zeros(packed.shape[0], np.int64)
         out[hit] = slots
         return out
+
+    def _decay_unseen(self, free: np.ndarray, hit_slots: np.ndarray) -> None:
+        """``decay``: the log-odds of every cell this scan neither hit nor crossed move towards 0 (unknown) by that
+        share, so that old evidence gives way sooner to what later scans see."""
+        seen = np.concatenate([ht.lookup_many(self._keys, self._shard_cap, free), hit_slots])
+        kern.decay_unseen(self._keys, self._logodds, seen, np.float32(1.0 - self.decay))
 
     def _update_cells(self, cells: np.ndarray, n: int, delta: np.float32, slots: np.ndarray, threads: int, *,
                       more: int = 0) -> bool:
@@ -685,7 +715,8 @@ class SemanticOctoMap:
     def integrate(self, obs: Observation) -> dict[str, float]:
         """Insert one frame's observation (:meth:`insert_points`); milliseconds per insertion step."""
         self._tree_counts = None
-        return self.insert_points(obs.points_world, obs.origin, colors=obs.colors, semantics=obs.semantics).ms
+        return self.insert_points(obs.points_world, obs.origin, colors=obs.colors, semantics=obs.semantics,
+                                  clear=obs.clear_points).ms
 
     def cloud(self) -> MapCloud:
         """Occupied voxels: centres, mean colours, top class and its confidence, sorted by key."""
@@ -781,6 +812,9 @@ def compile_kernels() -> float:
         m = SemanticOctoMap(0.05, label_set=LabelSet.generic(4), max_range=max_range)
         m.insert_points(pts, np.zeros(3), colors=colors, semantics=TopKProbs(labels, probs))  # grows the table
         m.insert_points(pts, np.array([1e6, 0.0, 0.0]), colors=colors)  # hits only
+    decaying = SemanticOctoMap(0.05, decay=0.1)
+    for origin in (np.zeros(3), np.array([0.0, 0.0, 0.5])):
+        decaying.insert_points(pts, origin)
     first = SemanticOctoMap(0.05, label_set=LabelSet.generic(4), cell_evidence=CellEvidence.FIRST)
     first.insert_points(pts, np.zeros(3), colors=colors, semantics=TopKProbs(labels, probs))
     m.state_at(pts[:8])

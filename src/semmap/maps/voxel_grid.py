@@ -49,12 +49,12 @@ class SemanticVoxelGrid(OnSemanticGrid):
 
     def __init__(self, resolution: float = 0.05, *, label_set: LabelSet | None = None,
                  fusion: FusionParams | None = None, dtype: str = "float32", free_space: bool = False,
-                 occupancy: OccupancyParams | None = None, max_range: float = -1.0) -> None:
+                 occupancy: OccupancyParams | None = None, max_range: float = -1.0, decay: float = 0.0) -> None:
         self.grid = SemanticGrid(resolution, label_set=label_set, fusion=fusion or FusionParams(FusionRule.BAYES),
                                  dtype=dtype)
         self.occupancy = occupancy or OccupancyParams()
         self.max_range = float(max_range)
-        self.geometry = (SemanticOctoMap(resolution, occupancy=self.occupancy, max_range=max_range)
+        self.geometry = (SemanticOctoMap(resolution, occupancy=self.occupancy, max_range=max_range, decay=decay)
                          if free_space else None)
 
     @property
@@ -63,10 +63,12 @@ class SemanticVoxelGrid(OnSemanticGrid):
 
     # ------------------------------------------------------------------ the map interface
     def integrate(self, obs: Observation) -> dict[str, float]:
-        """Fuse every point of the frame; with free space, also ray-cast it into the occupancy OctoMap."""
+        """Fuse every point of the frame; with free space, also ray-cast it into the occupancy OctoMap (the
+        clear-only points of dynamic classes too: they clear its free space, and are never voxels)."""
         ms = self.grid.integrate_points(obs.points_world, colors=obs.colors, semantics=obs.semantics)
         if self.geometry is not None:
-            ms["free_space"] = sum(self.geometry.insert_points(obs.points_world, obs.origin).ms.values())
+            ms["free_space"] = sum(self.geometry.insert_points(obs.points_world, obs.origin,
+                                                               clear=obs.clear_points).ms.values())
         return ms
 
     def _occupied(self, a: GridArrays) -> np.ndarray:

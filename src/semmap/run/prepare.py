@@ -7,7 +7,7 @@ import dataclasses
 import time
 from pathlib import Path
 
-from semmap.config import LoopMode, RunConfig, SemanticSource
+from semmap.config import DEFAULT_DYNAMIC, LoopMode, RunConfig, SemanticSource
 from semmap.datasets import Dataset
 from semmap.errors import ConfigError
 from semmap.files.safe import path_kind
@@ -45,6 +45,21 @@ def label_set_for(config: RunConfig, dataset: Dataset, segmenter: Segmenter | No
     if s == SemanticSource.LABELS or (s == SemanticSource.AUTO and config.input.labels is not None):
         return LabelSet.generic(FALLBACK_CLASSES)
     return None
+
+
+def dynamic_classes(config: RunConfig, label_set: LabelSet | None) -> tuple[int, ...]:
+    """Ids of the dynamic classes (``mapping.dynamic``) in the maps' label set: a name the set lacks is refused
+    in one line, except a default one (a label set without people has none to leave out); none without classes."""
+    if label_set is None:
+        return ()
+    ids = []
+    for name in config.mapping.dynamic:
+        if name in label_set.names:
+            ids.append(label_set.names.index(name))
+        elif name not in DEFAULT_DYNAMIC:
+            raise ConfigError(f"--dynamic: class {name!r} is not in the run's label set "
+                              f"({', '.join(label_set.names[:12])}{', ...' if len(label_set) > 12 else ''})")
+    return tuple(ids)
 
 
 #: How report.md, report.json and the run's summary name semantics taken from the frames' own label images.

@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
-from collections.abc import Callable, Iterable, Iterator
+from collections.abc import Callable, Iterable, Iterator, Sequence
 from pathlib import Path
 
 import cv2
@@ -34,6 +34,7 @@ from semmap.sim.camera_model import ColourParams
 from semmap.sim.changes import change_scene
 from semmap.sim.hand_motion import MotionParams
 from semmap.sim.noise import KinectNoise
+from semmap.sim.people import Walker, add_people
 from semmap.sim.render import Renderer
 from semmap.sim.scene import Scene, generate_scene
 from semmap.sim.trajectory import make_trajectory
@@ -63,13 +64,15 @@ def simulate_sequence(
     changes_seed: int = 1,
     colour: ColourParams | None = None,
     motion: MotionParams | None = None,
+    people: int = 0,
 ) -> Path:
     """Render ``frames`` frames of a ``trajectory`` through scene (``scene_seed``, ``kind``, ``size``;
     ``symmetric``: see :mod:`semmap.sim.symmetric`) into ``out_dir`` (TUM layout plus ground truth) and return the
     folder; the path is drawn from ``trajectory_seed`` (default: the scene seed). Same arguments, same bytes. A low
     ``fps`` spreads few frames over the whole path (varied views for training data). ``colour`` and ``motion`` are the
     colour camera and the way the camera is carried (:mod:`semmap.sim.camera_model`, :mod:`semmap.sim.hand_motion`;
-    default: the ideal image on the smooth path)."""
+    default: the ideal image on the smooth path). ``people`` walk through the scene (:mod:`semmap.sim.people`;
+    labelled ``person``, left out of the 3D ground truth and ``objects.json``)."""
     if not isinstance(frames, (int, np.integer)) or frames <= 0:
         raise SimulationError(f"frames must be a positive integer, got {frames!r}")
     check_simulation(int(frames), image_size)
@@ -78,6 +81,7 @@ def simulate_sequence(
     check("seed", scene_seed, "--scene-seed")
     check("seed", trajectory_seed, "--trajectory-seed")
     check("seed", changes_seed, "--changes-seed")
+    check("people", people, "--people")
     if image_size is not None:
         check_reduced_size(image_size, intrinsics or DEFAULT_INTRINSICS)
     root = Path(out_dir)
@@ -88,7 +92,7 @@ def simulate_sequence(
         _write_sequence(stage, scene_seed=scene_seed, kind=kind, trajectory=trajectory, frames=int(frames), size=size,
                         noise=noise, intrinsics=intrinsics, progress=progress, image_size=image_size, fps=fps,
                         symmetric=symmetric, trajectory_seed=trajectory_seed, layout=layout,
-                        changes=(changes, changes_seed), colour=colour, motion=motion)
+                        changes=(changes, changes_seed), colour=colour, motion=motion, people=int(people))
         staged.commit()  # every file is there: the folder becomes ``out_dir`` in one rename
     except KeyboardInterrupt:
         staged.abandon(keep_checkpoint=False)  # Ctrl-C leaves nothing half-written, and says so
@@ -112,7 +116,8 @@ def _write_sequence(root: Path, *, scene_seed: int, kind: str, trajectory: str, 
                     intrinsics: CameraIntrinsics | None, progress: Callable[[int, int], None] | None,
                     image_size: tuple[int, int] | None, fps: float, symmetric: bool,
                     trajectory_seed: int | None, layout: str = "tum", changes: tuple[int, int] = (0, 1),
-                    colour: ColourParams | None = None, motion: MotionParams | None = None) -> None:
+                    colour: ColourParams | None = None, motion: MotionParams | None = None,
+                    people: int = 0) -> None:
     """Render and write the whole sequence into the folder ``root`` (the staging folder)."""
     scene = generate_scene(scene_seed, kind, size, symmetric=symmetric)
     if changes[0]:
@@ -120,8 +125,9 @@ def _write_sequence(root: Path, *, scene_seed: int, kind: str, trajectory: str, 
         write_text_atomic(root / "changes.json", json.dumps(record, indent=1) + "\n")
     poses = make_trajectory(scene, trajectory, int(frames), seed=scene_seed if trajectory_seed is None
                             else trajectory_seed, fps=fps, motion=motion)
-    renderer = Renderer(scene, intrinsics, noise=KinectNoise(seed=scene_seed) if noise else False, colour=colour)
-    frames_out = render_frames(renderer, poses, progress, fps=fps)
+    shown, walkers = add_people(scene, people, scene_seed, poses[:, :3, 3], fps)  # (the scene stays static)
+    renderer = Renderer(shown, intrinsics, noise=KinectNoise(seed=scene_seed) if noise else False, colour=colour)
+    frames_out = render_frames(renderer, poses, progress, fps=fps, walkers=walkers)
     stored = renderer.intrinsics
     if image_size is not None:
         stored = resized_intrinsics(renderer.intrinsics, image_size)
@@ -136,6 +142,9 @@ def _write_sequence(root: Path, *, scene_seed: int, kind: str, trajectory: str, 
     if trajectory_seed is not None:
         info["trajectory_seed"] = int(trajectory_seed)
     info.update(camera_info(colour, motion))
+    if people:
+        info["people"] = [{"id": w.instance_id, "class": "person", "path": np.round(w.path, 4).tolist(),
+                           "phase_m": round(w.phase, 4), "speed_mps": w.speed} for w in walkers]
     write_text_atomic(root / "scene.json", json.dumps(info, indent=1) + "\n")
 
 
@@ -186,11 +195,14 @@ def reduce_frame(frame: Frame, intrinsics: CameraIntrinsics) -> Frame:
                        labels=nearest(frame.labels), instances=instances, intrinsics=intrinsics)
 
 
-def render_frames(renderer: Renderer, poses: np.ndarray,
-                  progress: Callable[[int, int], None] | None = None, fps: float = FPS) -> Iterator[Frame]:
-    """Frames (rgb, depth, labels, instances, pose) rendered lazily along ``poses`` at ``fps`` frames/s."""
+def render_frames(renderer: Renderer, poses: np.ndarray, progress: Callable[[int, int], None] | None = None,
+                  fps: float = FPS, walkers: Sequence[Walker] = ()) -> Iterator[Frame]:
+    """Frames (rgb, depth, labels, instances, pose) rendered lazily along ``poses`` at ``fps`` frames/s, the
+    ``walkers`` (:mod:`semmap.sim.people`) where they are at each frame's time."""
     n = len(poses)
     for i, T in enumerate(poses):
+        for w in walkers:
+            renderer.move(w.first_vertex, w.vertices_at(i / fps), w.triangles)
         view = renderer.render_in(poses, i, fps)
         stamp = i / fps
         yield Frame(index=i, timestamp=stamp, rgb=view.rgb, depth=view.depth, intrinsics=renderer.intrinsics,
@@ -202,10 +214,12 @@ def render_frames(renderer: Renderer, poses: np.ndarray,
 
 def simulate_frames(scene: Scene, poses: np.ndarray, *, noise: bool = True, seed: int = 0,
                     intrinsics: CameraIntrinsics | None = None, colour: ColourParams | None = None,
-                    fps: float = FPS) -> Iterator[Frame]:
-    """In-memory counterpart of :func:`simulate_sequence` for a given scene and poses (no files)."""
+                    people: int = 0, fps: float = FPS) -> Iterator[Frame]:
+    """In-memory counterpart of :func:`simulate_sequence` for a given scene and poses (no files), with ``people``
+    walking through it (seeded by ``seed``)."""
+    scene, walkers = add_people(scene, people, seed, np.asarray(poses)[:, :3, 3], fps)
     renderer = Renderer(scene, intrinsics, noise=KinectNoise(seed=seed) if noise else False, colour=colour)
-    yield from render_frames(renderer, poses, fps=fps)
+    yield from render_frames(renderer, poses, fps=fps, walkers=walkers)
 
 
 def camera_info(colour: ColourParams | None, motion: MotionParams | None) -> dict:

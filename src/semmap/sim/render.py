@@ -16,7 +16,7 @@ it cannot beat open3d's threaded Embree 3 on primary rays, and neither comes nea
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 import open3d as o3d
@@ -95,35 +95,28 @@ class Renderer:
 
     def _tables(self, scene: Scene) -> None:
         """Per-triangle and per-material lookup tables and the texture atlas (built once per scene)."""
-        V = scene.vertices.astype(np.float64)
-        F = scene.triangles
-        e1, e2 = V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]]
-        n = np.cross(e1, e2)
-        area2 = np.linalg.norm(n, axis=1)
-        unit_n = n / np.maximum(area2, 1e-30)[:, None]
-        self._tri_normal = unit_n.astype(np.float32)
-        uv = scene.uvs.astype(np.float64)[F]  # (T, 3, 2)
-        f1, f2 = uv[:, 1] - uv[:, 0], uv[:, 2] - uv[:, 0]
-        # affine map world point -> uv on each triangle's plane: G [e1 e2 n] = [f1 f2 0]
-        basis = np.stack([e1, e2, unit_n], axis=2)  # (T, 3, 3) columns
-        target = np.stack([f1, f2, np.zeros_like(f1)], axis=2)  # (T, 2, 3)
-        ok = area2 > 1e-20
-        G = np.zeros((len(F), 2, 3))
-        G[ok] = target[ok] @ np.linalg.inv(basis[ok])
-        offset = uv[:, 0] - np.einsum("tij,tj->ti", G, V[F[:, 0]])
-        self._tri_uvmap = np.ascontiguousarray(np.concatenate([G[:, 0], offset[:, :1], G[:, 1], offset[:, 1:]], 1))
-        uv_area2 = np.abs(f1[:, 0] * f2[:, 1] - f1[:, 1] * f2[:, 0])
         self.atlas = TextureAtlas(scene.materials)
         mats = scene.materials
         self._mat_tex = self.atlas.material_texture
         self._mat_scale = np.array([m.size / m.tile_m for m in mats], np.float32)
         self._mat_emissive = np.array([m.emissive for m in mats], np.float32)
-        scale = self._mat_scale[scene.tri_material].astype(np.float64)
-        self._tri_density = (scale * np.sqrt(uv_area2 / np.maximum(area2, 1e-30))).astype(np.float32)
+        self._tri_normal, self._tri_uvmap, self._tri_density = _surface_tables(
+            scene.vertices.astype(np.float64), scene.triangles, scene.uvs, self._mat_scale[scene.tri_material])
         self._tri_mat = np.ascontiguousarray(scene.tri_material, np.int32)
         self._tri_class = np.ascontiguousarray(scene.tri_class, np.uint16)
         self._tri_inst = np.ascontiguousarray(scene.tri_instance, np.int32)
         self._lights = np.ascontiguousarray(scene.lights, np.float64).reshape(-1, 3)
+
+    def move(self, first_vertex: int, vertices: np.ndarray, triangles: slice) -> None:
+        """Put the vertices from ``first_vertex`` on at ``vertices`` (N, 3) (a walking person) and redo the tables
+        of the ``triangles`` they make up; the raster backend sees the change at once, the ray caster is rebuilt."""
+        self._vertices[first_vertex:first_vertex + len(vertices)] = vertices
+        s = self.scene
+        F = self._triangles[triangles]
+        normal, uvmap, density = _surface_tables(self._vertices, F, s.uvs, self._mat_scale[s.tri_material[triangles]])
+        self._tri_normal[triangles], self._tri_uvmap[triangles], self._tri_density[triangles] = normal, uvmap, density
+        if self.backend == "raycast":
+            self._raycaster = scene_raycaster(replace(s, vertices=self._vertices.astype(np.float32)), self.nthreads)
 
     def visible(self, T_world_cam: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Visible triangle id (H*W int32, -1 = none) and its depth along the optical axis (float64, metres)."""
@@ -184,6 +177,29 @@ class Renderer:
         if poses.ndim != 3 or poses.shape[1:] != (4, 4):
             raise SimulationError(f"poses must be (N, 4, 4), got {poses.shape}")
         return center_depths(self._raycaster, poses)
+
+
+def _surface_tables(V: np.ndarray, F: np.ndarray, uvs: np.ndarray, scale: np.ndarray
+                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Unit normal (T, 3) float32, affine world -> uv map (T, 6) and texel density (T,) float32 of triangles
+    ``F`` over vertices ``V`` (float64) with texture coordinates ``uvs`` and material scales ``scale`` (T,)."""
+    e1, e2 = V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]]
+    n = np.cross(e1, e2)
+    area2 = np.linalg.norm(n, axis=1)
+    unit_n = n / np.maximum(area2, 1e-30)[:, None]
+    uv = uvs.astype(np.float64)[F]  # (T, 3, 2)
+    f1, f2 = uv[:, 1] - uv[:, 0], uv[:, 2] - uv[:, 0]
+    # affine map world point -> uv on each triangle's plane: G [e1 e2 n] = [f1 f2 0]
+    basis = np.stack([e1, e2, unit_n], axis=2)  # (T, 3, 3) columns
+    target = np.stack([f1, f2, np.zeros_like(f1)], axis=2)  # (T, 2, 3)
+    ok = area2 > 1e-20
+    G = np.zeros((len(F), 2, 3))
+    G[ok] = target[ok] @ np.linalg.inv(basis[ok])
+    offset = uv[:, 0] - np.einsum("tij,tj->ti", G, V[F[:, 0]])
+    uvmap = np.ascontiguousarray(np.concatenate([G[:, 0], offset[:, :1], G[:, 1], offset[:, 1:]], 1))
+    uv_area2 = np.abs(f1[:, 0] * f2[:, 1] - f1[:, 1] * f2[:, 0])
+    density = (scale.astype(np.float64) * np.sqrt(uv_area2 / np.maximum(area2, 1e-30))).astype(np.float32)
+    return unit_n.astype(np.float32), uvmap, density
 
 
 def scene_raycaster(scene: Scene, nthreads: int = 0) -> o3d.t.geometry.RaycastingScene:
