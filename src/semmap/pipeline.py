@@ -45,6 +45,7 @@ from semmap.poses.base import Progress
 from semmap.poses.frame_poses import FramePoses
 from semmap.poses.track import GROUND_TRUTH
 from semmap.run.checkpoints import Checkpoints, check_checkpoint_options
+from semmap.run.continuation import PriorRun
 from semmap.run.outputs import refine_maps, warn_if_empty, write_outputs
 from semmap.run.paths import check_run_paths, staged_output
 from semmap.run.prepare import (
@@ -208,8 +209,9 @@ class Pipeline:
     def __init__(self, config: RunConfig, *, segmenter: Segmenter | None = None, progress: Progress | None = None,
                  dataset: Dataset | None = None, ground_truth: GroundTruthFn | None = None,
                  title: str = "semmap run", track_progress: Progress | None = None,
-                 instances: InstanceSource | None = None, checkpoint_every: int = 0, resume: bool = False):
-        self.config = config
+                 instances: InstanceSource | None = None, checkpoint_every: int = 0, resume: bool = False,
+                 prior: PriorRun | None = None):
+        self.config, self.prior = config, prior  # prior: the finished run this one continues (--continue)
         self.checkpoint_every, self.resume = int(checkpoint_every), bool(resume)
         self.segmenter = segmenter
         self.instances = instances  # an instance source builds the object map beside the maps
@@ -261,8 +263,10 @@ class Pipeline:
         first = FirstFrame(dataset)  # what a segmenter and an online tracker get ready on (read if needed)
         check_labels_exist(c, dataset, first, self.segmenter)
         segmenter_s = prepare_segmenter(self.segmenter, first)  # and an ONNX export / session out of the first frame's
-        mapper = Mapper([get_map(kind, c, label_set) for kind in c.mapping.maps], min_depth=c.mapping.min_depth,
-                        max_depth=c.mapping.max_depth, pixel_stride=c.mapping.pixel_stride)
+        maps = [get_map(kind, c, label_set) for kind in c.mapping.maps]
+        m = c.mapping
+        mapper = Mapper(maps if self.prior is None else self.prior.restored(maps, label_set), min_depth=m.min_depth,
+                        max_depth=m.max_depth, pixel_stride=m.pixel_stride)
         resumed = (self._checkpoints.resume(mapper, lambda: pose_source_to_resume(c, dataset)) if self.resume
                    else None)
         if resumed is not None:  # the maps, poses and sums of the last checkpoint; its frames are not read again
@@ -270,6 +274,10 @@ class Pipeline:
         else:
             pose_of = pose_source_for(c, dataset, instances=self.instances, track_progress=self.track_progress)
             record = RunRecord()
+        continued = None if self.prior is None else self.prior.align(
+            dataset, pose_of, self.segmenter.segment if self.segmenter is not None else lambda f: semantics_for(
+                f, c.semantics.source, label_set=label_set, label_confidence=c.semantics.label_confidence,
+                k=c.semantics.k), min_depth=c.mapping.min_depth, max_depth=c.mapping.max_depth)
         pose_of.limit_to(TREE_MAX_VAL * c.mapping.resolution)  # (the key range of every map)
         startup_s += warm_tracker(c, first)
         self._objects = ObjectStage(self.instances) if self.instances is not None else None
@@ -289,7 +297,8 @@ class Pipeline:
                           segmenter=None if self.segmenter is None else self.segmenter.name, startup_s=startup_s,
                           segmenter_startup_s=segmenter_s, crf=crf,
                           semantics=semantics_source(c, self.segmenter, label_set, dataset.label_set),
-                          objects=None if self._objects is None else self._objects.report(mapper.keyframes))
+                          objects=None if self._objects is None else self._objects.report(mapper.keyframes),
+                          continued=continued)
 
     def _write(self, outcome: RunOutcome) -> dict:
         """The report of the run (``report.json``, ``.md``, ``.html``, plots) into the staging folder."""
