@@ -124,7 +124,7 @@ def main() -> None:
                  "recording_frames": frames, "image": f"{intr.width}x{intr.height}"}
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)
-        poses_a = make_trajectory(scene, "loop", prior_frames * 3, seed=0)[::3]
+        poses_a = make_trajectory(scene, "loop", 600, seed=0)[:: 600 // prior_frames]  # once around the room
         a = Recording(scene, poses_a, seed=0, intrinsics=intr, name="prior")
         t = time.perf_counter()
         run_config(config(tmp / "prior", "prior", res, (MapKind.OCTOMAP, MapKind.POINTS)), dataset=a)

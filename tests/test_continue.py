@@ -99,7 +99,7 @@ def test_the_output_may_not_be_the_prior(tmp_path):
 def prior_run(tmp_path_factory, scene):
     """A finished run of one recording: the OctoMap at 10 cm and the fine point map (the alignment's surface)."""
     out = tmp_path_factory.mktemp("continue") / "prior"
-    poses = make_trajectory(scene, "loop", 60, seed=0)[::3]
+    poses = make_trajectory(scene, "loop", 300, seed=0)[::15]  # 20 frames around the room
     first = SimulatedDataset(scene, poses, seed=0, intrinsics=INTR, name="prior")
     return run_config(_config(out, maps=(MapKind.OCTOMAP, MapKind.POINTS)), dataset=first)
 

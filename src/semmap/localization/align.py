@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Iterable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 from scipy.spatial import cKDTree
@@ -33,12 +33,14 @@ SETTLE_FRAMES = 3
 #: ICP uses the depth points of at most this many of the last localized frames.
 ICP_FRAMES = 8
 #: ICP: correspondences farther than this many voxels are rejected (coarse to fine), iterations per stage.
-ICP_STAGES_VOXELS = (3.0, 1.5, 0.75)
+ICP_STAGES_VOXELS = (4.0, 2.0, 1.0, 0.5)
 ICP_ITERATIONS = 15
 #: ICP points (source, after a voxel filter at half the map's resolution) at most.
 ICP_MAX_POINTS = 60_000
 #: An ICP correction larger than this is not trusted (the filter's estimate is kept).
-ICP_MAX_CORRECTION_M, ICP_MAX_CORRECTION_DEG = 0.25, 10.0
+ICP_MAX_CORRECTION_M, ICP_MAX_CORRECTION_DEG = 0.5, 10.0
+#: The likelihood's endpoint σ is at least this many voxels of the prior map.
+SIGMA_VOXELS = 0.75
 #: Neighbours over which a voxel's surface normal is estimated.
 NORMAL_NEIGHBOURS = 12
 
@@ -80,9 +82,14 @@ class _Seen:
 
 
 def align_settings(prior: PriorMap, particles: int = ALIGN_PARTICLES) -> FilterSettings:
-    """The filter for an alignment: global 6-DoF, semantic where the prior has classes, else geometry."""
+    """The filter for an alignment: global 6-DoF, semantic where the prior has classes, else geometry; the
+    endpoint σ at least ``SIGMA_VOXELS`` of the map's voxels (a surface point lies up to a half-diagonal from its
+    voxel's centre: with σ = 5 cm on 10 cm voxels a correct pose would not count as explaining the scan)."""
     model = ObservationKind.SEMANTIC if prior.class_probs is not None else ObservationKind.GEOMETRY
-    return FilterSettings(particles=particles, mode=MotionMode.SIX_DOF, model=model)
+    base = FilterSettings()
+    sigma = max(base.likelihood.sigma, SIGMA_VOXELS * prior.resolution)
+    return FilterSettings(particles=particles, mode=MotionMode.SIX_DOF, model=model,
+                          likelihood=replace(base.likelihood, sigma=sigma), sigma_max=max(base.sigma_max, 2 * sigma))
 
 
 def align_recording(prior: PriorMap, frames: Iterable[tuple[Frame, np.ndarray]], *,
