@@ -34,9 +34,11 @@ SETTLE_FRAMES = 3
 ICP_FRAMES = 8
 #: ICP: correspondences farther than this many voxels are rejected (coarse to fine), iterations per stage.
 ICP_STAGES_VOXELS = (4.0, 2.0, 1.0, 0.5)
-ICP_ITERATIONS = 15
+ICP_ITERATIONS = 10
 #: ICP points (source, after a voxel filter at half the map's resolution) at most.
-ICP_MAX_POINTS = 60_000
+ICP_MAX_POINTS = 20_000
+#: The surface is thinned to one point per cell of this size (m) before its normals are estimated.
+SURFACE_CELL_M = 0.015
 #: An ICP correction larger than this is not trusted (the filter's estimate is kept).
 ICP_MAX_CORRECTION_M, ICP_MAX_CORRECTION_DEG = 0.5, 10.0
 #: The likelihood's endpoint σ is at least this many voxels of the prior map.
@@ -151,7 +153,7 @@ def _surface(surface: np.ndarray, near: np.ndarray, radius: float) -> tuple[np.n
     principal axis over ``NORMAL_NEIGHBOURS`` neighbours)."""
     centers = np.asarray(surface, np.float64)
     lo, hi = near.min(axis=0) - radius, near.max(axis=0) + radius
-    box = centers[((centers >= lo) & (centers <= hi)).all(axis=1)]
+    box = _voxel_filter(centers[((centers >= lo) & (centers <= hi)).all(axis=1)], SURFACE_CELL_M)
     if len(box) < NORMAL_NEIGHBOURS:
         return box, np.zeros_like(box)
     tree = cKDTree(box)
@@ -164,8 +166,12 @@ def _surface(surface: np.ndarray, near: np.ndarray, radius: float) -> tuple[np.n
 
 def _voxel_filter(points: np.ndarray, size: float) -> np.ndarray:
     """One point (the first) per cell of ``size``."""
+    if len(points) == 0:
+        return points
     cells = np.floor(points / size).astype(np.int64)
-    _, first = np.unique(cells, axis=0, return_index=True)
+    cells -= cells.min(axis=0)
+    dims = cells.max(axis=0) + 1
+    _, first = np.unique((cells[:, 0] * dims[1] + cells[:, 1]) * dims[2] + cells[:, 2], return_index=True)
     return points[np.sort(first)]
 
 
