@@ -133,3 +133,17 @@ def test_a_recording_starting_elsewhere_is_aligned_within_2_cm_and_1_degree(scen
                                                         label_confidence=0.9, k=3), seed=seed)
     dt, dr = pose_change(T0, a.T_prior_seq)
     assert dt < 0.02 and dr < 1.0, (dt, dr, a.report())
+
+
+def test_the_cli_refuses_an_incompatible_prior_in_one_line(tmp_path):
+    from typer.testing import CliRunner
+
+    from semmap.cli import app
+
+    prior = _empty_prior(tmp_path / "prior", resolution=0.2)
+    r = CliRunner().invoke(app, ["run", str(tmp_path / "seq"), "--out", str(tmp_path / "out"), "--continue",
+                                 str(prior), "--resolution", "0.1"])
+    msg = str(r.exception)  # (semmap's entry point prints it as one "semmap: error: ..." line)
+    assert r.exit_code != 0 and isinstance(r.exception, SemmapError), r.output
+    assert msg.startswith("--continue") and "resolution is 0.2" in msg and "\n" not in msg
+    assert not (tmp_path / "out").exists()
