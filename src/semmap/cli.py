@@ -373,6 +373,10 @@ def _print_summary(report: dict, out_dir: Path) -> None:
     if "trajectory_vs_ground_truth" in report:
         ate = report["trajectory_vs_ground_truth"]["ate_rmse_m"]
         rows.append(("ATE of the poses used", f"{100 * ate:.2f} cm"))
+    if "continued" in report:
+        c = report["continued"]
+        rows.append(("continued from", f"{c['prior']}: localized after {c['converged_after_frames']} frames, ICP "
+                                       f"residual {100 * c['icp'].get('rms_residual_m', 0.0):.2f} cm"))
     if "online" in report:
         o = report["online"]
         rows.append(("online", f"{o['fps']:.1f} frames/s, latency {o['latency_ms']['median']:.0f} ms (median), "
