@@ -202,7 +202,7 @@ def refine_icp(surface: np.ndarray, res: float, T_start: np.ndarray, seen: list[
                 break
     dt, dr = pose_change(T_start, T)
     info = {"used": True, "iterations": iterations, "rms_residual_m": round(float(rms), 5),
-            "inlier_fraction": round(float(inliers), 4), "points": len(src)}
+            "inlier_fraction": round(float(inliers), 4), "source_points": len(src)}
     if dt > ICP_MAX_CORRECTION_M or dr > ICP_MAX_CORRECTION_DEG:
         return T_start, {**info, "used": False, "why": f"correction {dt:.3f} m / {dr:.2f}° too large"}
     return T, info

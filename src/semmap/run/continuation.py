@@ -21,6 +21,7 @@ from semmap.config import LoopMode, RunConfig
 from semmap.errors import ConfigError, FormatError
 from semmap.files.outputs import OutputKind, check_outputs
 from semmap.files.safe import path_kind
+from semmap.fusion.rules import FusionRule
 from semmap.io.map_files import load_map, native_file
 from semmap.maps.base import SemanticMap
 from semmap.maps.registry import MapKind
@@ -96,7 +97,7 @@ def _settings(m: SemanticMap) -> dict[str, tuple[object, str]]:
     """What a map's evidence means, by name: (value, how to match it)."""
     f = m.fusion
     fusion = f.to_dict()
-    keys = ("k", "lam", "max_confidence") if f.rule.value == "topk" else tuple(k for k in fusion if k != "prior")
+    keys = ("k", "lam", "max_confidence") if f.rule == FusionRule.TOPK else tuple(k for k in fusion if k != "prior")
     out: dict[str, tuple[object, str]] = {
         "resolution": (m.resolution, "pass --resolution (or --point-resolution) as the prior run did"),
         "fusion rule": (f.rule.value, "pass --fusion as the prior run did"),
