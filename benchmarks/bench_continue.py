@@ -118,7 +118,7 @@ def main() -> None:
                     "for a prior without a point map) instead of the point map's surface")
     ap.add_argument("--no-map-check", action="store_true", help="only the alignments (no continued run)")
     args = ap.parse_args()
-    starts = args.starts or (4 if args.quick else 20)
+    starts = args.starts if args.starts is not None else (4 if args.quick else 20)
     prior_frames, frames = (40, 16) if args.quick else (80, 30)
     intr = DEFAULT_INTRINSICS.scaled(0.5)
     scene = generate_scene(0, "office", "small")
@@ -128,6 +128,7 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)
         poses_a = make_trajectory(scene, "loop", 600, seed=0)[:: 600 // prior_frames]  # once around the room
+        out["prior_frames"] = len(poses_a)
         a = Recording(scene, poses_a, seed=0, intrinsics=intr, name="prior")
         t = time.perf_counter()
         run_config(config(tmp / "prior", "prior", res, (MapKind.OCTOMAP, MapKind.POINTS)), dataset=a)
@@ -152,12 +153,13 @@ def main() -> None:
                 errors.append({"seed": seed, "failed": str(exc)})
             print(json.dumps(errors[-1]), file=sys.stderr)
         ok = [e for e in errors if "pos_err_m" in e and e["pos_err_m"] <= POS_TOL_M and e["rot_err_deg"] <= ROT_TOL_DEG]
-        out.update({"starts": starts, "aligned_within_2cm_1deg": round(len(ok) / starts, 3), "errors": errors})
+        out.update({"starts": starts, "aligned_within_2cm_1deg": round(len(ok) / max(starts, 1), 3),
+                    "errors": errors})
         if args.no_map_check:
             print(json.dumps(out))
             return
         # the continued map against both recordings mapped in one run
-        rec, T0 = recording(scene, 1, frames, 3, intr, first_index=prior_frames)
+        rec, T0 = recording(scene, 1, frames, 3, intr, first_index=len(poses_a))
         t = time.perf_counter()
         cont = run_config(config(tmp / "cont", "rec1", res, (MapKind.OCTOMAP,)), dataset=rec,
                           continue_from=tmp / "prior")
@@ -167,7 +169,7 @@ def main() -> None:
             "rotation_deg")}
         out["continued_pos_err_m"], out["continued_rot_err_deg"] = (
             round(v, 4) for v in pose_change(T0, np.array(cont.report["continued"]["T_prior_seq"])))
-        gt_b, _ = recording(scene, 1, frames, 3, intr, first_index=prior_frames, relative=False)
+        gt_b, _ = recording(scene, 1, frames, 3, intr, first_index=len(poses_a), relative=False)
         a = Recording(scene, poses_a, seed=0, intrinsics=intr, name="prior")
         both = run_config(config(tmp / "both", "both", res, (MapKind.OCTOMAP,)), dataset=Both(a, gt_b))
         cells, occupied = cell_agreement(cont.octomap, both.octomap)
