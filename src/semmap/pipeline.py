@@ -166,6 +166,15 @@ def semantics_for(frame: Frame, source: SemanticSource, *, label_set: LabelSet |
     return None
 
 
+def semantics_fn(segmenter: Segmenter | None, config: RunConfig, label_set: LabelSet | None):
+    """A frame's class sets as the run gets them (the segmenter's, else :func:`semantics_for`), as a function."""
+    if segmenter is not None:
+        return segmenter.segment
+    s = config.semantics
+    return lambda frame: semantics_for(frame, s.source, label_set=label_set, label_confidence=s.label_confidence,
+                                       k=s.k)
+
+
 @dataclass
 class RunResult:
     """What a run produced: the maps (the first is the primary one the report's top level describes), where
@@ -274,10 +283,8 @@ class Pipeline:
         else:
             pose_of = pose_source_for(c, dataset, instances=self.instances, track_progress=self.track_progress)
             record = RunRecord()
-        continued = None if self.prior is None else self.prior.align(
-            dataset, pose_of, self.segmenter.segment if self.segmenter is not None else lambda f: semantics_for(
-                f, c.semantics.source, label_set=label_set, label_confidence=c.semantics.label_confidence,
-                k=c.semantics.k), min_depth=c.mapping.min_depth, max_depth=c.mapping.max_depth)
+        continued = (None if self.prior is None
+                     else self.prior.align(dataset, pose_of, semantics_fn(self.segmenter, c, label_set), c.mapping))
         pose_of.limit_to(TREE_MAX_VAL * c.mapping.resolution)  # (the key range of every map)
         startup_s += warm_tracker(c, first)
         self._objects = ObjectStage(self.instances) if self.instances is not None else None

@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
-from semmap.config import LoopMode, RunConfig
+from semmap.config import LoopMode, MappingConfig, RunConfig
 from semmap.errors import ConfigError, FormatError
 from semmap.files.outputs import OutputKind, check_outputs
 from semmap.files.safe import path_kind
@@ -50,9 +50,9 @@ class PriorRun:
             m.restore(prior.state())
         return maps
 
-    def align(self, dataset, pose_of: FramePoses, segment, *, min_depth: float, max_depth: float) -> dict:
-        """Localize the recording's first frames in the prior and set ``pose_of.transform``; the report's
-        ``continued`` section (how the alignment went)."""
+    def align(self, dataset, pose_of: FramePoses, segment, mapping: MappingConfig) -> dict:
+        """Localize the recording's first frames (their class sets from ``segment``, depth within ``mapping``'s
+        range) in the prior and set ``pose_of.transform``; the report's ``continued`` section."""
         from semmap.localization.align import align_recording
         from semmap.localization.prior import prior_from_grid_map, prior_from_octomap
 
@@ -67,8 +67,8 @@ class PriorRun:
                     yield frame, T
 
         try:
-            a = align_recording(prior, frames(), segment=segment, surface=self.surface, min_depth=min_depth,
-                                max_depth=max_depth)
+            a = align_recording(prior, frames(), segment=segment, surface=self.surface, min_depth=mapping.min_depth,
+                                max_depth=mapping.max_depth)
         except ConfigError as exc:
             raise ConfigError(f"{OPTION} {self.path}: {exc}") from None
         pose_of.transform = a.T_prior_seq
