@@ -15,12 +15,23 @@ mean of all its points.
 A timing section integrates 640x480 frames into the OctoMap and into the voxel grid with K = 40 (bayes) in the
 same loop, frame by frame (contention hits both alike), and reports the memory per voxel with 40 and 150 classes.
 
-    python benchmarks/bench_fusion.py [--quick] [--scenes N]
+Two sweeps replace the presets when asked (each row keeps the fields above):
+
+- ``--temperatures 0.5,1,2``: the ``cnn-like`` oracle and the shipped network (``--network``, default the demo's)
+  segment once; their class sets are tempered (``perception.calibration.apply_temperature``, as ``semmap run
+  --temperature`` does) and fused by the OctoMap and the voxel grid with every rule; each row has ``temperature``
+  and the segmenter's calibration at that temperature (``ece``: expected calibration error of the top class over
+  15 bins, ``mean_confidence``, ``pixel_accuracy_2d``).
+- ``--crf-sweep``: the same two segmenters fused by each map's own rule (T = 1), then the 3D CRF with each setting of
+  ``CRF_SETTINGS`` (the default, SemanticFusion's, and one parameter changed at a time) on the same fused map;
+  each row has ``crf_setting`` and its ``gain`` at the same pixels (``crf_gain``: map after the CRF minus before).
+
+    python benchmarks/bench_fusion.py [--quick] [--scenes N] [--temperatures T,...] [--crf-sweep]
 
 Prints a table and, last, one JSON line:
 {"bench": "fusion", "results": [{"scene", "preset", "map", "fusion", "crf", "miou", "accuracy", "bytes_per_voxel",
 "ms_per_frame", "pixel_miou_network", "pixel_miou_map", "gain", "pixel_coverage", "ceiling_voxel_accuracy",
-"unreachable_share"}...], "upper_bound": {"<scene>": miou}, "timing": {...}}
+"unreachable_share", "temperature"}...], "upper_bound": {"<scene>": miou}, "timing": {...}}
 """
 
 from __future__ import annotations
@@ -28,14 +39,14 @@ from __future__ import annotations
 import argparse
 import json
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
 from semmap.datasets.simulated import SimulatedDataset
 from semmap.eval.pixels import EVERY, PixelScores, fusion_ceiling, map_labels_at
 from semmap.eval.semantic import evaluate_cloud_3d
-from semmap.fusion.crf import CrfParams, refine_map
+from semmap.fusion.crf import SEMANTICFUSION, CrfParams, refine_map
 from semmap.fusion.rules import FusionParams, FusionRule
 from semmap.geometry import DEFAULT_MAX_DEPTH, DEFAULT_MIN_DEPTH, backproject_world, pixel_normals
 from semmap.labels import INDOOR_LABELS
@@ -43,7 +54,9 @@ from semmap.maps.point_map import SemanticPointMap
 from semmap.maps.registry import MapKind, compile_kernels
 from semmap.maps.semantic_octomap import CellEvidence, SemanticOctoMap
 from semmap.maps.voxel_grid import SemanticVoxelGrid
+from semmap.perception.calibration import apply_temperature
 from semmap.perception.oracle import OracleSegmenter
+from semmap.perception.registry import demo_network, trained_network_segmenter
 from semmap.perception.schedule import Scheduler, SegmentationSchedule
 from semmap.sim.ground_truth import gt_voxels
 from semmap.sim.scene import generate_scene
@@ -100,13 +113,27 @@ def render(kind: str, seed: int, size: str, n: int, stride: int, intrinsics: Cam
     return Frames(ds.name, scene, frames, obs, pixels)
 
 
+class PerfectLabels:
+    """The true labels with confidence 0.9 (the upper bound), as a segmenter."""
+
+    def __init__(self, num_classes: int) -> None:
+        self.num_classes = num_classes
+
+    def segment(self, frame) -> TopKProbs:
+        return TopKProbs.from_hard_labels(frame.labels, 0.9, self.num_classes)
+
+
 def semantics(frames: Frames, preset: str, label_set: LabelSet, seed: int) -> list[TopKProbs]:
     """Per-point class sets of every frame from the preset (``perfect``: the true labels, confidence 0.9)."""
+    return segmented(frames, PerfectLabels(len(label_set)) if preset == "perfect"
+                     else OracleSegmenter(label_set, preset=preset, seed=seed))
+
+
+def segmented(frames: Frames, segmenter) -> list[TopKProbs]:
+    """Per-point class sets of every frame as ``segmenter`` (an oracle or a network) gives them."""
     out = []
-    oracle = None if preset == "perfect" else OracleSegmenter(label_set, preset=preset, seed=seed)
     for f, pix in zip(frames.frames, frames.pixels, strict=True):
-        sem = (TopKProbs.from_hard_labels(f.labels, 0.9, len(label_set)) if oracle is None
-               else oracle.segment(f)).reshape_flat()
+        sem = segmenter.segment(f).reshape_flat()
         out.append(TopKProbs(np.take(sem.labels, pix, axis=0), np.take(sem.probs, pix, axis=0)))
     return out
 
@@ -165,6 +192,23 @@ def ceiling(frames: Frames, sems: list[TopKProbs]) -> dict:
 def bytes_per_voxel(m) -> float:
     n = m.num_leaves if m.kind == MapKind.OCTOMAP else m.grid.num_voxels
     return round(m.memory_bytes / max(n, 1), 1)
+
+
+def calibration(frames: Frames, sems: list[TopKProbs], bins: int = 15) -> dict:
+    """How well the top class's probability matches how often it is right (labelled points of every frame):
+    expected calibration error over ``bins`` equal-width bins, mean confidence, pixel accuracy."""
+    conf, ok = [], []
+    for i, s in enumerate(sems):
+        gt = frames.true_labels(i)
+        keep = gt != 0
+        conf.append(s.probs[keep, 0].astype(np.float64))
+        ok.append(s.labels[keep, 0] == gt[keep])
+    c, right = np.concatenate(conf), np.concatenate(ok)
+    which = np.clip((c * bins).astype(int), 0, bins - 1)
+    n = np.bincount(which, minlength=bins)
+    gap = np.abs(np.bincount(which, right, bins) - np.bincount(which, c, bins))
+    return {"ece": round(float(gap.sum() / max(n.sum(), 1)), 4), "mean_confidence": round(float(c.mean()), 4),
+            "pixel_accuracy_2d": round(float(right.mean()), 4)}
 
 
 def run_preset(frames: Frames, sems: list[TopKProbs], maps: list, gt, label_set: LabelSet, crf: bool,
@@ -247,13 +291,127 @@ def table(results: list[dict], upper: dict[str, float]) -> str:
     return "\n".join(lines)
 
 
+# ------------------------------------------------------------------------------------------------- sweeps
+#: The CRF settings of ``--crf-sweep``: the default, SemanticFusion's, and one parameter of the default changed
+#: (``appearance_weight=4``: the default before the sweep of docs/EXPERIMENTS.md).
+CRF_SETTINGS: dict[str, CrfParams] = {
+    "default": CrfParams(), "semanticfusion": SEMANTICFUSION,
+    **{f"{key}={value:g}": replace(CrfParams(), **{key: value}) for key, value in (
+        ("appearance_weight", 0.0), ("appearance_weight", 4.0), ("smoothness_weight", 0.0),
+        ("smoothness_weight", 3.0), ("appearance_position_std", 0.05), ("appearance_position_std", 0.3),
+        ("appearance_color_std", 10.0), ("appearance_color_std", 40.0), ("smoothness_position_std", 0.15),
+        ("smoothness_normal_std", 0.1), ("smoothness_normal_std", 0.6), ("iterations", 10))},
+}
+
+
+def sweep_segmenters(label_set: LabelSet, seed: int, network: str | None) -> list[tuple[str, object]]:
+    """(name, segmenter): the ``cnn-like`` oracle and the shipped network ``network`` (None: none)."""
+    out = [("cnn-like", OracleSegmenter(label_set, preset="cnn-like", seed=seed))]
+    if network is not None:
+        out.append((network, trained_network_segmenter(network, k=3)))
+    return out
+
+
+def temperature_sweep(fr: Frames, segmenters, temperatures: list[float], label_set: LabelSet, prior, gt,
+                      viewpoint: np.ndarray) -> list[dict]:
+    """Each segmenter's class sets tempered at each temperature, fused by the OctoMap (its own rule) and the voxel
+    grid with every rule; the segmenter's calibration at that temperature beside each row."""
+    rows = []
+    for name, segmenter in segmenters:
+        base = segmented(fr, segmenter)
+        for t in temperatures:  # (the network's own classes: the "others" mass spreads over the simulator's 30)
+            sems = base if t == 1 else [apply_temperature(s, t, num_classes=len(INDOOR_LABELS)) for s in base]
+            maps = [SemanticOctoMap(RESOLUTION, label_set=label_set)]
+            maps += [SemanticVoxelGrid(RESOLUTION, label_set=label_set, fusion=FusionParams(
+                rule, prior=prior if rule == FusionRule.BAYES_PRIOR else None)) for rule in FusionRule]
+            cal = calibration(fr, sems)
+            for r in run_preset(fr, sems, maps, gt, label_set, crf=False, viewpoint=viewpoint):
+                rows.append({**r, "scene": fr.name, "preset": name, "temperature": t, **cal})
+    return rows
+
+
+def crf_sweep(fr: Frames, segmenters, label_set: LabelSet, prior, gt, viewpoint: np.ndarray,
+              point_resolution: float, settings: dict[str, CrfParams]) -> list[dict]:
+    """Each segmenter fused by every map with its own rule, then each CRF setting on the same fused map (restored
+    from its state before each); the pixel gain of the CRF beside the fusion's."""
+    rows = []
+    for name, segmenter in segmenters:
+        sems = segmented(fr, segmenter)
+        maps = [SemanticOctoMap(RESOLUTION, label_set=label_set),
+                SemanticVoxelGrid(RESOLUTION, label_set=label_set, fusion=FusionParams(FusionRule.BAYES)),
+                SemanticPointMap(point_resolution, label_set=label_set,
+                                 fusion=FusionParams(FusionRule.BAYES_PRIOR, prior=prior))]
+        for m, before in zip(maps, run_preset(fr, sems, maps, gt, label_set, crf=False, viewpoint=viewpoint),
+                             strict=True):
+            fused = {k: np.copy(v) for k, v in m.state().items()}
+            rows.append({**before, "scene": fr.name, "preset": name, "temperature": 1.0, "crf_setting": "none",
+                         "crf_gain": 0.0})
+            for setting, params in settings.items():
+                m.restore({k: np.copy(v) for k, v in fused.items()})
+                r = refine_map(m, params, viewpoint=viewpoint)
+                c = m.cloud()
+                s = evaluate_cloud_3d(c.centers, c.labels, *gt, label_set, RESOLUTION)
+                px = pixel_scores(m, fr, sems, len(label_set))
+                rows.append({**before, "scene": fr.name, "preset": name, "temperature": 1.0, "crf": True,
+                             "crf_setting": setting, "miou": s["miou_3d"], "accuracy": s["voxel_accuracy_3d"],
+                             "crf_ms": round(r.ms, 1), **px,
+                             "crf_gain": round(px["pixel_miou_map"] - before["pixel_miou_map"], 4)})
+            print(f"{fr.name} {name} {map_name(m)}: CRF sweep done", flush=True)
+    return rows
+
+
+def sweep_table(rows: list[dict], key: str) -> str:
+    """One line per row of a sweep: the swept value, the map's scores and the segmenter's calibration."""
+    lines = [f"{'scene':22s} {'segmenter':9s} {'map':10s} {'fusion':11s} {key:>28s} {'mIoU':>6s} {'px net':>6s} "
+             f"{'px map':>6s} {'gain':>7s} {'crf+':>7s} {'ece':>6s}"]
+    for r in rows:
+        lines.append(f"{r['scene']:22s} {r['preset']:9s} {r['map']:10s} {r['fusion']:11s} {r[key]!s:>28s} "
+                     f"{r['miou']:6.3f} {r['pixel_miou_network']:6.3f} {r['pixel_miou_map']:6.3f} {r['gain']:+7.3f} "
+                     f"{r.get('crf_gain', 0.0):+7.3f} {r.get('ece', float('nan')):6.3f}")
+    return "\n".join(lines)
+
+
+def run_sweeps(args, rendered: list[Frames], label_set: LabelSet, point_resolution: float) -> list[dict]:
+    """The temperature and CRF sweeps asked for, over every rendered scene."""
+    temperatures = [float(t) for t in args.temperatures.split(",")] if args.temperatures else []
+    rows: list[dict] = []
+    for i, fr in enumerate(rendered):
+        gt = gt_voxels(fr.scene, RESOLUTION)
+        gt = (gt.keys, gt.class_ids)
+        others = rendered[:i] + rendered[i + 1:]
+        prior = class_prior(others, len(label_set)) if others else None
+        viewpoint = np.mean([o.origin for o in fr.obs], axis=0)
+        segmenters = sweep_segmenters(label_set, args.first_scene + i, args.network)
+        if temperatures:
+            found = temperature_sweep(fr, segmenters, temperatures, label_set, prior, gt, viewpoint)
+            print(sweep_table(found, "temperature"), flush=True)
+            rows += found
+        if args.crf_sweep:
+            settings = ({name: CRF_SETTINGS[name] for name in args.crf_settings.split(",")} if args.crf_settings
+                        else CRF_SETTINGS)
+            found = crf_sweep(fr, segmenters, label_set, prior, gt, viewpoint, point_resolution, settings)
+            print(sweep_table(found, "crf_setting"), flush=True)
+            rows += found
+    return rows
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--quick", action="store_true", help="small scenes, fewer frames, 3 cm points (< 10 min)")
     parser.add_argument("--scenes", type=int, default=None, help="only the first N scenes")
+    parser.add_argument("--frames", type=int, default=None, help="frames per scene (default 24 quick, 60 full)")
+    parser.add_argument("--temperatures", default=None, help="sweep these temperatures (e.g. 0.5,1,2,4) instead of "
+                        "the presets")
+    parser.add_argument("--crf-sweep", action="store_true", help="sweep the CRF settings instead of the presets")
+    parser.add_argument("--crf-settings", default=None, help="only these CRF_SETTINGS names (comma-separated)")
+    parser.add_argument("--first-scene", type=int, default=0, help="start at this scene (0-based)")
+    parser.add_argument("--network", default=demo_network(), help="shipped network of the sweeps (default: the "
+                        "demo's)")
     args = parser.parse_args()
     n, stride = (24, 12) if args.quick else (60, 5)
-    scenes = (QUICK_SCENES if args.quick else SCENES)[: args.scenes]
+    if args.frames:
+        n, stride = args.frames, max(1, n * stride // args.frames)
+    scenes = (QUICK_SCENES if args.quick else SCENES)[args.first_scene:][: args.scenes]
     point_resolution = 0.03 if args.quick else 0.02  # coarser than the map's 1 cm default: 45 CRFs over its points
     t_start = time.perf_counter()
     compile_kernels(list(MapKind))
@@ -261,6 +419,13 @@ def main() -> None:
     rendered = [render(kind, seed, size, n, stride, SMALL) for kind, seed, size in scenes]
     print(f"rendered {len(scenes)} scenes x {n} frames ({SMALL.width}x{SMALL.height}) in "
           f"{time.perf_counter() - t_start:.0f} s", flush=True)
+    if args.temperatures or args.crf_sweep:
+        rows = run_sweeps(args, rendered, label_set, point_resolution)
+        print(f"total {time.perf_counter() - t_start:.0f} s")
+        print(json.dumps({"bench": "fusion-sweeps", "quick": args.quick, "frames": n, "resolution": RESOLUTION,
+                          "point_resolution": point_resolution, "classes": len(label_set), "network": args.network,
+                          "results": rows}))
+        return
     results: list[dict] = []
     upper: dict[str, float] = {}
     for i, fr in enumerate(rendered):
@@ -276,7 +441,7 @@ def main() -> None:
             maps = build_maps(label_set, prior, point_resolution, rules)
             rows = run_preset(fr, sems, maps, gt, label_set, crf=not perfect, viewpoint=viewpoint)
             for r in rows:
-                r.update(scene=fr.name, preset=preset)
+                r.update(scene=fr.name, preset=preset, temperature=1.0)
             if perfect:
                 upper[fr.name] = max(r["miou"] for r in rows)
             results += rows
@@ -289,7 +454,7 @@ def main() -> None:
     print(f"total {time.perf_counter() - t_start:.0f} s")
     order = ("scene", "preset", "map", "fusion", "crf", "miou", "accuracy", "bytes_per_voxel", "ms_per_frame",
              "pixel_miou_network", "pixel_miou_map", "gain", "pixel_coverage", "ceiling_voxel_accuracy",
-             "unreachable_share")
+             "unreachable_share", "temperature")
     print(json.dumps({"bench": "fusion", "quick": args.quick, "frames": n, "resolution": RESOLUTION,
                       "point_resolution": point_resolution, "classes": len(label_set),
                       "results": [{k: r[k] for k in order} for r in results], "upper_bound": upper,

@@ -32,7 +32,10 @@ TEXT_OPTIONS = frozenset({
     "--format", "--rgb-topic", "--depth-topic", "--camera-info-topic", "--pose-topic", "--world-frame",
     "--camera-frame", "--semantics", "--segmenter", "--backend", "--poses", "--color-mode", "--maps", "--fusion",
     "--state-dtype", "--instances", "--instance-errors", "--kind", "--size", "--trajectory", "--model", "--backbone",
-    "--device", "--method", "--init", "--mode", "--motion", "--address", "--no-go",
+    "--device", "--method", "--init", "--mode", "--motion", "--address", "--no-go", "--gt-label-property",
+    # key=value text: each number is checked by its own field of the configuration (crf.*), which names the option
+    # (tests/test_crf_params.py)
+    "--crf-params",
 })
 #: The required arguments of each command: paths that are never opened (the numbers are checked first).
 NOWHERE = "/nonexistent/semmap-fuzz"
@@ -50,6 +53,7 @@ REQUIRED = {
     "view": [f"{NOWHERE}/map.ot"],
     "eval-map": [f"{NOWHERE}/map.semmap", f"{NOWHERE}/seq"],
     "diff": [f"{NOWHERE}/a.semmap", f"{NOWHERE}/b.semmap", "--out", f"{NOWHERE}/out"],
+    "merge": [f"{NOWHERE}/a.semmap", f"{NOWHERE}/b.semmap", "--out", f"{NOWHERE}/out"],
     "export grid": [f"{NOWHERE}/map.semmap", "--out", f"{NOWHERE}/out"],
     "export esdf": [f"{NOWHERE}/map.semmap", "--out", f"{NOWHERE}/out"],
     "export mesh": [f"{NOWHERE}/run", "--out", f"{NOWHERE}/out"],

@@ -442,7 +442,22 @@ def test_m5_a_crf_beyond_the_budget_is_refused_before_its_lattices_and_the_run_k
     with pytest.raises(MemoryBudgetError, match=r"--crf over the [0-9,]+ elements of the voxelgrid map with 7 classes "
                                                 r"needs about .* over the budget of 2\.1 MB"):
         refine_map(m, CrfParams())
-    out = refine_maps([m], [np.eye(4)], iterations=2, scorer=RunScorer(None, 0.02))
+    out = refine_maps([m], [np.eye(4)], params=CrfParams(iterations=2), scorer=RunScorer(None, 0.02))
     assert out[m.kind]["refined"] == 0 and "--crf" in out[m.kind]["skipped"]
     assert "the voxelgrid map is not refined: --crf over" in caplog.text
     assert np.array_equal(m.class_probs(), before)
+
+
+@pytest.mark.parametrize(("limit", "warns"), [(10, True), (20_000_000, False)])
+def test_m3_a_view_too_fine_to_map_quickly_is_announced_before_mapping(monkeypatch, caplog, limit, warns):
+    from semmap import pipeline
+    from semmap.pipeline import Mapper
+    from semmap.types import CameraIntrinsics
+
+    monkeypatch.setattr(pipeline, "SLOW_VIEW_CELLS", limit)
+    camera = CameraIntrinsics(64, 48, 40.0, 40.0, 31.5, 23.5)
+    depth = np.full((48, 64), 2.0, np.float32)
+    mapper = Mapper([SemanticOctoMap(0.1)], min_depth=0.1, max_depth=8.0)
+    mapper.integrate_arrays(np.zeros((48, 64, 3), np.uint8), depth, camera, np.eye(4), index=0)
+    said = "--resolution 0.1: one view spans about" in caplog.text and "(--resolution 0.2: 8x fewer)" in caplog.text
+    assert said == warns

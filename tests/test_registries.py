@@ -51,6 +51,9 @@ ALLOWED: dict[tuple[str, str], str] = {
     ("localization/run.py", "max"): "the largest localization error (a statistic)",
     ("sim/scene.py", "max"): "a bounding box's upper corner",
     ("config.py", "oracle"): "SemanticSource.ORACLE: a value of --semantics (where class probabilities come from)",
+    ("perception/network.py", "onnx"): "--backend onnx: the ONNX Runtime backend of semmap's networks (and its cache "
+                                       "folder), not the segmenter onnx:MODEL",
+    ("runner.py", "onnx"): "--backend onnx for the demo's network (the runtime, not the segmenter onnx:MODEL)",
     ("localization/sequence.py", "odometry"): "--motion odometry: a localization motion source (MOTION_SOURCES)",
     ("cli.py", "odometry"): "the default of localize --motion (a localization motion source)",
     ("eval/report_md.py", "points"): "the 'points' count of a report entry",
@@ -236,10 +239,12 @@ def test_cli_defaults_are_the_configs() -> None:
 
 
 @pytest.mark.parametrize(("args", "message"), [
-    (["--segmenter", "segnet"], "invalid option segmenter: unknown segmenter 'segnet'; choose from "),
-    (["--instances", "yolo"], "invalid option instances: unknown instance source 'yolo'; choose from "),
+    (["--segmenter", "segnet"], "invalid --segmenter: unknown segmenter 'segnet'; choose from "),
+    (["--instances", "yolo"], "invalid --instances: unknown instance source 'yolo'; choose from "),
     (["--maps", "octomap,mesh"], "--maps: unknown map 'mesh'; choose from octomap, voxelgrid, points"),
-    (["--format", "kitti"], "invalid option format: unknown dataset format 'kitti'; choose from auto, "),
+    (["--format", "kitti"], "invalid --format: unknown dataset format 'kitti'; choose from auto, "),
+    (["--semantics", "magic"], "invalid --semantics: Input should be 'auto', "),
+    (["--backend", "magic"], "invalid --backend: "),
 ])
 def test_cli_refuses_an_unknown_name_in_one_line(tmp_path: Path, args: list[str], message: str) -> None:
     result = CliRunner().invoke(app, ["run", str(tmp_path), "--out", str(tmp_path / "out"), *args])

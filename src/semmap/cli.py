@@ -27,6 +27,7 @@ from semmap.config import (
 )
 from semmap.datasets import AUTO, FORMATS
 from semmap.errors import SemmapError
+from semmap.fusion.crf import CRF_KEYS, parse_crf_params
 from semmap.fusion.rules import FusionRule
 from semmap.maps.registry import MAPS, own_rules
 from semmap.perception.instances.registry import INSTANCE_SOURCES
@@ -156,9 +157,14 @@ def run(
                                            rich_help_panel=_SEMANTICS)] = _default(SemanticsConfig, "source").value,
     label_confidence: Annotated[float, typer.Option(help="confidence of hard labels", rich_help_panel=_SEMANTICS)
                                 ] = _default(SemanticsConfig, "label_confidence"),
+    temperature: Annotated[float, typer.Option(help="fuse softmax(logits / T) of the segmenter's classes: > 1 softens "
+                                                    "over-confident probabilities, < 1 sharpens, 1 = as given",
+                                               rich_help_panel=_SEMANTICS)] = _default(SemanticsConfig,
+                                                                                       "temperature"),
     lam: Annotated[float, typer.Option("--lambda", help="penalty λ of the top-k fusion (Algorithm 1)",
                                        rich_help_panel=_SEMANTICS)] = _default(SemanticsConfig, "lam"),
-    segmenter: Annotated[str | None, typer.Option(help=f"{SEGMENTERS.choices()} (default: from --semantics)",
+    segmenter: Annotated[str | None, typer.Option(help=f"{SEGMENTERS.choices()} (onnx:MODEL.onnx, hf:MODEL_ID; "
+                                                       "default: from --semantics)",
                                                   rich_help_panel=_SEMANTICS)] = None,
     weights: Annotated[Path | None, typer.Option(help="network weights (espnetv2; semmap's networks default to the "
                                                  "shipped weights/), or the predictions folder (precomputed)",
@@ -166,6 +172,12 @@ def run(
     trust_weights: Annotated[bool, typer.Option("--trust-weights", help="use shipped weights whose sha256 differs "
                                                 "from weights/manifest.json (with a warning)",
                                                 rich_help_panel=_SEMANTICS)] = False,
+    segmenter_config: Annotated[Path | None, typer.Option(help="JSON sidecar of --segmenter onnx:MODEL.onnx "
+                                                          "(default: MODEL.json beside it)",
+                                                          rich_help_panel=_SEMANTICS)] = None,
+    class_map: Annotated[Path | None, typer.Option(help="JSON mapping of an onnx:/hf: model's classes to the map's "
+                                                   "labels (or a shipped one: ade20k-150, nyu40, coco-panoptic-133)",
+                                                   rich_help_panel=_SEMANTICS)] = None,
     segment_every: Annotated[int, typer.Option(help="segment every k-th frame (others add geometry and colour)",
                                                rich_help_panel=_SEMANTICS)] = _default(SemanticsConfig,
                                                                                        "segment_every"),
@@ -195,6 +207,9 @@ def run(
                                               rich_help_panel=_OUTPUT)] = False,
     rerun_map_every: Annotated[int, typer.Option(help="frames between two logs of the whole map to rerun",
                                                  rich_help_panel=_OUTPUT)] = _default(OutputConfig, "rerun_map_every"),
+    cloud: Annotated[bool, typer.Option("--cloud/--no-cloud", help="write cloud.ply, the dense coloured cloud of every "
+                                        "frame's points (one per --point-resolution cell) the report's storage table "
+                                        "compares the maps with", rich_help_panel=_OUTPUT)] = True,
     checkpoint_every: Annotated[int, typer.Option(help="save the run's state every N mapped frames (0: never), so "
                                                   "--resume can continue after a crash", rich_help_panel=_OUTPUT)] = 0,
     resume: Annotated[bool, typer.Option("--resume", help="continue a run that was killed, from its last checkpoint "
@@ -229,6 +244,10 @@ def run(
                                       rich_help_panel=_MAPS)] = False,
     crf_every: Annotated[int, typer.Option(help="with --crf, also refine every N keyframes while mapping",
                                            rich_help_panel=_MAPS)] = _default(CrfConfig, "every"),
+    crf_params: Annotated[str | None, typer.Option(help="with --crf, its kernels as key=value,... (keys: "
+                                                        f"{', '.join(CRF_KEYS)}; 'semanticfusion' for "
+                                                        "SemanticFusion's values; docs/EXPERIMENTS.md)",
+                                                   rich_help_panel=_MAPS)] = None,
     instances: Annotated[str | None, typer.Option(help=f"{INSTANCE_SOURCES.choices()}: also build the object map "
                                                    "(objects.json, objects.ply)", rich_help_panel=_OBJECTS)] = None,
     instance_weights: Annotated[Path | None, typer.Option(help="Mask R-CNN weights (--instances maskrcnn)",
@@ -239,8 +258,8 @@ def run(
     memory_budget: _MemoryBudget = None,
 ) -> None:
     """Map an RGB-D sequence: writes map.ot, map.bt, map.semmap (and voxelgrid.* / points.* for --maps,
-    objects.json / objects.ply for --instances), preview.png, trajectory.txt, report.json, report.md and
-    config.json."""
+    objects.json / objects.ply for --instances), cloud.ply (the dense coloured cloud; --no-cloud: none), preview.png,
+    trajectory.txt, report.json, report.md and config.json."""
     _setup_logging(verbose)
     _budget(memory_budget)
     from semmap.config import (
@@ -272,18 +291,20 @@ def run(
                               free_space=free_space, point_resolution=point_resolution, tsdf_voxel=tsdf_voxel,
                               tsdf_truncation=tsdf_truncation),
         semantics=SemanticsConfig(source=semantics, label_confidence=label_confidence, lam=lam, k=top_k,
+                                  temperature=temperature,
                                   max_confidence=max_confidence, segmenter=segmenter,
-                                  weights=weights, trust_weights=trust_weights, segment_every=segment_every,
+                                  weights=weights, trust_weights=trust_weights, segmenter_config=segmenter_config,
+                                  class_map=class_map, segment_every=segment_every,
                                   keyframes=keyframes,
                                   batch_size=batch_size, backend=backend, input_size=_size(input_size),
                                   fusion=fusion, class_prior=class_prior),
         poses=PosesConfig(source=poses),
         mode=LoopMode.ONLINE if online else LoopMode.OFFLINE,
         online=OnlineConfig(rate=rate),
-        crf=CrfConfig(enabled=crf, every=crf_every),
+        crf=CrfConfig(enabled=crf, every=crf_every, **parse_crf_params(crf_params)),
         objects=ObjectsConfig(instances=instances, weights=instance_weights, errors=instance_errors),
         output=OutputConfig(out=out, color_mode=_color_mode(color_mode), rerun=rerun, rerun_spawn=rerun_spawn,
-                            rerun_map_every=rerun_map_every),
+                            rerun_map_every=rerun_map_every, cloud=cloud),
     ))
     with _interruptible():
         result = run_config(config, progress=progress_bar("mapping"),
@@ -340,6 +361,10 @@ def _validated(make, source: Path | None = None):
 
     try:
         return make()
+    except SemmapError as exc:  # a limits check inside a validator: say which file the value came from
+        if source is None or str(source) in str(exc):
+            raise
+        raise SemmapError(f"{source}: {exc}") from None
     except ValidationError as exc:
         first = exc.errors()[0]
         where = ".".join(str(p) for p in first["loc"])
@@ -350,7 +375,27 @@ def _validated(make, source: Path | None = None):
                               ) from None
         if not where:  # a rule across options
             raise SemmapError(msg) from None
-        raise SemmapError(f"invalid option {where}: {msg}") from None
+        raise SemmapError(f"invalid {_option_of(exc.title, first['loc'])}: {msg}") from None
+
+
+#: configuration fields whose command-line option is not ``--`` + the field's name (section.field -> option)
+_FIELD_OPTIONS = {
+    "semantics.source": "--semantics", "semantics.k": "--top-k", "semantics.lam": "--lambda",
+    "poses.source": "--poses", "input.dataset": "dataset argument", "output.out": "--out",
+    "crf.enabled": "--crf", "crf.every": "--crf-every", "objects.weights": "--instance-weights",
+    "objects.errors": "--instance-errors",
+}
+
+
+def _option_of(model_title: str, loc: tuple) -> str:
+    """The command-line option a configuration field came from (``SemanticsConfig`` + ``source`` -> ``--semantics``)."""
+    from semmap import config as config_module
+
+    model = getattr(config_module, str(model_title), None)
+    section = str(getattr(model, "section", "") or "")
+    field = str(loc[-1]) if not isinstance(loc[-1], int) else str(loc[-2] if len(loc) > 1 else loc[-1])
+    key = f"{section.rsplit('.', 1)[-1]}.{field}" if section else ".".join(str(p) for p in loc)
+    return _FIELD_OPTIONS.get(key) or f"--{field.replace('_', '-')}"
 
 
 def _print_table(title: str, rows: list[tuple[str, str]]) -> None:
@@ -799,7 +844,8 @@ def eval_seg(
 def eval_map(
     map_path: Annotated[Path, typer.Argument(metavar="MAP", help="a .semmap map file (any map), or a run folder "
                                              "holding map.semmap")],
-    seq: Annotated[Path, typer.Argument(help="the labelled sequence it was built from (poses and label images)")],
+    seq: Annotated[Path | None, typer.Argument(help="the labelled sequence it was built from (poses and label "
+                                                    "images); may be left out with --gt-ply")] = None,
     format: Annotated[str, typer.Option(help=_FORMATS)] = AUTO,
     segmenter: Annotated[str | None, typer.Option(help="score this network's labels at the same pixels beside the "
                                                   "map's (precomputed --weights FOLDER: stored predictions); "
@@ -808,15 +854,37 @@ def eval_map(
     every: Annotated[int, typer.Option(help="score every N-th frame")] = 10,
     pixel_stride: Annotated[int, typer.Option(help="score every k-th pixel row and column")] = 1,
     max_frames: Annotated[int | None, typer.Option(help="read at most N frames")] = None,
+    gt_ply: Annotated[Path | None, typer.Option(help="labelled ground-truth points or mesh vertices (PLY, e.g. "
+                                                "ScanNet's *_vh_clean_2.labels.ply): mIoU, f.w. mIoU and mean class "
+                                                "accuracy over them, in the map's class ids")] = None,
+    gt_label_property: Annotated[str, typer.Option(help="the vertex property of --gt-ply holding the class")
+                                 ] = "label",
     out: Annotated[Path | None, typer.Option(help="also write the scores as JSON here")] = None,
 ) -> None:
     """A map scored at the pixels of a labelled sequence: the map's label at each pixel's 3D point against the true
-    label, beside the network's own label at the same pixels (MIoU, accuracy, MPA, coverage, the fusion ceiling)."""
+    label, beside the network's own label at the same pixels (MIoU, accuracy, MPA, coverage, the fusion ceiling);
+    with --gt-ply, at a dataset's labelled points or mesh vertices as the benchmarks score maps."""
     _setup_logging(False)
-    from semmap.run.eval_map import evaluate_map_file
+    from semmap.errors import ConfigError
+    from semmap.run.eval_map import evaluate_map_file, evaluate_map_points
 
-    scores = evaluate_map_file(map_path, seq, format=format, segmenter=segmenter, weights=weights, every=every,
-                               stride=pixel_stride, max_frames=max_frames, out=out)
+    if seq is None and gt_ply is None:
+        raise ConfigError("eval-map needs the labelled sequence SEQ, or --gt-ply, or both")
+    pixels = functools.partial(evaluate_map_file, map_path, seq, format=format, segmenter=segmenter, weights=weights,
+                               every=every, stride=pixel_stride, max_frames=max_frames)
+    points = functools.partial(evaluate_map_points, map_path, gt_ply, label_property=gt_label_property)
+    if gt_ply is None:
+        scores = pixels(out=out)
+    elif seq is None:
+        scores = points(out=out)
+    else:  # both: one JSON of both, its --out checked against every input first
+        from semmap.files.atomic import write_text_atomic
+        from semmap.files.outputs import OutputKind, check_outputs
+
+        check_outputs([("--out", out, OutputKind.FILE)], [("MAP", map_path), ("SEQ", seq), ("--gt-ply", gt_ply)])
+        scores = {**points(out=None), **pixels(out=None)}
+        if out is not None:
+            write_text_atomic(out, json.dumps(scores, indent=2))
     typer.echo(json.dumps(scores, indent=2))
 
 
@@ -886,7 +954,7 @@ def batch(
     console.print(f"{summary['sequences']} sequences: {summary['done']} mapped, {summary['already_done']} already "
                   f"done, {summary['failed']} failed in {summary['seconds']:.1f} s; {md_path}")
     if summary["failed"]:
-        raise typer.Exit(1)
+        raise SemmapError(f"{summary['failed']} of {summary['sequences']} sequences failed; see {md_path}")
 
 
 @app.command()
@@ -923,6 +991,34 @@ def diff(
                                     f"{o['moved']} moved")
     typer.echo(f"{out}: voxels {v['appeared']:,} appeared, {v['disappeared']:,} disappeared, {v['relabelled']:,} "
                f"changed class ({v['observed_by_both']:,} seen by both){objects}")
+
+
+@app.command()
+def merge(
+    map_a: Annotated[Path, typer.Argument(metavar="A", help="a map: .semmap (OctoMap, voxel grid or point map) or a "
+                                          "run folder; the merged map is in its frame")],
+    map_b: Annotated[Path, typer.Argument(metavar="B", help="a map of the same place, kind, resolution and classes")],
+    out: Annotated[Path, typer.Option("--out", "-o", help="output: a folder (the map's files, transform.txt, "
+                                      "merge.json) or a .semmap file; never A or B")],
+    transform: Annotated[Path | None, typer.Option(help="text file of the 4x4 transform taking B's coordinates into "
+                                                   "A's frame (default: estimated from the occupied voxels)")] = None,
+    min_overlap: Annotated[float, typer.Option(help="refuse an estimated alignment unless this share of the smaller "
+                                               "map's occupied voxels meets the other map")] = 0.3,
+    as_json: _Json = False,
+) -> None:
+    """Merge two maps of one place: B aligned to A (a given transform, or FPFH + RANSAC then ICP, checked for a
+    sane overlap), evidence combined by the maps' own occupancy update and fusion rule."""
+    _setup_logging(False)
+    from semmap.products.merge import merge_map_files
+
+    s = merge_map_files(map_a, map_b, out, transform=transform, min_overlap=min_overlap)
+    al, occ = s["alignment"], s["occupied"]
+    rows = [("alignment", f"{al['source']}" + (f" (from the {al['start']})" if al["start"] else "")),
+            ("overlap", f"{100 * al['overlap']:.1f} % of the smaller map's occupied voxels, RMSE "
+                        f"{100 * al['rmse_m']:.2f} cm"),
+            ("occupied voxels", f"A {occ['a']:,}, B {occ['b']:,}, merged {occ['merged']:,}"),
+            ("written", str(out))]
+    _summary_out(s, as_json, f"semmap merge: {s['kind']} at {s['resolution']} m", rows)
 
 
 export_app = typer.Typer(no_args_is_help=True, help="Robot products from a finished map: a 2D navigation grid "

@@ -14,6 +14,7 @@ from typing import ClassVar
 from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 
 from semmap.datasets import AUTO, FORMATS, DatasetFormat
+from semmap.fusion.crf import CRF_KEYS, CrfParams
 from semmap.fusion.rules import FusionRule
 from semmap.fusion.topk_bayes import DEFAULT_LAMBDA, DEFAULT_MAX_CONFIDENCE
 from semmap.geometry import DEFAULT_MAX_DEPTH, DEFAULT_MIN_DEPTH
@@ -21,7 +22,7 @@ from semmap.limits import check, field_bounds
 from semmap.maps.registry import MAPS, MapKind, own_rules
 from semmap.maps.semantic_octomap import CellEvidence
 from semmap.perception.instances.registry import INSTANCE_SOURCES, InstanceSourceName
-from semmap.perception.registry import SEGMENTERS, SegmenterName
+from semmap.perception.registry import SEGMENTERS, SegmenterName, split_segmenter
 from semmap.poses.track import GROUND_TRUTH, POSE_SOURCES, PoseSource
 from semmap.registry import check_name
 
@@ -172,9 +173,19 @@ class SemanticsConfig(_Section):
     max_confidence: float = Field(DEFAULT_MAX_CONFIDENCE, **field_bounds("confidence", "--max-confidence"))
     label_confidence: float = Field(0.9, **field_bounds("confidence", "--label-confidence"),
                                     description="confidence given to hard labels")
+    temperature: float = Field(1.0, **field_bounds("temperature", "--temperature"),
+                               description="class probabilities fused as softmax(logits / T) = p^(1/T) renormalised "
+                                           "(> 1 softens an over-confident segmenter; 1: as given)")
     oracle_preset: str = "cnn-like"
     seed: int = Field(0, **field_bounds("seed"))
     segmenter: SegmenterName | None = Field(None, description=f"{SEGMENTERS.choices()} (None: from source)")
+    model: str | None = Field(None, description="the user's own model of --segmenter NAME:MODEL (an ONNX file, a "
+                                                "Hugging Face model id or folder)")
+    segmenter_config: Path | None = Field(None, description="JSON sidecar of an ONNX model (None: MODEL.json beside "
+                                                            "it)")
+    class_map: Path | None = Field(None, description="JSON mapping of a user model's classes to the map's labels "
+                                                     "(a file, or a shipped one by name: ade20k-150, nyu40, "
+                                                     "coco-panoptic-133)")
     weights: Path | None = Field(None, description="network weights, or the folder of precomputed predictions")
     trust_weights: bool = Field(False, description="use shipped weights whose sha256 differs from weights/manifest.json"
                                                    " (with a warning) instead of refusing them")
@@ -196,6 +207,18 @@ class SemanticsConfig(_Section):
         for side in (v if isinstance(v, list | tuple) else (v,)):
             check("input_side", side, _label(cls.section, "input_size", "--input-size"))
         return v
+
+    @model_validator(mode="before")
+    @classmethod
+    def _model_after_colon(cls, data: object) -> object:
+        """``segmenter = "onnx:MODEL.onnx"`` is read as the segmenter ``onnx`` and its ``model``."""
+        if isinstance(data, dict) and isinstance(data.get("segmenter"), str):
+            name, model = split_segmenter(data["segmenter"])
+            if model is not None:
+                if data.get("model") not in (None, model):
+                    raise ValueError(f"two models: {model!r} (--segmenter) and {data['model']!r}")
+                data = {**data, "segmenter": name, "model": model}
+        return data
 
     @field_validator("segmenter", mode="before")
     @classmethod
@@ -239,6 +262,9 @@ class OnlineConfig(_Section):
                                            "None: as fast as the loop takes them")
 
 
+_CRF = CrfParams()
+
+
 class CrfConfig(_Section):
     """3D dense CRF over each map after integration (and every ``every`` keyframes while mapping)."""
 
@@ -246,7 +272,25 @@ class CrfConfig(_Section):
     enabled: bool = False
     every: int = Field(0, **field_bounds("every", "--crf-every"),
                        description="also refine every N keyframes during mapping (0: only at the end)")
-    iterations: int = Field(5, **field_bounds("crf_iterations"))
+    iterations: int = Field(5, **field_bounds("crf_iterations", "--crf-params"))
+    appearance_weight: float = Field(_CRF.appearance_weight, **field_bounds("crf_weight", "--crf-params"),
+                                     description="Potts weight of the position + colour kernel (SemanticFusion: 10)")
+    appearance_position_std: float = Field(_CRF.appearance_position_std,
+                                           **field_bounds("crf_position_std", "--crf-params"),
+                                           description="its width in position (m; SemanticFusion: 0.05)")
+    appearance_color_std: float = Field(_CRF.appearance_color_std, **field_bounds("crf_color_std", "--crf-params"),
+                                        description="its width in colour (0-255; SemanticFusion: 20)")
+    smoothness_weight: float = Field(_CRF.smoothness_weight, **field_bounds("crf_weight", "--crf-params"),
+                                     description="Potts weight of the position + normal kernel (SemanticFusion: 3)")
+    smoothness_position_std: float = Field(_CRF.smoothness_position_std,
+                                           **field_bounds("crf_position_std", "--crf-params"),
+                                           description="its width in position (m; SemanticFusion: 0.05)")
+    smoothness_normal_std: float = Field(_CRF.smoothness_normal_std, **field_bounds("crf_normal_std", "--crf-params"),
+                                         description="its width in unit-normal distance (SemanticFusion: 0.1)")
+
+    def params(self) -> CrfParams:
+        """The kernels and iterations as :class:`~semmap.fusion.crf.CrfParams`."""
+        return CrfParams(**{key: getattr(self, key) for key in CRF_KEYS})
 
 
 class OutputConfig(_Section):
@@ -256,6 +300,8 @@ class OutputConfig(_Section):
     color_mode: ColorMode = ColorMode.CLASS
     preview: bool = True
     plots: bool = Field(True, description="draw the report's plots (trajectory, IoU, storage, timings)")
+    cloud: bool = Field(True, description="write cloud.ply, the dense coloured point cloud of every frame's points "
+                                          "voxel-filtered at mapping.point_resolution (the storage table's baseline)")
     rerun: Path | None = Field(None, description="log the run to this rerun recording (.rrd)")
     rerun_spawn: bool = Field(False, description="stream the run to a rerun viewer")
     rerun_map_every: int = Field(10, **field_bounds("every_positive", "--rerun-map-every"),

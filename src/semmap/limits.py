@@ -90,6 +90,11 @@ LIMITS: dict[str, Limit] = {
     "inflation": Limit(0.0, 10.0, "radius (m)"),
     "tsdf_truncation": Limit(1.0, 64.0, "voxels"),
     "tsdf_weight": Limit(1, 1_000_000, "observations", integer=True),
+    "temperature": Limit(0.01, 100.0, "softmax temperature, 1 = as the segmenter gives them"),
+    "crf_weight": Limit(0.0, 1000.0, "Potts weight"),
+    "crf_position_std": Limit(0.001, 100.0, "kernel width (m)"),
+    "crf_color_std": Limit(0.01, 1000.0, "kernel width (colour units 0-255)"),
+    "crf_normal_std": Limit(0.001, 10.0, "kernel width (distance of unit normals)"),
 }
 
 # ------------------------------------------------------------------------------------ command-line options
@@ -121,6 +126,7 @@ OPTIONS: dict[str, OptionRule] = {
     "--max-range": OptionRule("max_range"), "--pixel-stride": OptionRule("pixel_stride"),
     "--top-k": OptionRule("k"), "--lambda": OptionRule("lam"), "--max-confidence": OptionRule("confidence"),
     "--label-confidence": OptionRule("confidence"), "--crf-every": OptionRule("every"),
+    "--temperature": OptionRule("temperature"),
     # segmentation
     "--segment-every": OptionRule("segment_every"), "--batch-size": OptionRule("batch_size"),
     "--input-size": OptionRule("input_side", SIDE_OR_SIZE), "train --input-size": OptionRule("input_side", SIZE),
@@ -150,8 +156,8 @@ OPTIONS: dict[str, OptionRule] = {
     "--z-min": OptionRule("coordinate"), "--z-max": OptionRule("coordinate"), "--floor": OptionRule("coordinate"),
     "--slice-z": OptionRule("coordinate"), "--inflation": OptionRule("inflation"), "--near": OptionRule("distance"),
     "--door-width": OptionRule("distance"), "--region": OptionRule("coordinate", REGION),
-    # eval-map
-    "eval-map --every": OptionRule("every_positive"),
+    # eval-map, merge
+    "eval-map --every": OptionRule("every_positive"), "--min-overlap": OptionRule("probability"),
     # the TSDF and its mesh
     "--tsdf-voxel": OptionRule("resolution"), "--tsdf-truncation": OptionRule("tsdf_truncation"),
     "--min-weight": OptionRule("tsdf_weight"),

@@ -27,12 +27,15 @@ from semmap.frame_arrays import class_sets, frame_from_arrays
 from semmap.geometry import backproject_world, pixel_normals
 from semmap.interrupt import RunInterrupted, deferred_interrupts, stop_requested
 from semmap.io.staged_run import StagedRun
+from semmap.io.state import prefixed, section
 from semmap.keys import TREE_MAX_VAL
-from semmap.limits import check_map_extent, check_map_growth
+from semmap.limits import BYTES_PER_VOXEL, check_map_extent, check_map_growth, human
 from semmap.maps.base import SemanticMap
 from semmap.maps.registry import MapKind, compile_kernels
+from semmap.maps.semantic_grid import SemanticGrid
 from semmap.object_stage import ObjectStage
 from semmap.perception.base import Segmenter
+from semmap.perception.calibration import apply_temperature
 from semmap.perception.instances.base import InstanceSource
 from semmap.perception.schedule import (
     Scheduler,
@@ -66,13 +69,20 @@ log = logging.getLogger("semmap")
 MAX_EMPTY_FRAME_WARNINGS = 5
 
 
+#: voxels one view may span before the run warns that mapping it will be slow (about 5 s per frame on 2 cores)
+SLOW_VIEW_CELLS = 20_000_000
+
+
 class Mapper:
     """Integrates frames into maps: back-project, transform, attach colour and class sets, hand to every map."""
 
-    def __init__(self, maps: list[SemanticMap], *, min_depth: float, max_depth: float, pixel_stride: int = 1):
+    def __init__(self, maps: list[SemanticMap], *, min_depth: float, max_depth: float, pixel_stride: int = 1,
+                 cloud_resolution: float | None = None):
         if not maps:
             raise ConfigError("a mapping run needs at least one map")
         self.maps = maps
+        # the dense coloured cloud every point builds, voxel-filtered (cloud.ply: the storage the maps replace)
+        self.cloud = SemanticGrid(cloud_resolution, label_set=None) if cloud_resolution else None
         self.min_depth, self.max_depth, self.pixel_stride = min_depth, max_depth, pixel_stride
         self.points_integrated = 0
         self.keyframes = 0
@@ -112,6 +122,10 @@ class Mapper:
         for i, m in enumerate(self.maps):
             steps = m.integrate(obs)
             ms.update(steps if i == 0 else {f"{m.kind.value}:{k}": v for k, v in steps.items()})
+        if self.cloud is not None:
+            t_cloud = time.perf_counter()
+            self.cloud.integrate_points(points_world, colors=colors)
+            ms["cloud"] = (time.perf_counter() - t_cloud) * 1e3
         self.points_integrated += len(points_world)
         self._check_growth(frame)
         return ms
@@ -120,6 +134,7 @@ class Mapper:
         """After each frame, refuse to go on once the maps would pass the memory budget with one more frame like
         it (the first view's estimate cannot see a long or wide sequence coming)."""
         held = sum(int(getattr(m, "memory_bytes", 0)) for m in self.maps)
+        held += self.cloud.memory_bytes if self.cloud is not None else 0
         growth, self._held = held - self._held, held
         check_map_growth(self.maps[0].resolution, held, growth, f"frame {frame.name or frame.index}")
 
@@ -130,17 +145,28 @@ class Mapper:
             if m.kind == MapKind.OCTOMAP:
                 extent = np.ptp(np.vstack([points.min(0), points.max(0), origin]), axis=0)
                 check_map_extent(m.resolution, tuple(extent), "the first frame's view")
+                # a view's rays fill about a third of its bounding box (a pyramid in its box)
+                cells = float(np.prod(np.maximum(extent, m.resolution) / m.resolution)) / 3
+                if cells > SLOW_VIEW_CELLS:
+                    log.warning("--resolution %g: one view spans about %.0f million voxels (about %s); expect "
+                                "minutes per frame and for writing the map files (--resolution %g: 8x fewer)",
+                                m.resolution, cells / 1e6, human(cells * BYTES_PER_VOXEL), 2 * m.resolution)
 
     def state(self) -> tuple[dict, dict[str, np.ndarray]]:
         """A checkpoint's mapper: its counters and keyframe schedule (the maps save their own state)."""
+        arrays = self._keyframe_of.state()
+        if self.cloud is not None:
+            arrays.update(prefixed("cloud", self.cloud.state()))
         return ({"points_integrated": self.points_integrated, "keyframes": self.keyframes,
-                 "last_was_keyframe": self.last_was_keyframe}, self._keyframe_of.state())
+                 "last_was_keyframe": self.last_was_keyframe}, arrays)
 
     def restore(self, meta: dict, arrays: dict[str, np.ndarray]) -> None:
         """Continue from :meth:`state`."""
         self.points_integrated, self.keyframes = int(meta["points_integrated"]), int(meta["keyframes"])
         self.last_was_keyframe = bool(meta["last_was_keyframe"])
-        self._keyframe_of.restore(arrays)
+        self._keyframe_of.restore({k: v for k, v in arrays.items() if not k.startswith("cloud/")})
+        if self.cloud is not None:
+            self.cloud.restore(section(arrays, "cloud"))
 
     def integrate_arrays(self, rgb: np.ndarray, depth_m: np.ndarray, intrinsics: CameraIntrinsics | np.ndarray,
                          T_world_cam: np.ndarray, semantics: np.ndarray | TopKProbs | None = None, *, k: int = 3,
@@ -273,9 +299,10 @@ class Pipeline:
         check_labels_exist(c, dataset, first, self.segmenter)
         segmenter_s = prepare_segmenter(self.segmenter, first)  # and an ONNX export / session out of the first frame's
         maps = [get_map(kind, c, label_set) for kind in c.mapping.maps]
-        m = c.mapping
-        mapper = Mapper(maps if self.prior is None else self.prior.restored(maps, label_set), min_depth=m.min_depth,
-                        max_depth=m.max_depth, pixel_stride=m.pixel_stride)
+        mapper = Mapper(maps if self.prior is None else self.prior.restored(maps, label_set),
+                        min_depth=c.mapping.min_depth, max_depth=c.mapping.max_depth,
+                        pixel_stride=c.mapping.pixel_stride,
+                        cloud_resolution=c.mapping.point_resolution if c.output.cloud else None)
         resumed = (self._checkpoints.resume(mapper, lambda: pose_source_to_resume(c, dataset)) if self.resume
                    else None)
         if resumed is not None:  # the maps, poses and sums of the last checkpoint; its frames are not read again
@@ -295,11 +322,13 @@ class Pipeline:
         self._viewer.finish(maps[0])
         warn_if_empty(maps[0], c, mapper.points_integrated, record.poses)
         self.scorer.align_to(pose_of)  # maps from estimated poses are scored in the ground truth's frame
-        crf = (refine_maps(maps, record.poses, iterations=c.crf.iterations, scorer=self.scorer)
+        crf = (refine_maps(maps, record.poses, params=c.crf.params(), scorer=self.scorer)
                if c.crf.enabled else {})
-        files, sizes = write_outputs(stage, maps, record.poses, c, self._objects)
+        files, sizes = write_outputs(stage, maps, record.poses, c, self._objects, cloud=mapper.cloud)
         return RunOutcome(record=record, maps=maps, pose_of=pose_of, dataset=str(c.input.dataset),
                           skipped=list(dataset.skipped), points_integrated=mapper.points_integrated, sizes=sizes,
+                          cloud_points=None if mapper.cloud is None else mapper.cloud.num_voxels,
+                          cloud_cell_m=None if mapper.cloud is None else mapper.cloud.resolution,
                           files=files, out_dir=stage, online=c.mode == LoopMode.ONLINE,
                           segmenter=None if self.segmenter is None else self.segmenter.name, startup_s=startup_s,
                           segmenter_startup_s=segmenter_s, crf=crf,
@@ -368,6 +397,11 @@ class Pipeline:
         """One frame into every map (and the object map, the CRF and the viewer), the moment its pose and
         semantics are there; its latency since it was read."""
         timings = record.timings
+        temperature = self.config.semantics.temperature
+        if sem is not None and temperature != 1.0:  # --temperature: softened or sharpened before anything uses it
+            t_temp = time.perf_counter()
+            sem = apply_temperature(sem, temperature, num_classes=None if label_set is None else len(label_set))
+            timings["temperature"] += (time.perf_counter() - t_temp) * 1e3
         if self.segmenter is not None and sem is not None:
             record.segmented += 1
             if frame.labels is not None:
@@ -388,7 +422,8 @@ class Pipeline:
         every = self.config.crf.every
         if self.config.crf.enabled and every and mapper.last_was_keyframe and mapper.keyframes % every == 0:
             t_crf = time.perf_counter()
-            refine_maps(mapper.maps, [*record.poses, T], iterations=self.config.crf.iterations, scorer=self.scorer)
+            refine_maps(mapper.maps, [*record.poses, T], params=self.config.crf.params(),
+                        scorer=self.scorer)
             timings["crf"] += (time.perf_counter() - t_crf) * 1e3
         record.poses.append(T)
         record.latency_ms.append((time.perf_counter() - record.arrival.pop(id(frame))) * 1e3)

@@ -8,31 +8,39 @@ import numpy as np
 
 from semmap.datasets.base import SkippedFrame
 from semmap.labels import INDOOR_LABELS
+from semmap.sim.camera_model import ColourParams
 from semmap.sim.export import simulate_frames
+from semmap.sim.hand_motion import MotionParams
 from semmap.sim.scene import Scene, generate_scene
 from semmap.sim.trajectory import make_trajectory
 from semmap.types import DEFAULT_INTRINSICS, CameraIntrinsics, Frame, LabelSet
 
 
 class SimulatedDataset:
-    """Frames (rgb, depth, labels, instances, ground-truth pose) of ``poses`` through ``scene``, rendered lazily."""
+    """Frames (rgb, depth, labels, instances, ground-truth pose) of ``poses`` through ``scene``, rendered lazily
+    (``colour``: the colour camera, :mod:`semmap.sim.camera_model`; default clean)."""
 
     def __init__(self, scene: Scene, poses: np.ndarray, *, noise: bool = True, seed: int = 0,
-                 intrinsics: CameraIntrinsics | None = None, name: str = "simulated") -> None:
+                 intrinsics: CameraIntrinsics | None = None, name: str = "simulated",
+                 colour: ColourParams | None = None) -> None:
         self.scene = scene
         self.poses = np.asarray(poses, np.float64)
         self.noise = noise
         self.seed = seed
         self._intrinsics = intrinsics or DEFAULT_INTRINSICS
         self._name = name
+        self.colour = colour
 
     @classmethod
     def default(cls, *, scene_seed: int = 0, kind: str = "office", size: str = "medium", trajectory: str = "loop",
-                frames: int = 300, noise: bool = True) -> SimulatedDataset:
-        """The default scene and trajectory (what ``semmap demo`` maps)."""
+                frames: int = 300, noise: bool = True, colour: ColourParams | None = None,
+                motion: MotionParams | None = None) -> SimulatedDataset:
+        """The default scene and trajectory (what ``semmap demo`` maps); ``colour`` and ``motion`` as in
+        :func:`semmap.sim.export.simulate_sequence` (default: clean)."""
         scene = generate_scene(scene_seed, kind, size)
-        poses = make_trajectory(scene, trajectory, frames, seed=scene_seed)
-        return cls(scene, poses, noise=noise, seed=scene_seed, name=f"sim-{kind}-{size}-seed{scene_seed}-{trajectory}")
+        poses = make_trajectory(scene, trajectory, frames, seed=scene_seed, motion=motion)
+        return cls(scene, poses, noise=noise, seed=scene_seed, name=f"sim-{kind}-{size}-seed{scene_seed}-{trajectory}",
+                   colour=colour)
 
     @property
     def name(self) -> str:
@@ -55,7 +63,7 @@ class SimulatedDataset:
 
     def __iter__(self) -> Iterator[Frame]:
         yield from simulate_frames(self.scene, self.poses, noise=self.noise, seed=self.seed,
-                                   intrinsics=self._intrinsics)
+                                   intrinsics=self._intrinsics, colour=self.colour)
 
 
 def scene_of_folder(root) -> Scene | None:

@@ -59,13 +59,18 @@ def render_report_md(report: dict, *, title: str = "semmap run", plots: dict[str
     lines += _pixel_section(report)
     lines += _plot(plots, "iou", "IoU per class")
     sizes = report["bytes_on_disk"]
-    lines += ["## Storage", "", "| representation | size |", "|---|---|",
-              f"| dense coloured point cloud (binary PLY, every integrated point) | "
-              f"{_kb(report['dense_point_cloud_bytes'])} |"]
+    lines += ["## Storage", "", "| representation | size | bytes |", "|---|---|---|"]
+    if "dense_point_cloud_bytes" in report:
+        points, cell = report.get("dense_point_cloud_points"), report.get("dense_point_cloud_cell_m")
+        what = (f"{points:,} points, " if points is not None else "") + (f"one per {cell:g} m cell of "
+                                                                         if cell is not None else "")
+        lines.append(f"| dense coloured point cloud (cloud.ply, binary PLY: {what}every frame's points) | "
+                     f"{_kb(report['dense_point_cloud_bytes'])} | {report['dense_point_cloud_bytes']:,} |")
     for name, what in _FILES:
         if name in sizes:
-            lines.append(f"| {what} | {_kb(sizes[name])} |")
-    lines += [f"| in memory ({report['bytes_per_voxel_in_memory']} B per voxel) | {_kb(report['bytes_in_memory'])} |",
+            lines.append(f"| {what} | {_kb(sizes[name])} | {sizes[name]:,} |")
+    lines += [f"| in memory ({report['bytes_per_voxel_in_memory']} B per voxel) | {_kb(report['bytes_in_memory'])} | "
+              f"{report['bytes_in_memory']:,} |",
               "", _counts_line(report), "",
               *_plot(plots, "storage", "storage per representation")]
     if "maps" in report:

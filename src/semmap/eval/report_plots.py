@@ -162,7 +162,7 @@ def storage_sizes(report: dict) -> dict[str, int]:
     if "dense_point_cloud_bytes" in report:
         sizes["dense point cloud (PLY)"] = int(report["dense_point_cloud_bytes"])
     for name, n in report.get("bytes_on_disk", {}).items():
-        if not name.endswith(".png"):
+        if not name.endswith(".png") and name != "cloud.ply":  # (the dense cloud above)
             sizes[name] = int(n)
     if "bytes_in_memory" in report:
         sizes["in memory"] = int(report["bytes_in_memory"])

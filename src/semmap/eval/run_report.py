@@ -36,8 +36,6 @@ from semmap.types import TopKProbs, Trajectory, rotation_angle, transform_points
 log = logging.getLogger("semmap")
 #: Ground truth for 3D evaluation: resolution -> (keys (M, 3), class ids (M,)) of the true surface voxels.
 GroundTruthFn = Callable[[float], tuple[np.ndarray, np.ndarray]]
-#: Bytes per point of a dense coloured point cloud stored as binary PLY (xyz float32 + rgb uint8).
-DENSE_CLOUD_BYTES_PER_POINT = 15
 
 
 @dataclass
@@ -285,6 +283,8 @@ class RunOutcome:
     crf: dict[MapKind, dict] = field(default_factory=dict)
     objects: dict | None = None
     semantics: str | None = None  # where the classes came from, in words (``run.prepare.semantics_source``)
+    cloud_points: int | None = None  # points of the dense coloured cloud written as ``cloud.ply`` (None: none)
+    cloud_cell_m: float | None = None  # its voxel filter's cell (m)
     continued: dict | None = None  # --continue: the prior and how the recording was aligned to it
 
 
@@ -305,13 +305,21 @@ def _frames_report(o: RunOutcome) -> dict:
         + [{"name": name, "path": "", "reason": "no pose"} for name in o.record.no_pose],
         **primary.describe(),
         "bytes_on_disk": o.sizes,
-        "dense_point_cloud_bytes": o.points_integrated * DENSE_CLOUD_BYTES_PER_POINT,
+        **_cloud_report(o),
         "points_integrated": o.points_integrated,
         "ms_per_frame": ms,
         "label_set": None if primary.label_set is None else len(primary.label_set),
         **({} if o.semantics is None else {"semantics": o.semantics}),
         **semantics_summary(primary, o.segmenter, o.record.segmented),
     }
+
+
+def _cloud_report(o: RunOutcome) -> dict:
+    """The dense coloured cloud as written (``cloud.ply``): its real size in bytes and its points."""
+    if o.cloud_points is None or "cloud.ply" not in o.sizes:
+        return {}
+    return {"dense_point_cloud_bytes": o.sizes["cloud.ply"], "dense_point_cloud_points": o.cloud_points,
+            **({} if o.cloud_cell_m is None else {"dense_point_cloud_cell_m": o.cloud_cell_m})}
 
 
 def build_report(o: RunOutcome, scorer: RunScorer, resolution: float) -> dict:

@@ -13,7 +13,7 @@ maps without normals get them from their elements' neighbourhoods (Open3D, orien
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass, fields
 
 import numpy as np
 
@@ -24,10 +24,14 @@ from semmap.types import EMPTY_LABEL
 
 @dataclass(frozen=True)
 class CrfParams:
-    """Kernel widths (metres, colour units 0-255, unit-normal distance), Potts weights, mean-field iterations."""
+    """Kernel widths (metres, colour units 0-255, unit-normal distance), Potts weights, mean-field iterations.
+
+    The defaults were tuned on simulated scenes at 5 cm voxels: SemanticFusion's appearance weight (10, the best of
+    the sweep on three scenes) with wider kernels and a lighter smoothness than its surfels'
+    (:data:`SEMANTICFUSION`; docs/EXPERIMENTS.md measures both)."""
 
     iterations: int = 5
-    appearance_weight: float = 4.0
+    appearance_weight: float = 10.0
     appearance_position_std: float = 0.15
     appearance_color_std: float = 20.0
     smoothness_weight: float = 2.0
@@ -41,6 +45,42 @@ class CrfParams:
                 self.smoothness_normal_std)
         if min(stds) <= 0 or min(self.appearance_weight, self.smoothness_weight) < 0:
             raise ConfigError("CRF kernel widths must be positive and weights non-negative")
+
+
+#: SemanticFusion's CRF over surfels (McCormac et al. 2017): appearance weight 10 with 0.05 m and colour 20,
+#: smoothness weight 3 with 0.05 m and normals 0.1.
+SEMANTICFUSION = CrfParams(appearance_weight=10.0, appearance_position_std=0.05, appearance_color_std=20.0,
+                           smoothness_weight=3.0, smoothness_position_std=0.05, smoothness_normal_std=0.1)
+#: The keys of ``--crf-params`` (the fields of :class:`CrfParams`), and the named sets of values it accepts.
+CRF_KEYS: tuple[str, ...] = tuple(f.name for f in fields(CrfParams))
+CRF_PRESETS: dict[str, CrfParams] = {"default": CrfParams(), "semanticfusion": SEMANTICFUSION}
+
+
+def parse_crf_params(text: str | None, option: str = "--crf-params") -> dict[str, float | int]:
+    """``"appearance_weight=10,smoothness_normal_std=0.1"`` -> ``{key: number}`` (a preset name among the items
+    sets all keys first: ``"semanticfusion,iterations=10"``); ranges are checked by the configuration. An
+    unknown key, a missing ``=`` or a non-number is refused in one :class:`ConfigError` line naming ``option``."""
+    out: dict[str, float | int] = {}
+    for item in (text or "").split(","):
+        item = item.strip()
+        if not item:
+            continue
+        if "=" not in item:
+            if item.lower() not in CRF_PRESETS:
+                raise ConfigError(f"{option}: {item!r} is neither key=value nor a preset "
+                                  f"({' | '.join(CRF_PRESETS)}); keys: {', '.join(CRF_KEYS)}")
+            out.update(asdict(CRF_PRESETS[item.lower()]))
+            continue
+        key, value = (part.strip() for part in item.split("=", 1))
+        key = key.replace("-", "_")
+        if key not in CRF_KEYS:
+            raise ConfigError(f"{option}: unknown key {key!r}; keys: {', '.join(CRF_KEYS)}")
+        try:
+            number = float(value)
+        except ValueError:
+            raise ConfigError(f"{option}: {key} must be a number, got {value!r}") from None
+        out[key] = int(number) if key == "iterations" and number.is_integer() else number
+    return out
 
 
 @dataclass(frozen=True)

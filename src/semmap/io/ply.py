@@ -38,6 +38,28 @@ def write_ply(path: str | Path, cloud: MapCloud) -> int:
     return Path(path).stat().st_size
 
 
+#: The vertex of a plain coloured point cloud (PCL's / Open3D's dense cloud): 15 bytes per point.
+_COLOURED = [("x", "<f4"), ("y", "<f4"), ("z", "<f4"), ("red", "u1"), ("green", "u1"), ("blue", "u1")]
+
+
+def write_colored_cloud_ply(path: str | Path, points: np.ndarray, colors: np.ndarray, *, comment: str = "") -> int:
+    """Write (N, 3) points and (N, 3) uint8 colours as a binary little-endian PLY (``x y z`` float32, ``red green
+    blue`` uchar: the dense coloured cloud other tools write) atomically; returns the file size in bytes."""
+    points, colors = np.asarray(points), np.asarray(colors)
+    if points.ndim != 2 or points.shape[1] != 3 or colors.shape != points.shape:
+        raise FormatError(f"{path}: a coloured cloud needs (N, 3) points and colours, got {points.shape} and "
+                          f"{colors.shape}")
+    rows = np.empty(len(points), dtype=_COLOURED)
+    rows["x"], rows["y"], rows["z"] = points.T
+    rows["red"], rows["green"], rows["blue"] = colors.T
+    header = ["ply", "format binary_little_endian 1.0", *([f"comment {comment}"] if comment else []),
+              f"element vertex {len(rows)}"]
+    header += [f"property {_PLY_TYPES[t]} {name}" for name, t in _COLOURED] + ["end_header"]
+    data = ("\n".join(header) + "\n").encode("ascii") + rows.tobytes()
+    write_atomic(path, lambda f: f.write(data))
+    return Path(path).stat().st_size
+
+
 #: The header must end within this many bytes (semmap writes a few hundred).
 MAX_PLY_HEADER = 64 * 1024
 

@@ -108,6 +108,7 @@ class SegmenterEntry:
     uses_depth: bool = False  #: reads the depth image too
     dataset_classes: bool = False  #: predicts the dataset's own label set (needs it opened first; precomputed:
     #: unless its folder has a labelset.json)
+    takes_model: bool = False  #: the user's own model, named after a colon: ``NAME:MODEL`` (a file, hub id, folder)
 
 
 def _oracle(*, label_set: LabelSet | None, k: int, oracle_preset: str, seed: int, **_) -> Segmenter:
@@ -156,8 +157,39 @@ def _trained(name: str) -> Callable[..., Segmenter]:
     return make
 
 
+def _user_model(name: str) -> Callable[..., Segmenter]:
+    """The factory of a segmenter around the user's own model (``onnx:MODEL.onnx``, ``hf:MODEL_ID``)."""
+
+    def make(*, model: str | None, model_config: Path | None, class_map: Path | None, k: int, backend: str,
+             batch_size: int, input_size: tuple[int, int] | int | None, threads: int | None, weights: Path | None,
+             **_) -> Segmenter:
+        if weights is not None:
+            raise ConfigError(f"--segmenter {name}:MODEL takes no --weights: the model holds its own")
+        if not model:
+            example = "MODEL.onnx" if name == ONNX else "MODEL_ID_OR_FOLDER"
+            raise ConfigError(f"--segmenter {name} needs the model after a colon: --segmenter {name}:{example}")
+        if name == ONNX:
+            from semmap.perception.user_models import onnx_segmenter
+
+            return onnx_segmenter(name, Path(model), config=model_config, class_map=class_map, k=k,
+                                  batch_size=batch_size, threads=threads, input_size=input_size)
+        if model_config is not None:
+            raise ConfigError(f"--segmenter-config is the sidecar of an {ONNX}: model; hf: models describe "
+                              "themselves (config.json, preprocessor_config.json)")
+        if backend != "torch":
+            raise ConfigError(f"--segmenter {name} runs in PyTorch; --backend {backend} is for semmap's own networks")
+        from semmap.perception.hf_models import hf_segmenter
+
+        return hf_segmenter(name, model, class_map=class_map, k=k, batch_size=batch_size, threads=threads,
+                            input_size=input_size)
+
+    return make
+
+
 #: The PASCAL VOC network loaded from its authors' weights.
 ESPNETV2 = "espnetv2"
+#: A user's ONNX model with a JSON sidecar, and a Hugging Face transformers model.
+ONNX, HUGGING_FACE = "onnx", "hf"
 #: Every segmenter ``--segmenter`` can name: three of their own, then semmap's trained networks
 #: (:data:`~semmap.perception.networks.registry.MODELS`, shipped weights in ``weights/<name>.pt``).
 SEGMENTERS: Registry[SegmenterEntry] = Registry("segmenter", [
@@ -167,6 +199,10 @@ SEGMENTERS: Registry[SegmenterEntry] = Registry("segmenter", [
                    "(--weights FOLDER)", needs_weights=True, dataset_classes=True),
     SegmenterEntry(ESPNETV2, _espnetv2, "ESPNetv2 trained on PASCAL VOC, 21 classes (--weights "
                    "espnetv2_s_2.0_pascal_384x384.pth)", needs_weights=True),
+    SegmenterEntry(ONNX, _user_model(ONNX), "your ONNX segmentation model: onnx:MODEL.onnx, described by "
+                   "MODEL.json or --segmenter-config (docs/segmenters.md)", takes_model=True),
+    SegmenterEntry(HUGGING_FACE, _user_model(HUGGING_FACE), "a Hugging Face transformers segmentation model: "
+                   "hf:MODEL_ID or hf:FOLDER (pip install semmap[hub])", takes_model=True),
     *(SegmenterEntry(m.name, _trained(m.name), f"{m.help}, trained by semmap (shipped weights/{m.name}.pt, or "
                      f"--weights RUN/best.pt)", trained=True, uses_depth=m.uses_depth) for m in MODELS.values()),
 ])
@@ -176,15 +212,32 @@ TRAINED_NETWORKS: tuple[str, ...] = SEGMENTERS.where(trained=True)
 SegmenterName = SEGMENTERS.enum("SegmenterName", __name__)
 
 
+def split_segmenter(text: str) -> tuple[str, str | None]:
+    """``"onnx:model.onnx"`` -> ("onnx", "model.onnx"); a name without a model -> (name, None)."""
+    name, sep, model = str(text).partition(":")
+    if sep and name in SEGMENTERS and SEGMENTERS[name].takes_model:
+        return name, model
+    return str(text), None
+
+
 def make_segmenter(name: str, *, weights: Path | None = None, label_set: LabelSet | None = None, k: int = 3,
                    label_confidence: float = 0.9, oracle_preset: str = "cnn-like", seed: int = 0,
                    backend: str = "torch", batch_size: int = 1, input_size: tuple[int, int] | int | None = None,
-                   threads: int | None = None, trust_weights: bool = False) -> Segmenter:
-    """Build the segmenter ``name``; ``label_set`` is the dataset's (the oracle predicts its classes);
-    ``trust_weights`` uses shipped weights whose sha256 differs from the manifest (with a warning)."""
-    return SEGMENTERS[name].factory(weights=weights, label_set=label_set, k=k, label_confidence=label_confidence,
-                                    oracle_preset=oracle_preset, seed=seed, backend=backend, batch_size=batch_size,
-                                    input_size=input_size, threads=threads, trust_weights=trust_weights)
+                   threads: int | None = None, trust_weights: bool = False, model: str | None = None,
+                   model_config: Path | None = None, class_map: Path | None = None) -> Segmenter:
+    """Build the segmenter ``name`` (``NAME:MODEL`` for the user's own model, or ``model``); ``label_set`` is the
+    dataset's (the oracle predicts its classes); ``trust_weights`` uses shipped weights whose sha256 differs from
+    the manifest (with a warning); ``model_config`` is an ONNX model's sidecar and ``class_map`` folds a user
+    model's classes into the map's."""
+    name, named_model = split_segmenter(name)
+    entry = SEGMENTERS[name]
+    if not entry.takes_model and (model or model_config is not None or class_map is not None):
+        raise ConfigError(f"--segmenter {name}: a model, --segmenter-config and --class-map are for the user's own "
+                          f"model ({', '.join(n + ':MODEL' for n in SEGMENTERS.where(takes_model=True))})")
+    return entry.factory(weights=weights, label_set=label_set, k=k, label_confidence=label_confidence,
+                         oracle_preset=oracle_preset, seed=seed, backend=backend, batch_size=batch_size,
+                         input_size=input_size, threads=threads, trust_weights=trust_weights,
+                         model=named_model or model, model_config=model_config, class_map=class_map)
 
 
 def trained_network_segmenter(name: str, *, weights: Path | None = None, k: int = 3, backend: str = "torch",

@@ -1,4 +1,5 @@
-"""``semmap eval-map``: an existing map scored at the pixels of a labelled sequence, beside a network's labels.
+"""``semmap eval-map``: an existing map scored at the pixels of a labelled sequence, beside a network's labels, and
+at a dataset's labelled points or mesh vertices (``--gt-ply``: mIoU, f.w. mIoU, mAcc as the benchmarks report them).
 
 The map is read with the map readers (``io.map_files.load_map``), the sequence with the dataset readers, the network
 labels come from ``--segmenter`` (``precomputed --weights FOLDER`` for predictions stored as files), and the
@@ -68,8 +69,30 @@ def _segmenter(name: str | None, weights: Path | None, dataset):
         if weights is not None:
             raise ConfigError("--weights needs --segmenter (precomputed for a folder of predictions)")
         return None
-    from semmap.perception.registry import SEGMENTERS, make_segmenter
+    from semmap.perception.registry import SEGMENTERS, make_segmenter, split_segmenter
 
-    entry = SEGMENTERS[name]
+    entry = SEGMENTERS[split_segmenter(name)[0]]  # (onnx:MODEL.onnx, hf:MODEL_ID: the user's own model)
     label_set = dataset.label_set if entry.dataset_classes else None
     return make_segmenter(name, weights=weights, label_set=label_set)
+
+
+def evaluate_map_points(map_path: Path, gt_ply: Path, *, label_property: str = "label",
+                        out: Path | None = None) -> dict:
+    """The map file ``map_path`` (a ``.semmap``, or a run folder holding ``map.semmap``) scored at the labelled
+    vertices of ``gt_ply`` (``eval.labelled_points``: each takes the map's class at its position, nearest occupied
+    voxel otherwise); written as JSON to ``out``."""
+    from semmap.eval.labelled_points import point_scores
+    from semmap.files.atomic import write_text_atomic
+    from semmap.files.outputs import OutputKind, check_outputs
+    from semmap.io.labelled_ply import read_labelled_vertices
+    from semmap.io.map_files import load_map
+
+    check_outputs([("--out", out, OutputKind.FILE)], [("MAP", map_path), ("--gt-ply", gt_ply)])
+    path = Path(map_path) / "map.semmap" if Path(map_path).is_dir() else Path(map_path)
+    m = load_map(path)
+    points, labels = read_labelled_vertices(gt_ply, label_property)
+    result = {"map": str(path), "kind": m.kind.value, "gt_ply": str(gt_ply), "gt_label_property": label_property,
+              **point_scores(m, points, labels, source=str(gt_ply))}
+    if out is not None:
+        write_text_atomic(out, json.dumps(result, indent=2))
+    return result

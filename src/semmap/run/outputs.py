@@ -11,26 +11,38 @@ import numpy as np
 from semmap.config import RunConfig
 from semmap.eval.run_report import RunScorer
 from semmap.files.atomic import write_text_atomic
+from semmap.fusion.crf import CrfParams
 from semmap.io.map_files import save_map_files
+from semmap.io.ply import write_colored_cloud_ply
 from semmap.keys import TREE_MAX_VAL
 from semmap.limits import MemoryBudgetError
 from semmap.maps.base import SemanticMap
 from semmap.maps.registry import MapKind
+from semmap.maps.semantic_grid import SemanticGrid
 from semmap.object_stage import ObjectStage
 from semmap.viz.preview import render_preview, side_by_side, up_vector, with_class_legend, write_png
 
 log = logging.getLogger("semmap")
+#: The run's dense coloured point cloud (every frame's points, one per ``mapping.point_resolution`` cell).
+CLOUD_FILE = "cloud.ply"
 
 
 def write_outputs(out: Path, maps: list[SemanticMap], poses: list[np.ndarray], config: RunConfig,
-                  objects: ObjectStage | None) -> tuple[dict[str, Path], dict[str, int]]:
-    """Every map's files, the object map's, the previews (the primary map's ``preview.png`` with the objects
-    beside it; ``preview_<kind>.png`` of the others) and ``config.json``; (files by name, bytes by file name)."""
+                  objects: ObjectStage | None, *, cloud: SemanticGrid | None = None
+                  ) -> tuple[dict[str, Path], dict[str, int]]:
+    """Every map's files, the dense coloured ``cloud.ply`` (``cloud``: the voxel-filtered points of every frame),
+    the object map's, the previews (the primary map's ``preview.png`` with the objects beside it;
+    ``preview_<kind>.png`` of the others) and ``config.json``; (files by name, bytes by file name)."""
     out.mkdir(parents=True, exist_ok=True)
     sizes: dict[str, int] = {}
     semantic = next((m for m in maps if m.kind != MapKind.TSDF), None)  # labels the TSDF's mesh
     for m in maps:
         sizes.update(save_map_files(m, out, labels_from=semantic if m.kind == MapKind.TSDF else None))
+    if cloud is not None:
+        a = cloud.arrays()
+        sizes[CLOUD_FILE] = write_colored_cloud_ply(out / CLOUD_FILE, cloud.centers(a), a.rgb,
+                                                    comment=f"semmap dense coloured cloud, one point per "
+                                                            f"{cloud.resolution:g} m cell")
     files = {name: out / name for name in sizes}
     if objects is not None:
         sizes.update(objects.write(out, up_vector(poses)))
@@ -52,13 +64,12 @@ def write_outputs(out: Path, maps: list[SemanticMap], poses: list[np.ndarray], c
     return files, sizes
 
 
-def refine_maps(maps: list[SemanticMap], poses: list[np.ndarray], *, iterations: int,
+def refine_maps(maps: list[SemanticMap], poses: list[np.ndarray], *, params: CrfParams,
                 scorer: RunScorer) -> dict[MapKind, dict]:
-    """3D dense CRF over every map with class distributions; per map: its accuracy before (when there is ground
-    truth), elements refined and changed, milliseconds."""
-    from semmap.fusion.crf import CrfParams, refine_map
+    """3D dense CRF (``params``: ``--crf-params``) over every map with class distributions; per map: its accuracy
+    before (when there is ground truth), elements refined and changed, milliseconds."""
+    from semmap.fusion.crf import refine_map
 
-    params = CrfParams(iterations=iterations)
     viewpoint = np.mean([np.asarray(T)[:3, 3] for T in poses], axis=0) if poses else None
     out: dict[MapKind, dict] = {}
     for m in maps:

@@ -13,12 +13,19 @@ from semmap.io.staged_run import check_out_dir
 
 def run_inputs(config: RunConfig) -> list[Named]:
     """Every path a run reads, by option: the sequence, label folder, weights or predictions, a trajectory file
-    given as ``--poses``, the class prior and the instance weights."""
+    given as ``--poses``, the class prior, the user's model, its sidecar and class mapping, and the instance
+    weights."""
     from semmap.poses.track import POSE_SOURCES
 
-    poses = config.poses.source
+    poses, s = config.poses.source, config.semantics
+    model = Path(s.model) if s.model and Path(s.model).exists() else None  # (a hub id is no path)
+    class_map = s.class_map if s.class_map is not None and s.class_map.exists() else None  # (or a shipped name)
+    sidecar = s.segmenter_config
+    if sidecar is None and model is not None and model.is_file():
+        sidecar = model.with_suffix(".json")  # an ONNX model's sidecar beside it
     return [("DATASET", config.input.dataset), ("--labels", config.input.labels),
-            ("--weights", config.semantics.weights), ("--class-prior", config.semantics.class_prior),
+            ("--weights", s.weights), ("--class-prior", s.class_prior), ("--segmenter", model),
+            ("--segmenter-config", sidecar), ("--class-map", class_map),
             ("--instance-weights", config.objects.weights),
             ("--poses", None if poses in POSE_SOURCES else Path(poses))]
 

@@ -65,6 +65,9 @@ def semantics_source(config: RunConfig, segmenter: Segmenter | None, label_set: 
             return f"segmenter {segmenter.name} (simulated from the ground-truth labels, with CNN-like errors)"
         if segmenter.name == SegmenterName.PRECOMPUTED and config.semantics.weights is not None:
             return f"segmenter {segmenter.name} (predictions in {config.semantics.weights})"
+        if config.semantics.model:
+            folded = f", classes folded by {config.semantics.class_map}" if config.semantics.class_map else ""
+            return f"segmenter {segmenter.name}:{config.semantics.model}{folded}"
         return f"segmenter {segmenter.name}"
     if label_set is None or config.semantics.source == SemanticSource.NONE:
         return NO_SEMANTICS

@@ -13,6 +13,7 @@ depth, labels and instances by nearest neighbour), with the intrinsics scaled to
 
 from __future__ import annotations
 
+import dataclasses
 import json
 from collections.abc import Callable, Iterable, Iterator
 from pathlib import Path
@@ -29,7 +30,9 @@ from semmap.io.staged_run import StagedRun
 from semmap.io.tum_writer import write_tum_sequence
 from semmap.labels import INDOOR_LABELS, NYU40_NAMES, simulator_to_nyu40
 from semmap.limits import check, check_simulation
+from semmap.sim.camera_model import ColourParams
 from semmap.sim.changes import change_scene
+from semmap.sim.hand_motion import MotionParams
 from semmap.sim.noise import KinectNoise
 from semmap.sim.render import Renderer
 from semmap.sim.scene import Scene, generate_scene
@@ -58,11 +61,15 @@ def simulate_sequence(
     layout: str = "tum",
     changes: int = 0,
     changes_seed: int = 1,
+    colour: ColourParams | None = None,
+    motion: MotionParams | None = None,
 ) -> Path:
     """Render ``frames`` frames of a ``trajectory`` through scene (``scene_seed``, ``kind``, ``size``;
     ``symmetric``: see :mod:`semmap.sim.symmetric`) into ``out_dir`` (TUM layout plus ground truth) and return the
     folder; the path is drawn from ``trajectory_seed`` (default: the scene seed). Same arguments, same bytes. A low
-    ``fps`` spreads few frames over the whole path (varied views for training data)."""
+    ``fps`` spreads few frames over the whole path (varied views for training data). ``colour`` and ``motion`` are the
+    colour camera and the way the camera is carried (:mod:`semmap.sim.camera_model`, :mod:`semmap.sim.hand_motion`;
+    default: the ideal image on the smooth path)."""
     if not isinstance(frames, (int, np.integer)) or frames <= 0:
         raise SimulationError(f"frames must be a positive integer, got {frames!r}")
     check_simulation(int(frames), image_size)
@@ -81,7 +88,7 @@ def simulate_sequence(
         _write_sequence(stage, scene_seed=scene_seed, kind=kind, trajectory=trajectory, frames=int(frames), size=size,
                         noise=noise, intrinsics=intrinsics, progress=progress, image_size=image_size, fps=fps,
                         symmetric=symmetric, trajectory_seed=trajectory_seed, layout=layout,
-                        changes=(changes, changes_seed))
+                        changes=(changes, changes_seed), colour=colour, motion=motion)
         staged.commit()  # every file is there: the folder becomes ``out_dir`` in one rename
     except KeyboardInterrupt:
         staged.abandon(keep_checkpoint=False)  # Ctrl-C leaves nothing half-written, and says so
@@ -104,15 +111,16 @@ def check_sequence_out(root: Path) -> None:
 def _write_sequence(root: Path, *, scene_seed: int, kind: str, trajectory: str, frames: int, size: str, noise: bool,
                     intrinsics: CameraIntrinsics | None, progress: Callable[[int, int], None] | None,
                     image_size: tuple[int, int] | None, fps: float, symmetric: bool,
-                    trajectory_seed: int | None, layout: str = "tum", changes: tuple[int, int] = (0, 1)) -> None:
+                    trajectory_seed: int | None, layout: str = "tum", changes: tuple[int, int] = (0, 1),
+                    colour: ColourParams | None = None, motion: MotionParams | None = None) -> None:
     """Render and write the whole sequence into the folder ``root`` (the staging folder)."""
     scene = generate_scene(scene_seed, kind, size, symmetric=symmetric)
     if changes[0]:
         scene, record = change_scene(scene, changes[0], changes[1])
         write_text_atomic(root / "changes.json", json.dumps(record, indent=1) + "\n")
     poses = make_trajectory(scene, trajectory, int(frames), seed=scene_seed if trajectory_seed is None
-                            else trajectory_seed, fps=fps)
-    renderer = Renderer(scene, intrinsics, noise=KinectNoise(seed=scene_seed) if noise else False)
+                            else trajectory_seed, fps=fps, motion=motion)
+    renderer = Renderer(scene, intrinsics, noise=KinectNoise(seed=scene_seed) if noise else False, colour=colour)
     frames_out = render_frames(renderer, poses, progress, fps=fps)
     stored = renderer.intrinsics
     if image_size is not None:
@@ -127,6 +135,7 @@ def _write_sequence(root: Path, *, scene_seed: int, kind: str, trajectory: str, 
         info["label_space"] = "nyu40"  # the 3D ground truth's classes are mapped like the frames' labels
     if trajectory_seed is not None:
         info["trajectory_seed"] = int(trajectory_seed)
+    info.update(camera_info(colour, motion))
     write_text_atomic(root / "scene.json", json.dumps(info, indent=1) + "\n")
 
 
@@ -182,7 +191,7 @@ def render_frames(renderer: Renderer, poses: np.ndarray,
     """Frames (rgb, depth, labels, instances, pose) rendered lazily along ``poses`` at ``fps`` frames/s."""
     n = len(poses)
     for i, T in enumerate(poses):
-        view = renderer.render(T, frame_index=i)
+        view = renderer.render_in(poses, i, fps)
         stamp = i / fps
         yield Frame(index=i, timestamp=stamp, rgb=view.rgb, depth=view.depth, intrinsics=renderer.intrinsics,
                     T_world_cam=np.asarray(T, np.float64), labels=view.labels, instances=view.instances,
@@ -192,7 +201,19 @@ def render_frames(renderer: Renderer, poses: np.ndarray,
 
 
 def simulate_frames(scene: Scene, poses: np.ndarray, *, noise: bool = True, seed: int = 0,
-                    intrinsics: CameraIntrinsics | None = None) -> Iterator[Frame]:
+                    intrinsics: CameraIntrinsics | None = None, colour: ColourParams | None = None,
+                    fps: float = FPS) -> Iterator[Frame]:
     """In-memory counterpart of :func:`simulate_sequence` for a given scene and poses (no files)."""
-    renderer = Renderer(scene, intrinsics, noise=KinectNoise(seed=seed) if noise else False)
-    yield from render_frames(renderer, poses)
+    renderer = Renderer(scene, intrinsics, noise=KinectNoise(seed=seed) if noise else False, colour=colour)
+    yield from render_frames(renderer, poses, fps=fps)
+
+
+def camera_info(colour: ColourParams | None, motion: MotionParams | None) -> dict:
+    """``scene.json`` entries naming the colour camera and hand motion used (none for the clean defaults, so a
+    clean sequence's files stay as they were)."""
+    info: dict = {}
+    if colour is not None and not colour.is_clean:
+        info["colour_camera"] = dataclasses.asdict(colour)
+    if motion is not None and motion.hand:
+        info["hand_motion"] = dataclasses.asdict(motion)
+    return info

@@ -24,6 +24,7 @@ import open3d as o3d
 from semmap.errors import SimulationError
 from semmap.sim import _raster_kernels as raster_k
 from semmap.sim import _render_kernels as shade_k
+from semmap.sim.camera_model import ColourParams, apply_colour, sequence_twist
 from semmap.sim.noise import KinectNoise
 from semmap.sim.scene import Scene
 from semmap.sim.textures import TextureAtlas
@@ -57,12 +58,15 @@ class Renderer:
     ``noise`` (a :class:`KinectNoise`, ``True`` for the default model with ``seed``, or ``False``) is applied
     to the depth; frame ``frame_index`` of :meth:`render` selects its random numbers, so frames are
     reproducible independently of rendering order. ``backend`` picks the visibility method (see the module
-    docstring); ``nthreads`` = 0 lets open3d use all cores.
+    docstring); ``nthreads`` = 0 lets open3d use all cores. ``colour`` (a
+    :class:`~semmap.sim.camera_model.ColourParams`; default: clean, the ideal image) is the colour camera: blur,
+    rolling shutter and the colour-depth time offset need the camera's motion, which :meth:`render_in` takes from
+    the neighbouring poses of a sequence.
     """
 
     def __init__(self, scene: Scene, intrinsics: CameraIntrinsics | None = None, *,
                  noise: KinectNoise | bool = False, seed: int = 0, backend: str = "raster",
-                 nthreads: int = 0) -> None:
+                 nthreads: int = 0, colour: ColourParams | None = None) -> None:
         if backend not in BACKENDS:
             raise SimulationError(f"unknown render backend {backend!r}; choose one of {', '.join(BACKENDS)}")
         self.scene = scene
@@ -73,6 +77,7 @@ class Renderer:
         else:
             self.noise = noise or None
         self.nthreads = int(nthreads)
+        self.colour = colour or ColourParams()
         self._raycaster = scene_raycaster(scene, self.nthreads)
         self._tables(scene)
         cam = self.intrinsics
@@ -140,8 +145,10 @@ class Renderer:
         ids = np.where(prim == shade_k.INVALID_ID, -1, prim).astype(np.int32)
         return ids, hits["t_hit"].numpy().reshape(-1).astype(np.float64)
 
-    def render(self, T_world_cam: np.ndarray, frame_index: int = 0) -> RenderedView:
-        """Render all channels from ``T_world_cam``; depth carries the noise model when one is set."""
+    def render(self, T_world_cam: np.ndarray, frame_index: int = 0, *,
+               twist: tuple[np.ndarray, np.ndarray] | None = None, fps: float = 30.0) -> RenderedView:
+        """Render all channels from ``T_world_cam``; depth carries the noise model when one is set, colour the
+        colour camera's effects (``twist``: the camera-frame velocity (m/s, rad/s) for blur and shutter)."""
         cam = self.intrinsics
         ids, z = self.visible(T_world_cam)
         T = np.asarray(T_world_cam, np.float64)
@@ -159,9 +166,17 @@ class Renderer:
                 rgb, depth, labels, instances, cos_inc)
         shape = (cam.height, cam.width)
         depth = depth.reshape(shape)
+        rgb = apply_colour(rgb.reshape((*shape, 3)), depth, cam.fx, cam.fy, cam.cx, cam.cy, self.colour,
+                           frame_index, twist, fps)
         if self.noise is not None:
             depth = self.noise.apply(depth, cos_inc.reshape(shape), frame_index)
-        return RenderedView(rgb.reshape((*shape, 3)), depth, labels.reshape(shape), instances.reshape(shape))
+        return RenderedView(rgb, depth, labels.reshape(shape), instances.reshape(shape))
+
+    def render_in(self, poses: np.ndarray, i: int, fps: float = 30.0) -> RenderedView:
+        """Frame ``i`` of the sequence ``poses`` (taken at ``fps``): :meth:`render` with the camera's motion
+        there (the same image as ``render(poses[i], i)`` for a colour camera that ignores motion)."""
+        twist = sequence_twist(poses, i, fps) if self.colour.moves else None
+        return self.render(poses[i], i, twist=twist, fps=fps)
 
     def center_depths(self, poses: np.ndarray) -> np.ndarray:
         """Exact depth of the principal ray for each pose in (N, 4, 4) (0 where nothing is hit)."""

@@ -16,6 +16,7 @@ from scipy.ndimage import gaussian_filter1d
 
 from semmap.errors import SimulationError
 from semmap.sim.freespace import FreeSpace, part_boxes
+from semmap.sim.hand_motion import MotionParams, handheld
 from semmap.sim.render import center_depths, scene_raycaster
 from semmap.sim.scene import Scene, SceneObject
 from semmap.types import make_pose
@@ -58,8 +59,11 @@ def heading_pose(eye, yaw: float, pitch: float, roll: float = 0.0) -> np.ndarray
     return look_at(eye, np.asarray(eye, float) + f, roll)
 
 
-def make_trajectory(scene: Scene, kind: str, n_frames: int, seed: int, fps: float = 30.0) -> np.ndarray:
-    """(n_frames, 4, 4) ``T_world_cam`` poses of a ``kind`` trajectory (desk, loop, orbit, walk) at ``fps``."""
+def make_trajectory(scene: Scene, kind: str, n_frames: int, seed: int, fps: float = 30.0,
+                    motion: MotionParams | None = None) -> np.ndarray:
+    """(n_frames, 4, 4) ``T_world_cam`` poses of a ``kind`` trajectory (desk, loop, orbit, walk) at ``fps``;
+    ``motion`` with ``hand=True`` (:mod:`semmap.sim.hand_motion`) carries the camera like a hand along the path
+    instead of the builders' even pace and small shake (default: the smooth path)."""
     if kind not in TRAJECTORY_KINDS:
         raise SimulationError(f"unknown trajectory kind {kind!r}; choose one of {', '.join(TRAJECTORY_KINDS)}")
     if not isinstance(n_frames, (int, np.integer)) or n_frames <= 0:
@@ -77,7 +81,10 @@ def make_trajectory(scene: Scene, kind: str, n_frames: int, seed: int, fps: floa
         except SimulationError as exc:
             last = str(exc)
             continue
-        poses = _add_shake(poses, rng, t)
+        if motion is not None and motion.hand:
+            poses = handheld(poses, rng, motion, fps, checker, scene.tri_class)
+        else:
+            poses = _add_shake(poses, rng, t)
         problem = check_trajectory(scene, poses, checker)
         if problem is None:
             return poses
