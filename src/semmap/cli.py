@@ -214,6 +214,9 @@ def run(
                                                   "--resume can continue after a crash", rich_help_panel=_OUTPUT)] = 0,
     resume: Annotated[bool, typer.Option("--resume", help="continue a run that was killed, from its last checkpoint "
                                          "(same options as the first time)", rich_help_panel=_OUTPUT)] = False,
+    continue_from: Annotated[Path | None, typer.Option("--continue", help="go on from a finished run's maps (its "
+                                                       "folder or map file): the recording is localized in them and "
+                                                       "mapped into their frame", rich_help_panel=_OUTPUT)] = None,
     maps: Annotated[str, typer.Option(help=f"maps built side by side, comma-separated, the first is the primary: "
                                            f"{MAPS.choices()}", rich_help_panel=_MAPS)] = _DEFAULT_MAPS,
     fusion: Annotated[str | None, typer.Option(help=f"label fusion for every map: {_RULES} (default: each map's "
@@ -313,7 +316,7 @@ def run(
     with _interruptible():
         result = run_config(config, progress=progress_bar("mapping"),
                             track_progress=progress_bar(f"tracking ({poses})"), checkpoint_every=checkpoint_every,
-                            resume=resume)
+                            resume=resume, continue_from=continue_from)
     try:
         _print_summary(result.report, result.out_dir)
     except KeyboardInterrupt:  # the outputs are complete by now: say so, and it is a success
@@ -422,6 +425,10 @@ def _print_summary(report: dict, out_dir: Path) -> None:
     if "trajectory_vs_ground_truth" in report:
         ate = report["trajectory_vs_ground_truth"]["ate_rmse_m"]
         rows.append(("ATE of the poses used", f"{100 * ate:.2f} cm"))
+    if "continued" in report:
+        c = report["continued"]
+        rows.append(("continued from", f"{c['prior']}: localized after {c['converged_after_frames']} frames, ICP "
+                                       f"residual {100 * c['icp'].get('rms_residual_m', 0.0):.2f} cm"))
     if "online" in report:
         o = report["online"]
         rows.append(("online", f"{o['fps']:.1f} frames/s, latency {o['latency_ms']['median']:.0f} ms (median), "

@@ -48,6 +48,7 @@ from semmap.poses.base import Progress
 from semmap.poses.frame_poses import FramePoses
 from semmap.poses.track import GROUND_TRUTH
 from semmap.run.checkpoints import Checkpoints, check_checkpoint_options
+from semmap.run.continuation import PriorRun
 from semmap.run.outputs import refine_maps, warn_if_empty, write_outputs
 from semmap.run.paths import check_run_paths, staged_output
 from semmap.run.prepare import (
@@ -222,6 +223,15 @@ def semantics_for(frame: Frame, source: SemanticSource, *, label_set: LabelSet |
     return None
 
 
+def semantics_fn(segmenter: Segmenter | None, config: RunConfig, label_set: LabelSet | None):
+    """A frame's class sets as the run gets them (the segmenter's, else :func:`semantics_for`), as a function."""
+    if segmenter is not None:
+        return segmenter.segment
+    s = config.semantics
+    return lambda frame: semantics_for(frame, s.source, label_set=label_set, label_confidence=s.label_confidence,
+                                       k=s.k)
+
+
 @dataclass
 class RunResult:
     """What a run produced: the maps (the first is the primary one the report's top level describes), where
@@ -255,6 +265,16 @@ def no_pose_hint(config: RunConfig, dataset: Dataset) -> str:
     return f" (poses come from the dataset's ground truth, e.g. TUM groundtruth.txt; without one, {track})"
 
 
+
+def build_mapper(c: RunConfig, label_set, prior) -> Mapper:
+    """The run's maps (continuing ``prior``'s state when there is one) in a mapper with the run's settings."""
+    maps = [get_map(kind, c, label_set) for kind in c.mapping.maps]
+    return Mapper(maps if prior is None else prior.restored(maps, label_set), min_depth=c.mapping.min_depth,
+                  max_depth=c.mapping.max_depth, pixel_stride=c.mapping.pixel_stride,
+                  cloud_resolution=c.mapping.point_resolution if c.output.cloud else None,
+                  dynamic=dynamic_classes(c, label_set))
+
+
 class Pipeline:
     """One mapping run from a dataset to ``map.ot``, ``map.bt``, ``map.semmap``, previews and the report.
 
@@ -265,8 +285,9 @@ class Pipeline:
     def __init__(self, config: RunConfig, *, segmenter: Segmenter | None = None, progress: Progress | None = None,
                  dataset: Dataset | None = None, ground_truth: GroundTruthFn | None = None,
                  title: str = "semmap run", track_progress: Progress | None = None,
-                 instances: InstanceSource | None = None, checkpoint_every: int = 0, resume: bool = False):
-        self.config = config
+                 instances: InstanceSource | None = None, checkpoint_every: int = 0, resume: bool = False,
+                 prior: PriorRun | None = None):
+        self.config, self.prior = config, prior  # prior: the finished run this one continues (--continue)
         self.checkpoint_every, self.resume = int(checkpoint_every), bool(resume)
         self.segmenter = segmenter
         self.instances = instances  # an instance source builds the object map beside the maps
@@ -318,10 +339,7 @@ class Pipeline:
         first = FirstFrame(dataset)  # what a segmenter and an online tracker get ready on (read if needed)
         check_labels_exist(c, dataset, first, self.segmenter)
         segmenter_s = prepare_segmenter(self.segmenter, first)  # and an ONNX export / session out of the first frame's
-        mapper = Mapper([get_map(kind, c, label_set) for kind in c.mapping.maps], min_depth=c.mapping.min_depth,
-                        max_depth=c.mapping.max_depth, pixel_stride=c.mapping.pixel_stride,
-                        cloud_resolution=c.mapping.point_resolution if c.output.cloud else None,
-                        dynamic=dynamic_classes(c, label_set))
+        mapper = build_mapper(c, label_set, self.prior)
         resumed = (self._checkpoints.resume(mapper, lambda: pose_source_to_resume(c, dataset)) if self.resume
                    else None)
         if resumed is not None:  # the maps, poses and sums of the last checkpoint; its frames are not read again
@@ -329,6 +347,8 @@ class Pipeline:
         else:
             pose_of = pose_source_for(c, dataset, instances=self.instances, track_progress=self.track_progress)
             record = RunRecord()
+        continued = (None if self.prior is None
+                     else self.prior.align(dataset, pose_of, semantics_fn(self.segmenter, c, label_set), c.mapping))
         pose_of.limit_to(TREE_MAX_VAL * c.mapping.resolution)  # (the key range of every map)
         startup_s += warm_tracker(c, first)
         self._objects = ObjectStage(self.instances) if self.instances is not None else None
@@ -351,7 +371,7 @@ class Pipeline:
                           segmenter_startup_s=segmenter_s, crf=crf,
                           semantics=semantics_source(c, self.segmenter, label_set, dataset.label_set),
                           objects=None if self._objects is None else self._objects.report(mapper.keyframes),
-                          dynamic=mapper.dynamic_report(label_set))
+                          dynamic=mapper.dynamic_report(label_set), continued=continued)
 
     def _write(self, outcome: RunOutcome) -> dict:
         """The report of the run (``report.json``, ``.md``, ``.html``, plots) into the staging folder."""

@@ -66,17 +66,23 @@ def _label_space_of(dataset: Path | Dataset):
 
 def run_config(config: RunConfig, *, dataset: Dataset | None = None, progress: Progress | None = None,
                track_progress: Progress | None = None, title: str = "semmap run", checkpoint_every: int = 0,
-               resume: bool = False) -> RunResult:
+               resume: bool = False, continue_from: Path | None = None) -> RunResult:
     """Map ``config.input.dataset`` (or an already open ``dataset``, e.g. the simulator's) into
     ``config.output.out`` exactly as ``semmap run`` does (``checkpoint_every`` frames a checkpoint; ``resume``
-    continues from the last one). The outputs are checked against the inputs before anything is loaded."""
+    continues from the last one; ``continue_from``: a finished run's folder or map file whose maps this run goes on
+    from, in its frame). The outputs are checked against the inputs before anything is loaded."""
     check("every", checkpoint_every, "--checkpoint-every")
     check_run_paths(config)
+    prior = None
+    if continue_from is not None:
+        from semmap.run.continuation import open_prior
+
+        prior = open_prior(continue_from, config, checkpoint_every=checkpoint_every, resume=resume)
     segmenter = segmenter_for(config, dataset)
     return Pipeline(config, segmenter=segmenter, dataset=dataset, progress=progress, track_progress=track_progress,
                     ground_truth=simulated_ground_truth(dataset if dataset is not None else config.input.dataset),
                     title=title, instances=instance_source_for(config, segmenter, dataset),
-                    checkpoint_every=checkpoint_every, resume=resume).run()
+                    checkpoint_every=checkpoint_every, resume=resume, prior=prior).run()
 
 
 def demo_config(*, out: Path, frames: int = 300, resolution: float | None = None, scene_seed: int = 0,

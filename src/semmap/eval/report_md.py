@@ -9,6 +9,26 @@ import numpy as np
 from semmap.files.atomic import write_text_atomic
 
 
+def _continued_lines(c: dict | None) -> list[str]:
+    """``--continue``: the prior this run went on from and how the recording was aligned to it."""
+    if not c:
+        return []
+    icp = c.get("icp", {})
+    fit = (f"ICP against the prior's {c['icp_surface']} moved it by {100 * c['icp_correction_m']:.2f} cm / "
+           f"{c['icp_correction_deg']:.2f}° ({icp.get('iterations')} iterations, RMS point-to-plane residual "
+           f"{100 * icp.get('rms_residual_m', 0.0):.2f} cm, {100 * icp.get('inlier_fraction', 0.0):.0f}% of the "
+           "points matched)" if icp.get("used") else f"ICP not applied ({icp.get('why', 'off')})")
+    t = c["translation_m"]
+    return ["## Continued from a prior map", "",
+            f"Prior: `{c['prior']}` ({', '.join(c['maps'])}). The recording's first frames were localized in it by "
+            f"Monte-Carlo localization: converged after {c['converged_after_frames']} frames (estimate taken after "
+            f"{c['frames_localized']}), particle spread {100 * c['particle_spread_m']:.1f} cm / "
+            f"{c['particle_spread_deg']:.2f}°, {100 * c['scan_fit']:.0f}% of the scan on the map; {fit}.", "",
+            f"Recording -> prior transform: translation ({t[0]:.3f}, {t[1]:.3f}, {t[2]:.3f}) m, rotation "
+            f"{c['rotation_deg']:.2f}° (yaw {c['yaw_deg']:.2f}°); `continued.T_prior_seq` in report.json. Every pose "
+            "was carried into the prior's frame and the prior's evidence kept accumulating.", ""]
+
+
 def _kb(n: float) -> str:
     return f"{n / 1024:,.1f} KiB" if n < 1024**2 else f"{n / 1024**2:,.2f} MiB"
 
@@ -24,6 +44,7 @@ def render_report_md(report: dict, *, title: str = "semmap run", plots: dict[str
     lines = [f"# {title}", "", f"Dataset: `{report.get('dataset', '?')}`  ", f"Resolution: {report['resolution']} m  ",
              *([f"Semantics: {report['semantics']}  "] if "semantics" in report else []),
              f"Frames used: {report['frames_used']} (skipped: {report['frames_skipped']})", ""]
+    lines += _continued_lines(report.get("continued"))
     lines += _pixel_summary(report)
     if "miou_3d" in report:
         seg = next((k[: -len("_miou_2d")] for k in report if k.endswith("_miou_2d")), None)

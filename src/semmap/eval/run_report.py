@@ -286,6 +286,7 @@ class RunOutcome:
     cloud_points: int | None = None  # points of the dense coloured cloud written as ``cloud.ply`` (None: none)
     cloud_cell_m: float | None = None  # its voxel filter's cell (m)
     dynamic: dict | None = None  # the dynamic classes and the points that only cleared free space (None: no class)
+    continued: dict | None = None  # --continue: the prior and how the recording was aligned to it
 
 
 def _frames_report(o: RunOutcome) -> dict:
@@ -330,6 +331,8 @@ def build_report(o: RunOutcome, scorer: RunScorer, resolution: float) -> dict:
     if o.segmenter is not None:
         report["segmenter_startup_s"] = round(o.segmenter_startup_s, 3)
     report.update(trajectory_report(o.pose_of, o.out_dir, o.files))
+    if o.continued is not None:
+        report["continued"] = o.continued
     if scorer.alignment is not None:  # the map's frame against the ground truth's, as the 3D scores and plot use it
         report["map_alignment"] = scorer.alignment
     report["peak_rss_mb"] = round(peak_rss_mb(), 1)

@@ -27,24 +27,31 @@ class FramePoses:
         self._gt = GroundTruthRecorder()
         self.reach_m: float | None = None  # a camera farther from the origin adds nothing to a map: no pose
         self.beyond_reach = 0  # frames given no pose for that
+        self.transform: np.ndarray | None = None  # --continue: the source's frame in the prior map's (T_prior_seq)
 
     def limit_to(self, reach_m: float) -> None:
         """Give no pose to a frame whose camera lies ``reach_m`` or more from the origin (what the maps can hold):
         such a frame is skipped with a warning naming it, instead of adding nothing or overflowing a kernel."""
         self.reach_m = float(reach_m)
 
+    def source_pose(self, frame: Frame) -> tuple[np.ndarray | None, str]:
+        """(pose in the source's own frame or None, why not), recording nothing (not for online trackers)."""
+        if self.by_name is not None:
+            T = self.by_name.get(frame.name)
+            return T, "" if T is not None else f"{self.source} tracking lost"
+        if self.lookup is not None:
+            found = self.lookup.pose_of(frame)
+            return found.pose, found.reason
+        return frame.T_world_cam, "no ground-truth pose"
+
     def __call__(self, frame: Frame) -> tuple[np.ndarray | None, str]:
-        """(pose or None, why not)."""
+        """(pose or None, why not); in the prior map's frame when the run continues one (``transform``)."""
         if self.tracker is not None:
             T, reason = self._track(frame), f"{self.source} tracking lost"
-        elif self.by_name is not None:
-            T = self.by_name.get(frame.name)
-            reason = "" if T is not None else f"{self.source} tracking lost"
-        elif self.lookup is not None:
-            found = self.lookup.pose_of(frame)
-            T, reason = found.pose, found.reason
         else:
-            T, reason = frame.T_world_cam, "no ground-truth pose"
+            T, reason = self.source_pose(frame)
+        if T is not None and self.transform is not None:
+            T = self.transform @ np.asarray(T, np.float64)
         if T is not None and self.reach_m is not None:
             far = float(np.abs(np.asarray(T)[:3, 3]).max())
             if far >= self.reach_m:
