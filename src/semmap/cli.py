@@ -416,6 +416,9 @@ def simulate(
     changes: Annotated[int, typer.Option(help="the same scene a while later: N objects moved, removed or added "
                                               "(in turn); changes.json records them (for semmap diff)")] = 0,
     changes_seed: Annotated[int, typer.Option(help="seed of which objects change and where")] = 1,
+    realism: Annotated[str, typer.Option(help="how real the sensor looks: clean (exact geometry, light depth noise; "
+                                         "the default) | kinect (a Kinect v1 calibrated on 7-Scenes) | hard "
+                                         "(the same sensor on a worse day); scene.json records it")] = "clean",
     memory_budget: _MemoryBudget = None,
 ) -> None:
     """Render a procedural indoor scene to a TUM RGB-D folder with labels, instances, objects and scene.json."""
@@ -431,7 +434,7 @@ def simulate(
         root = simulate_sequence(out, scene_seed=scene_seed, kind=kind, size=size, trajectory=trajectory,
                                  frames=frames, noise=noise, progress=callback, image_size=stored, symmetric=symmetric,
                                  trajectory_seed=trajectory_seed, layout=format or LAYOUTS[0],
-                                 changes=changes, changes_seed=changes_seed)
+                                 changes=changes, changes_seed=changes_seed, realism=realism)
     _console().print(f"wrote {frames} frames to {root} (map it with: semmap run {root} --out OUT)")
 
 

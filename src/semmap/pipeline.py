@@ -55,6 +55,7 @@ from semmap.run.prepare import (
     pose_source_to_resume,
     prepare_segmenter,
     semantics_source,
+    simulated_realism,
     warm_tracker,
 )
 from semmap.types import CameraIntrinsics, Frame, LabelSet, Observation, TopKProbs
@@ -289,6 +290,7 @@ class Pipeline:
                           segmenter=None if self.segmenter is None else self.segmenter.name, startup_s=startup_s,
                           segmenter_startup_s=segmenter_s, crf=crf,
                           semantics=semantics_source(c, self.segmenter, label_set, dataset.label_set),
+                          realism=simulated_realism(dataset, c.input.dataset),
                           objects=None if self._objects is None else self._objects.report(mapper.keyframes))
 
     def _write(self, outcome: RunOutcome) -> dict:

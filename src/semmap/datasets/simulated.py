@@ -8,7 +8,7 @@ import numpy as np
 
 from semmap.datasets.base import SkippedFrame
 from semmap.labels import INDOOR_LABELS
-from semmap.sim.export import simulate_frames
+from semmap.sim.export import realism_of, simulate_frames
 from semmap.sim.scene import Scene, generate_scene
 from semmap.sim.trajectory import make_trajectory
 from semmap.types import DEFAULT_INTRINSICS, CameraIntrinsics, Frame, LabelSet
@@ -18,8 +18,11 @@ class SimulatedDataset:
     """Frames (rgb, depth, labels, instances, ground-truth pose) of ``poses`` through ``scene``, rendered lazily."""
 
     def __init__(self, scene: Scene, poses: np.ndarray, *, noise: bool = True, seed: int = 0,
-                 intrinsics: CameraIntrinsics | None = None, name: str = "simulated") -> None:
+                 intrinsics: CameraIntrinsics | None = None, name: str = "simulated",
+                 realism: str | None = None) -> None:
         self.scene = scene
+        #: the realism preset the frames are rendered with (semmap.sim.realism)
+        self.realism = realism_of(realism, noise).name
         self.poses = np.asarray(poses, np.float64)
         self.noise = noise
         self.seed = seed
@@ -28,11 +31,12 @@ class SimulatedDataset:
 
     @classmethod
     def default(cls, *, scene_seed: int = 0, kind: str = "office", size: str = "medium", trajectory: str = "loop",
-                frames: int = 300, noise: bool = True) -> SimulatedDataset:
+                frames: int = 300, noise: bool = True, realism: str | None = None) -> SimulatedDataset:
         """The default scene and trajectory (what ``semmap demo`` maps)."""
         scene = generate_scene(scene_seed, kind, size)
         poses = make_trajectory(scene, trajectory, frames, seed=scene_seed)
-        return cls(scene, poses, noise=noise, seed=scene_seed, name=f"sim-{kind}-{size}-seed{scene_seed}-{trajectory}")
+        return cls(scene, poses, noise=noise, seed=scene_seed, name=f"sim-{kind}-{size}-seed{scene_seed}-{trajectory}",
+                   realism=realism)
 
     @property
     def name(self) -> str:
@@ -55,7 +59,7 @@ class SimulatedDataset:
 
     def __iter__(self) -> Iterator[Frame]:
         yield from simulate_frames(self.scene, self.poses, noise=self.noise, seed=self.seed,
-                                   intrinsics=self._intrinsics)
+                                   intrinsics=self._intrinsics, realism=self.realism)
 
 
 def scene_of_folder(root) -> Scene | None:
@@ -87,3 +91,4 @@ def scene_of_folder(root) -> Scene | None:
         log.warning("%s: written by another scene generator version; no 3D ground truth", path)
         return None
     return scene
+

@@ -285,6 +285,7 @@ class RunOutcome:
     crf: dict[MapKind, dict] = field(default_factory=dict)
     objects: dict | None = None
     semantics: str | None = None  # where the classes came from, in words (``run.prepare.semantics_source``)
+    realism: str | None = None  # the simulator's realism preset of simulated frames (None: recorded data)
 
 
 def _frames_report(o: RunOutcome) -> dict:
@@ -297,6 +298,7 @@ def _frames_report(o: RunOutcome) -> dict:
     ms["total"] = round(sum(v for k, v in ms.items() if k not in beside), 3)
     return {
         "dataset": o.dataset,
+        **({} if o.realism is None else {"realism": o.realism}),
         "resolution": primary.resolution,
         "frames_used": n,
         "frames_skipped": len(o.skipped) + len(o.record.no_pose),

@@ -30,7 +30,7 @@ from semmap.io.tum_writer import write_tum_sequence
 from semmap.labels import INDOOR_LABELS, NYU40_NAMES, simulator_to_nyu40
 from semmap.limits import check, check_simulation
 from semmap.sim.changes import change_scene
-from semmap.sim.noise import KinectNoise
+from semmap.sim.realism import Realism, realism
 from semmap.sim.render import Renderer
 from semmap.sim.scene import Scene, generate_scene
 from semmap.sim.trajectory import make_trajectory
@@ -58,11 +58,13 @@ def simulate_sequence(
     layout: str = "tum",
     changes: int = 0,
     changes_seed: int = 1,
+    realism: str | Realism | None = None,
 ) -> Path:
     """Render ``frames`` frames of a ``trajectory`` through scene (``scene_seed``, ``kind``, ``size``;
     ``symmetric``: see :mod:`semmap.sim.symmetric`) into ``out_dir`` (TUM layout plus ground truth) and return the
     folder; the path is drawn from ``trajectory_seed`` (default: the scene seed). Same arguments, same bytes. A low
-    ``fps`` spreads few frames over the whole path (varied views for training data)."""
+    ``fps`` spreads few frames over the whole path (varied views for training data). ``realism`` names the
+    preset of :mod:`semmap.sim.realism` (default ``clean``: today's frames); scene.json records it."""
     if not isinstance(frames, (int, np.integer)) or frames <= 0:
         raise SimulationError(f"frames must be a positive integer, got {frames!r}")
     check_simulation(int(frames), image_size)
@@ -71,6 +73,7 @@ def simulate_sequence(
     check("seed", scene_seed, "--scene-seed")
     check("seed", trajectory_seed, "--trajectory-seed")
     check("seed", changes_seed, "--changes-seed")
+    preset = realism_of(realism, noise)
     if image_size is not None:
         check_reduced_size(image_size, intrinsics or DEFAULT_INTRINSICS)
     root = Path(out_dir)
@@ -81,7 +84,7 @@ def simulate_sequence(
         _write_sequence(stage, scene_seed=scene_seed, kind=kind, trajectory=trajectory, frames=int(frames), size=size,
                         noise=noise, intrinsics=intrinsics, progress=progress, image_size=image_size, fps=fps,
                         symmetric=symmetric, trajectory_seed=trajectory_seed, layout=layout,
-                        changes=(changes, changes_seed))
+                        changes=(changes, changes_seed), preset=preset)
         staged.commit()  # every file is there: the folder becomes ``out_dir`` in one rename
     except KeyboardInterrupt:
         staged.abandon(keep_checkpoint=False)  # Ctrl-C leaves nothing half-written, and says so
@@ -104,7 +107,8 @@ def check_sequence_out(root: Path) -> None:
 def _write_sequence(root: Path, *, scene_seed: int, kind: str, trajectory: str, frames: int, size: str, noise: bool,
                     intrinsics: CameraIntrinsics | None, progress: Callable[[int, int], None] | None,
                     image_size: tuple[int, int] | None, fps: float, symmetric: bool,
-                    trajectory_seed: int | None, layout: str = "tum", changes: tuple[int, int] = (0, 1)) -> None:
+                    trajectory_seed: int | None, layout: str = "tum", changes: tuple[int, int] = (0, 1),
+                    preset: Realism | None = None) -> None:
     """Render and write the whole sequence into the folder ``root`` (the staging folder)."""
     scene = generate_scene(scene_seed, kind, size, symmetric=symmetric)
     if changes[0]:
@@ -112,7 +116,8 @@ def _write_sequence(root: Path, *, scene_seed: int, kind: str, trajectory: str, 
         write_text_atomic(root / "changes.json", json.dumps(record, indent=1) + "\n")
     poses = make_trajectory(scene, trajectory, int(frames), seed=scene_seed if trajectory_seed is None
                             else trajectory_seed, fps=fps)
-    renderer = Renderer(scene, intrinsics, noise=KinectNoise(seed=scene_seed) if noise else False)
+    preset = preset or realism()
+    renderer = Renderer(scene, intrinsics, noise=preset.depth_model(scene_seed, noise) or False)
     frames_out = render_frames(renderer, poses, progress, fps=fps)
     stored = renderer.intrinsics
     if image_size is not None:
@@ -122,7 +127,8 @@ def _write_sequence(root: Path, *, scene_seed: int, kind: str, trajectory: str, 
     write_text_atomic(root / "objects.json", json.dumps([o.to_dict() for o in scene.objects], indent=1) + "\n")
     info = {**scene.params, "trajectory": trajectory, "frames": int(frames), "fps": fps, "noise": bool(noise),
             "depth_scale": DEPTH_SCALE, "intrinsics": stored.to_dict(),
-            "n_triangles": scene.n_triangles, "n_objects": len(scene.objects), "layout": layout}
+            "n_triangles": scene.n_triangles, "n_objects": len(scene.objects), "layout": layout,
+            "realism": preset.name}
     if layout == "scannet":
         info["label_space"] = "nyu40"  # the 3D ground truth's classes are mapped like the frames' labels
     if trajectory_seed is not None:
@@ -192,7 +198,19 @@ def render_frames(renderer: Renderer, poses: np.ndarray,
 
 
 def simulate_frames(scene: Scene, poses: np.ndarray, *, noise: bool = True, seed: int = 0,
-                    intrinsics: CameraIntrinsics | None = None) -> Iterator[Frame]:
+                    intrinsics: CameraIntrinsics | None = None,
+                    realism: str | Realism | None = None) -> Iterator[Frame]:
     """In-memory counterpart of :func:`simulate_sequence` for a given scene and poses (no files)."""
-    renderer = Renderer(scene, intrinsics, noise=KinectNoise(seed=seed) if noise else False)
+    preset = realism_of(realism, noise)
+    renderer = Renderer(scene, intrinsics, noise=preset.depth_model(seed, noise) or False)
     yield from render_frames(renderer, poses)
+
+
+def realism_of(name: str | Realism | None, noise: bool = True) -> Realism:
+    """The realism preset ``name``; exact depth (``noise`` off) is only offered with ``clean``, whose frames
+    are today's: the other presets are their sensor, and a noiseless one would be neither."""
+    preset = realism(name)
+    if not noise and not preset.exact_geometry:
+        raise SimulationError(f"--no-noise works only with --realism clean; --realism {preset.name} simulates a "
+                              f"real sensor's depth")
+    return preset

@@ -56,8 +56,8 @@ class Renderer:
     """Renders a :class:`Scene` from camera poses ``T_world_cam`` (x right, y down, z forward).
 
     ``noise`` (a :class:`KinectNoise`, ``True`` for the default model with ``seed``, a sensor model of
-    :mod:`semmap.sim.depth_sensor`, or ``False``) is applied to the depth; frame ``frame_index`` of :meth:`render` selects its random numbers, so frames are
-    reproducible independently of rendering order. ``backend`` picks the visibility method (see the module
+    :mod:`semmap.sim.depth_sensor`, or ``False``) is applied to the depth; frame ``frame_index`` of
+    :meth:`render` selects its random numbers, so frames are reproducible independently of rendering order. ``backend`` picks the visibility method (see the module
     docstring); ``nthreads`` = 0 lets open3d use all cores.
     """
 
