@@ -57,8 +57,8 @@ class Renderer:
 
     ``noise`` (a :class:`KinectNoise`, ``True`` for the default model with ``seed``, a sensor model of
     :mod:`semmap.sim.depth_sensor`, or ``False``) is applied to the depth; frame ``frame_index`` of
-    :meth:`render` selects its random numbers, so frames are reproducible independently of rendering order. ``backend`` picks the visibility method (see the module
-    docstring); ``nthreads`` = 0 lets open3d use all cores.
+    :meth:`render` selects its random numbers, so frames are reproducible independently of rendering order.
+    ``backend`` picks the visibility method (see the module docstring); ``nthreads`` = 0 lets open3d use all cores.
     """
 
     def __init__(self, scene: Scene, intrinsics: CameraIntrinsics | None = None, *,
