@@ -17,7 +17,8 @@
   the projector is not lit; found by one sweep per row over the projector's image column ``u - f b / z``;
 - holes on materials that return little infrared: dark albedo, specular (metal, screens, glazed porcelain) and
   transparent (window glass) surfaces drop pixels with per-material probabilities, in blobs of ``blob_px``;
-- holes at grazing incidence, below ``min_depth`` and beyond ``max_depth`` (with a dropout ramp before it).
+- holes at grazing incidence, below ``min_depth`` and beyond ``max_depth`` (with a dropout ramp before it), and in
+  the ``dead_px`` columns on the projector's side of the image, where the matching window does not fit.
 
 :class:`TimeOfFlight` is the optional alternative: noise growing linearly with depth (amplitude falls with the
 incidence), no quantisation, flying pixels (depths between the two sides) at edges and multipath (corners seen
@@ -62,18 +63,20 @@ class StructuredLight:
     sigma_corr_px: float = 0.04  # spatially correlated disparity noise (px)
     corr_px: int = 8
     angle_gain: float = 0.05  # sigma_d *= 1 + angle_gain * tan^2 theta
-    grazing_deg: float = 80.0  # dropout ramps up over grazing_deg +- grazing_ramp_deg / 2
-    grazing_ramp_deg: float = 10.0
-    lateral_px: float = 0.7
+    grazing_deg: float = 86.0  # dropout ramps up over grazing_deg +- grazing_ramp_deg / 2
+    grazing_ramp_deg: float = 6.0
+    lateral_px: float = 0.6
     edge_jump_rel: float = 0.04
-    edge_drop_p: float = 0.35
+    edge_drop_p: float = 0.1
     shadow: bool = True
     projector_side: int = 1  # +1: projector at +x of the camera, -1: at -x
+    shadow_slack_px: float = 1.5  # a pixel this little (px) inside the shadow still matches the pattern
     dark_luma: float = 45.0  # albedo luma (0..255) below which a material returns too little light
     dark_drop_p: float = 0.6
     specular_drop_p: float = 0.35
     transparent_drop_p: float = 0.95
     blob_px: int = 3
+    dead_px: int = 8  # columns without depth on the projector's side of the image (7-Scenes: the last 8)
 
     def __post_init__(self) -> None:
         if not 0 < self.min_depth < self.max_depth:
@@ -115,7 +118,8 @@ class StructuredLight:
             (H // self.corr_px + 2, W // self.corr_px + 2)).astype(np.float32)
         shadow = np.zeros((H, W), np.uint8)
         if self.shadow:
-            _shadow_kernel(z_in, float(fx) * self.baseline_m, int(self.projector_side), shadow)
+            _shadow_kernel(z_in, float(fx) * self.baseline_m, int(self.projector_side), float(self.shadow_slack_px),
+                           shadow)
         c0 = math.cos(math.radians(self.grazing_deg - self.grazing_ramp_deg / 2))
         c1 = math.cos(math.radians(self.grazing_deg + self.grazing_ramp_deg / 2))
         out = np.empty((H, W), np.float32)
@@ -124,7 +128,8 @@ class StructuredLight:
                                      self.focal_px * self.baseline_m, self.subpixel, self.sigma_disp_px,
                                      self.sigma_corr_px, self.angle_gain, c0, c1, self.lateral_px,
                                      self.edge_jump_rel, self.edge_drop_p], np.float64),
-                           int(self.corr_px), int(self.blob_px))
+                           int(self.corr_px), int(self.blob_px), int(self.dead_px) * (self.projector_side > 0),
+                           int(self.dead_px) * (self.projector_side < 0))
         return out
 
 
@@ -232,9 +237,10 @@ def _u16(h, k):  # pragma: no cover - compiled
 
 
 @nb.njit(cache=True, parallel=True)
-def _shadow_kernel(z, fb, side, shadow):  # pragma: no cover - compiled
+def _shadow_kernel(z, fb, side, slack, shadow):  # pragma: no cover - compiled
     """Mark pixels the projector (``side`` * baseline along x) cannot light: a sweep per row from the projector's
-    side keeps the smallest projector column seen; a pixel whose column is not below it is behind an occluder."""
+    side keeps the smallest projector column seen; a pixel whose column lies more than ``slack`` px beyond it is
+    behind an occluder (within ``slack`` the matching window still sees enough of the pattern)."""
     H, W = z.shape
     for v in nb.prange(H):
         best = 1e30
@@ -242,7 +248,7 @@ def _shadow_kernel(z, fb, side, shadow):  # pragma: no cover - compiled
             u = W - 1 - k if side > 0 else k
             d = z[v, u]
             p = side * u - fb / d if d > 0.0 else side * float(u)
-            if d > 0.0 and p >= best:
+            if d > 0.0 and p >= best + slack:
                 shadow[v, u] = 1
             if p < best:
                 best = p
@@ -255,7 +261,8 @@ def _is_jump(z, zn, rel):  # pragma: no cover - compiled
 
 
 @nb.njit(cache=True, parallel=True)
-def _structured_kernel(z_in, cos_in, ids, tri_drop, shadow, grid, key, out, prm, corr, blob):  # pragma: no cover
+def _structured_kernel(z_in, cos_in, ids, tri_drop, shadow, grid, key, out, prm, corr, blob, dead_right,
+                       dead_left):  # pragma: no cover - compiled
     z_min, z_max, far0, far_p, fb, subpx = prm[0], prm[1], prm[2], prm[3], prm[4], prm[5]
     s_white, s_corr, a_gain, c0, c1, lat, rel, edge_p = (prm[6], prm[7], prm[8], prm[9], prm[10], prm[11],
                                                          prm[12], prm[13])
@@ -289,19 +296,20 @@ def _structured_kernel(z_in, cos_in, ids, tri_drop, shadow, grid, key, out, prm,
                         continue
             if shadow[sv, su]:
                 continue
-            r_edge, r_mat, r_gr = _u16(h1, 0), _u16(h1, 1), _u16(h1, 2)
-            c = cos_in[sv, su]
-            if c <= c1 or (c < c0 and r_gr < (c0 - c) / (c0 - c1)):
-                continue  # grazing incidence
-            if edge and r_edge < edge_p:
+            if u >= W - dead_right or u < dead_left:
+                continue  # the correlation window does not fit at the image's side
+            if edge and _u16(h1, 0) < edge_p:
                 continue
+            # blobs: one draw per blob x blob cell (jittered per pixel), so the pattern is lost in patches, not salt
+            hb = _mix(key ^ np.uint64((sv // blob) * 65536 + su // blob + 1) * np.uint64(0xA24BAED4963EE407))
+            jit = 0.2 * _u16(h1, 1)
+            c = cos_in[sv, su]
+            if c <= c1 or (c < c0 and 0.8 * _u16(hb, 0) + jit < (c0 - c) / (c0 - c1)):
+                continue  # grazing incidence
             t = ids[sv, su]
-            if t >= 0 and tri_drop[t] > 0.0:
-                # blobs: one draw per blob x blob cell, so dark or glossy surfaces lose patches, not salt
-                hb = _mix(key ^ np.uint64((sv // blob) * 65536 + su // blob + 1) * np.uint64(0xA24BAED4963EE407))
-                if 0.8 * _u16(hb, 0) + 0.2 * r_mat < tri_drop[t]:
-                    continue
-            if z > far0 and r_gr < far_p * (z - far0) / max(z_max - far0, 1e-6):
+            if t >= 0 and tri_drop[t] > 0.0 and 0.8 * _u16(hb, 1) + jit < tri_drop[t]:
+                continue  # dark, glossy or transparent material
+            if z > far0 and 0.8 * _u16(hb, 2) + jit < far_p * (z - far0) / max(z_max - far0, 1e-6):
                 continue  # the pattern fades towards the end of the range
             cc = max(c, 1e-3) * max(c, 1e-3)
             gain = 1.0 + a_gain * (1.0 - cc) / cc  # tan^2(theta), close to Nguyen's theta^2 / (pi/2 - theta)^2

@@ -31,7 +31,7 @@ KINECT_DEPTH = StructuredLight()
 #: The same sensor on a worse day: noisier disparity, rougher edges, more dropout on difficult materials.
 HARD_DEPTH = dataclasses.replace(KINECT_DEPTH, sigma_disp_px=0.08, sigma_corr_px=0.07, angle_gain=0.1,
                                  lateral_px=1.0, edge_drop_p=0.5, dark_drop_p=0.8, specular_drop_p=0.5,
-                                 far_drop_p=0.5, grazing_deg=75.0)
+                                 far_drop_p=0.5, grazing_deg=80.0, grazing_ramp_deg=10.0, shadow_slack_px=0.0)
 
 DepthModel = KinectNoise | StructuredLight | TimeOfFlight
 
