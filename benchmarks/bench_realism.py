@@ -155,7 +155,7 @@ def figure(path: Path, real: np.ndarray, sim: np.ndarray, clean: np.ndarray, pre
     cmap.set_bad("black")
     for ax, d, title in zip(axes, (real, sim, clean),
                             ("7-Scenes redkitchen (Kinect v1)", f"simulated kitchen, --realism {preset}",
-                             "the same view, --realism clean")):
+                             "the same view, --realism clean"), strict=True):
         im = ax.imshow(np.where(d > 0, d, np.nan), cmap=cmap, vmin=0.5, vmax=4.0)
         ax.set_title(title)
         ax.axis("off")
@@ -190,10 +190,10 @@ def main() -> None:
     sim = statistics(sim_d)
     print(f"{'':24}{'7-Scenes':>12}{'sim ' + args.realism:>14}")
     for k in sim["plane_residual_mm"]:
-        print(f"plane residual {k:>4} mm {str(real and real['plane_residual_mm'][k]):>12}"
+        print(f"plane residual {k:>4} mm {real and real['plane_residual_mm'][k]!s:>12}"
               f"{sim['plane_residual_mm'][k]!s:>14}   patches {real and real['patches'][k]} / {sim['patches'][k]}")
-    print(f"hole fraction near edges {str(real and real['edge_hole_fraction']):>11}{sim['edge_hole_fraction']:>14}")
-    print(f"valid depth fraction     {str(real and real['valid_fraction']):>11}{sim['valid_fraction']:>14}")
+    print(f"hole fraction near edges {real and real['edge_hole_fraction']!s:>11}{sim['edge_hole_fraction']:>14}")
+    print(f"valid depth fraction     {real and real['valid_fraction']!s:>11}{sim['valid_fraction']:>14}")
     row = {"bench": "realism", "realism": args.realism, "frames": n, "real": real, "sim": sim,
            **(compare(real, sim) if real else {})}
     if args.figure is not None and real_d:

@@ -8,6 +8,7 @@ import json
 import numpy as np
 import pytest
 
+from helpers import ROOM_CAMERA
 from semmap.errors import SimulationError
 from semmap.sim.depth_sensor import StructuredLight, TimeOfFlight, material_drop
 from semmap.sim.export import simulate_frames, simulate_sequence
@@ -16,7 +17,6 @@ from semmap.sim.noise import KinectNoise
 from semmap.sim.realism import REALISMS, realism, with_depth
 from semmap.sim.scene import generate_scene
 from semmap.sim.trajectory import make_trajectory
-from helpers import ROOM_CAMERA
 
 H, W, FX = 120, 160, 150.0
 #: A sensor with only the axial noise and quantisation (for the statistics of a plane).
@@ -99,7 +99,8 @@ def test_minimum_and_maximum_range():
 
 
 def test_dark_specular_and_transparent_materials_lose_depth():
-    dark, glossy, glass = Material("paint", (10, 10, 12)), Material("metal", (160, 165, 170)), Material("sky", (0, 0, 0))
+    dark, glossy = Material("paint", (10, 10, 12)), Material("metal", (160, 165, 170))
+    glass = Material("sky", (0, 0, 0))
     bright = Material("paint", (225, 220, 205))
     sensor = StructuredLight(seed=2, dead_px=0)
     drops = sensor.material_dropout([bright, dark, glossy, glass])

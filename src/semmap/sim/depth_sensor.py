@@ -55,14 +55,14 @@ class StructuredLight:
     min_depth: float = 0.8
     max_depth: float = 4.0
     far_drop_from: float = 3.5  # dropout ramps from 0 here to ``far_drop_p`` at max_depth
-    far_drop_p: float = 0.3
+    far_drop_p: float = 0.2
     focal_px: float = 585.0  # the IR camera's focal length for the disparity (7-Scenes' Kinect)
     baseline_m: float = 0.075
     subpixel: float = 8.0
-    sigma_disp_px: float = 0.05  # white disparity noise (px)
+    sigma_disp_px: float = 0.055  # white disparity noise (px)
     sigma_corr_px: float = 0.04  # spatially correlated disparity noise (px)
     corr_px: int = 8
-    angle_gain: float = 0.05  # sigma_d *= 1 + angle_gain * tan^2 theta
+    angle_gain: float = 0.02  # sigma_d *= 1 + angle_gain * tan^2 theta
     grazing_deg: float = 86.0  # dropout ramps up over grazing_deg +- grazing_ramp_deg / 2
     grazing_ramp_deg: float = 6.0
     lateral_px: float = 0.6
@@ -70,10 +70,10 @@ class StructuredLight:
     edge_drop_p: float = 0.1
     shadow: bool = True
     projector_side: int = 1  # +1: projector at +x of the camera, -1: at -x
-    shadow_slack_px: float = 1.5  # a pixel this little (px) inside the shadow still matches the pattern
+    shadow_slack_px: float = 5.0  # a pixel this little (px) inside the shadow still matches the pattern
     dark_luma: float = 45.0  # albedo luma (0..255) below which a material returns too little light
-    dark_drop_p: float = 0.6
-    specular_drop_p: float = 0.35
+    dark_drop_p: float = 0.5
+    specular_drop_p: float = 0.3
     transparent_drop_p: float = 0.95
     blob_px: int = 3
     dead_px: int = 8  # columns without depth on the projector's side of the image (7-Scenes: the last 8)
