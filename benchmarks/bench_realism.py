@@ -114,15 +114,16 @@ def real_frames(n: int) -> list[np.ndarray]:
     return [f.depth for i, f in enumerate(ds) if i % step == 0][:n]
 
 
-def sim_frames(preset: str, n: int) -> list[np.ndarray]:
-    """``n`` depth images of kitchen scenes rendered with ``preset`` through 7-Scenes' depth camera."""
+def sim_frames(preset: str, n: int, first_only: bool = False) -> list[np.ndarray]:
+    """``n`` depth images of kitchen scenes rendered with ``preset`` through 7-Scenes' depth camera (only the
+    first of them with ``first_only``)."""
     per = -(-n // len(SIM_VIEWS))
     out: list[np.ndarray] = []
-    for seed, kind in SIM_VIEWS:
+    for seed, kind in SIM_VIEWS[:1] if first_only else SIM_VIEWS:
         scene = generate_scene(seed, "kitchen", "medium")
         poses = make_trajectory(scene, kind, per, seed=seed, fps=per / 20.0)  # spread over 20 s of the path
         r = Renderer(scene, SEVEN_SCENES_DEPTH_CAMERA, noise=realism(preset).depth_model(seed) or False)
-        out += [r.render(T, frame_index=i).depth for i, T in enumerate(poses)]
+        out += [r.render(T, frame_index=i).depth for i, T in enumerate(poses[:1] if first_only else poses)]
     return out[:n]
 
 
@@ -197,7 +198,7 @@ def main() -> None:
     row = {"bench": "realism", "realism": args.realism, "frames": n, "real": real, "sim": sim,
            **(compare(real, sim) if real else {})}
     if args.figure is not None and real_d:
-        clean = sim_frames("clean", 1)[0]
+        clean = sim_frames("clean", n, first_only=True)[0]
         figure(args.figure, real_d[len(real_d) // 3], sim_d[0], clean, args.realism)
     print(json.dumps(row))
 

@@ -59,8 +59,8 @@ class StructuredLight:
     focal_px: float = 585.0  # the IR camera's focal length for the disparity (7-Scenes' Kinect)
     baseline_m: float = 0.075
     subpixel: float = 8.0
-    sigma_disp_px: float = 0.055  # white disparity noise (px)
-    sigma_corr_px: float = 0.04  # spatially correlated disparity noise (px)
+    sigma_disp_px: float = 0.052  # white disparity noise (px)
+    sigma_corr_px: float = 0.037  # spatially correlated disparity noise (px)
     corr_px: int = 8
     angle_gain: float = 0.02  # sigma_d *= 1 + angle_gain * tan^2 theta
     grazing_deg: float = 86.0  # dropout ramps up over grazing_deg +- grazing_ramp_deg / 2
