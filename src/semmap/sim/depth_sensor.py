@@ -274,8 +274,8 @@ def _structured_kernel(z_in, cos_in, ids, tri_drop, shadow, grid, key, out, prm,
             u = np.int64(col)
             out[v, u] = 0.0
             z = z_in[v, u]
-            if z <= 0.0:
-                continue
+            if z <= 0.0 or u >= W - dead_right or u < dead_left:
+                continue  # nothing hit, or the correlation window does not fit at the image's side
             i = np.uint64(v * W + u)
             h1 = _mix(key + i * np.uint64(0x9E3779B97F4A7C15))
             edge = False
@@ -296,21 +296,22 @@ def _structured_kernel(z_in, cos_in, ids, tri_drop, shadow, grid, key, out, prm,
                         continue
             if shadow[sv, su]:
                 continue
-            if u >= W - dead_right or u < dead_left:
-                continue  # the correlation window does not fit at the image's side
             if edge and _u16(h1, 0) < edge_p:
                 continue
             # blobs: one draw per blob x blob cell (jittered per pixel), so the pattern is lost in patches, not salt
-            hb = _mix(key ^ np.uint64((sv // blob) * 65536 + su // blob + 1) * np.uint64(0xA24BAED4963EE407))
             jit = 0.2 * _u16(h1, 1)
             c = cos_in[sv, su]
-            if c <= c1 or (c < c0 and 0.8 * _u16(hb, 0) + jit < (c0 - c) / (c0 - c1)):
+            if c <= c1:
                 continue  # grazing incidence
             t = ids[sv, su]
-            if t >= 0 and tri_drop[t] > 0.0 and 0.8 * _u16(hb, 1) + jit < tri_drop[t]:
-                continue  # dark, glossy or transparent material
-            if z > far0 and 0.8 * _u16(hb, 2) + jit < far_p * (z - far0) / max(z_max - far0, 1e-6):
-                continue  # the pattern fades towards the end of the range
+            p_gr = (c0 - c) / (c0 - c1) if c < c0 else 0.0
+            p_mat = tri_drop[t] if t >= 0 else 0.0
+            p_far = far_p * (z - far0) / max(z_max - far0, 1e-6) if z > far0 else 0.0
+            if p_gr > 0.0 or p_mat > 0.0 or p_far > 0.0:
+                hb = _mix(key ^ np.uint64((sv // blob) * 65536 + su // blob + 1) * np.uint64(0xA24BAED4963EE407))
+                if (0.8 * _u16(hb, 0) + jit < p_gr or 0.8 * _u16(hb, 1) + jit < p_mat
+                        or 0.8 * _u16(hb, 2) + jit < p_far):
+                    continue  # grazing incidence, a dark, glossy or transparent material, the end of the range
             cc = max(c, 1e-3) * max(c, 1e-3)
             gain = 1.0 + a_gain * (1.0 - cc) / cc  # tan^2(theta), close to Nguyen's theta^2 / (pi/2 - theta)^2
             # correlated part: bilinear on the coarse grid of N(0, 1) values
