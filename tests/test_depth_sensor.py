@@ -169,3 +169,20 @@ def test_simulate_records_the_preset(tmp_path):
     assert json.loads((root / "scene.json").read_text())["realism"] == "hard"
     root = simulate_sequence(tmp_path / "seq2", frames=1, size="small", intrinsics=ROOM_CAMERA)
     assert json.loads((root / "scene.json").read_text())["realism"] == "clean"
+
+
+def test_the_run_report_names_the_preset_of_simulated_frames(tmp_path):
+    from semmap.datasets.simulated import SimulatedDataset
+    from semmap.run.prepare import simulated_realism
+
+    assert simulated_realism(SimulatedDataset(None, np.eye(4)[None])) == "clean"  # the demo's
+    assert simulated_realism(SimulatedDataset(None, np.eye(4)[None], realism="kinect")) == "kinect"
+    root = tmp_path / "seq"
+    root.mkdir()
+    assert simulated_realism(object(), root) is None  # recorded data
+    (root / "scene.json").write_text(json.dumps({"generator_version": 1}))
+    assert simulated_realism(object(), root) == "clean"  # written before presets existed
+    (root / "scene.json").write_text(json.dumps({"generator_version": 1, "realism": "hard"}))
+    assert simulated_realism(object(), root) == "hard"
+    (root / "scene.json").write_text("{not json")
+    assert simulated_realism(object(), root) is None
