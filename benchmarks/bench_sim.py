@@ -21,6 +21,20 @@ from semmap.sim.scene import generate_scene
 from semmap.sim.trajectory import make_trajectory
 
 
+def _fps_pair(a: Renderer, b: Renderer, poses: np.ndarray) -> tuple[float, float]:
+    """Frames per second of ``a`` and of ``b``, rendering each pose with one then the other (so a busy machine's
+    changing load falls on both alike)."""
+    a.render(poses[0], frame_index=0)
+    b.render(poses[0], frame_index=0)
+    spent = [0.0, 0.0]
+    for i, T in enumerate(poses):
+        for k, r in enumerate((a, b)):
+            start = time.perf_counter()
+            r.render(T, frame_index=i)
+            spent[k] += time.perf_counter() - start
+    return len(poses) / spent[0], len(poses) / spent[1]
+
+
 def _fps(renderer: Renderer, poses: np.ndarray) -> float:
     """Frames per second rendering all of ``poses`` (after one warm-up frame)."""
     renderer.render(poses[0], frame_index=0)
@@ -46,8 +60,7 @@ def main() -> None:
     raster = Renderer(scene, noise=depth, backend="raster")
     init_s = time.perf_counter() - t0
     raycast = Renderer(scene, noise=depth, backend="raycast")
-    fps = _fps(raster, poses)
-    fps_clean = _fps(Renderer(scene, noise=realism(DEFAULT_REALISM).depth_model(0), backend="raster"), poses)
+    fps, fps_clean = _fps_pair(raster, Renderer(scene, noise=realism(DEFAULT_REALISM).depth_model(0)), poses)
     fps_raycast = _fps(raycast, poses[: max(10, n // 3)])
     cam = raster.intrinsics
     print(f"scene: {scene.n_triangles} triangles, {len(scene.objects)} objects, {len(scene.materials)} materials; "

@@ -236,13 +236,13 @@ def _u16(h, k):  # pragma: no cover - compiled
     return np.float64((h >> np.uint64(16 * k)) & np.uint64(0xFFFF)) * (1.0 / 65536.0)
 
 
-@nb.njit(cache=True, parallel=True)
+@nb.njit(cache=True)
 def _shadow_kernel(z, fb, side, slack, shadow):  # pragma: no cover - compiled
     """Mark pixels the projector (``side`` * baseline along x) cannot light: a sweep per row from the projector's
     side keeps the smallest projector column seen; a pixel whose column lies more than ``slack`` px beyond it is
     behind an occluder (within ``slack`` the matching window still sees enough of the pattern)."""
     H, W = z.shape
-    for v in nb.prange(H):
+    for v in range(H):  # (serial: a few hundred microseconds, cheaper than a parallel region's start-up)
         best = 1e30
         for k in range(W):
             u = W - 1 - k if side > 0 else k
