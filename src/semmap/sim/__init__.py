@@ -6,6 +6,8 @@ Public API (imported lazily, so ``import semmap.sim`` stays cheap)::
     Renderer(scene, intrinsics=None, *, noise=False, seed=0, backend="raster").render(T_world_cam, frame_index=0)
         -> RenderedView(rgb, depth, labels, instances)
     KinectNoise(seed=0, ...).apply(depth, cos_incidence, frame_index)
+    StructuredLight(seed=0, ...) / TimeOfFlight(...).apply_view(depth, cos_incidence, frame_index, fx=...)
+    realism("clean" | "kinect" | "hard") -> Realism (depth model, colour, motion); REALISMS
     make_trajectory(scene, kind, n_frames, seed, fps=30.0) -> (N, 4, 4) T_world_cam
     gt_voxels(scene, resolution) -> GroundTruthVoxels;  gt_objects(scene) -> list[SceneObject]
     simulate_sequence(out_dir, *, scene_seed=0, kind="office", trajectory="loop", frames=300, ...) -> Path
@@ -23,6 +25,8 @@ _BY_MODULE = {
     "semmap.sim.render": ("Renderer", "RenderedView"),
     "semmap.types": ("DEFAULT_INTRINSICS",),
     "semmap.sim.noise": ("KinectNoise",),
+    "semmap.sim.depth_sensor": ("StructuredLight", "TimeOfFlight"),
+    "semmap.sim.realism": ("Realism", "realism", "REALISMS"),
     "semmap.sim.trajectory": ("make_trajectory", "look_at", "TRAJECTORY_KINDS"),
     "semmap.sim.ground_truth": ("GroundTruthVoxels", "gt_voxels", "gt_objects"),
     "semmap.keys": ("coords_to_keys",),
