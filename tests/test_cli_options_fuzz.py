@@ -32,7 +32,7 @@ TEXT_OPTIONS = frozenset({
     "--format", "--rgb-topic", "--depth-topic", "--camera-info-topic", "--pose-topic", "--world-frame",
     "--camera-frame", "--semantics", "--segmenter", "--backend", "--poses", "--color-mode", "--maps", "--fusion",
     "--state-dtype", "--instances", "--instance-errors", "--kind", "--size", "--trajectory", "--model", "--backbone",
-    "--device", "--method", "--init", "--mode", "--motion", "--address", "--no-go",
+    "--device", "--method", "--init", "--mode", "--motion", "--address", "--no-go", "--realism",
 })
 #: The required arguments of each command: paths that are never opened (the numbers are checked first).
 NOWHERE = "/nonexistent/semmap-fuzz"
