@@ -33,7 +33,7 @@ TEXT_OPTIONS = frozenset({
     "--camera-frame", "--semantics", "--segmenter", "--backend", "--poses", "--color-mode", "--maps", "--fusion",
     "--state-dtype", "--instances", "--instance-errors", "--kind", "--size", "--trajectory", "--model", "--backbone",
     "--device", "--method", "--init", "--mode", "--motion", "--address", "--no-go", "--gt-label-property",
-    "--dynamic",
+    "--dynamic", "--realism",
     # key=value text: each number is checked by its own field of the configuration (crf.*), which names the option
     # (tests/test_crf_params.py)
     "--crf-params",

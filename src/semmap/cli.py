@@ -477,6 +477,10 @@ def simulate(
     changes_seed: Annotated[int, typer.Option(help="seed of which objects change and where")] = 1,
     people: Annotated[int, typer.Option(help="people walking to and fro through the scene (labelled person; not "
                                              "in the 3D ground truth: semmap run keeps them out of the map)")] = 0,
+    realism: Annotated[str, typer.Option(help="how real the sensor looks: clean (exact geometry, light depth noise; "
+                                         "the default) | kinect (a Kinect v1 calibrated on 7-Scenes: depth, colour "
+                                         "camera, hand-held motion) | hard (the same on a worse day); scene.json "
+                                         "records it")] = "clean",
     memory_budget: _MemoryBudget = None,
 ) -> None:
     """Render a procedural indoor scene to a TUM RGB-D folder with labels, instances, objects and scene.json."""
@@ -492,7 +496,7 @@ def simulate(
         root = simulate_sequence(out, scene_seed=scene_seed, kind=kind, size=size, trajectory=trajectory,
                                  frames=frames, noise=noise, progress=callback, image_size=stored, symmetric=symmetric,
                                  trajectory_seed=trajectory_seed, layout=format or LAYOUTS[0],
-                                 changes=changes, changes_seed=changes_seed, people=people)
+                                 changes=changes, changes_seed=changes_seed, people=people, realism=realism)
     _console().print(f"wrote {frames} frames to {root} (map it with: semmap run {root} --out OUT)")
 
 

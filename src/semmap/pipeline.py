@@ -60,6 +60,7 @@ from semmap.run.prepare import (
     pose_source_to_resume,
     prepare_segmenter,
     semantics_source,
+    simulated_realism,
     warm_tracker,
 )
 from semmap.types import CameraIntrinsics, Frame, LabelSet, Observation, TopKProbs
@@ -370,6 +371,7 @@ class Pipeline:
                           segmenter=None if self.segmenter is None else self.segmenter.name, startup_s=startup_s,
                           segmenter_startup_s=segmenter_s, crf=crf,
                           semantics=semantics_source(c, self.segmenter, label_set, dataset.label_set),
+                          realism=simulated_realism(dataset, c.input.dataset),
                           objects=None if self._objects is None else self._objects.report(mapper.keyframes),
                           dynamic=mapper.dynamic_report(label_set), continued=continued)
 

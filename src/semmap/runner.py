@@ -122,7 +122,7 @@ def run_demo(*, out: Path, frames: int = 300, resolution: float | None = None, s
 
     segmenter = SegmenterName(config.semantics.segmenter or SegmenterName.ORACLE)
     return run_config(config, dataset=dataset, progress=progress,
-                      title=f"semmap demo: {dataset.name} ({segmenter.value})")
+                      title=f"semmap demo: {dataset.name} ({segmenter.value}, realism {dataset.realism})")
 
 
 @dataclass

@@ -9,7 +9,7 @@ import numpy as np
 from semmap.datasets.base import SkippedFrame
 from semmap.labels import INDOOR_LABELS
 from semmap.sim.camera_model import ColourParams
-from semmap.sim.export import simulate_frames
+from semmap.sim.export import realism_of, simulate_frames
 from semmap.sim.hand_motion import MotionParams
 from semmap.sim.scene import Scene, generate_scene
 from semmap.sim.trajectory import make_trajectory
@@ -22,9 +22,12 @@ class SimulatedDataset:
 
     def __init__(self, scene: Scene, poses: np.ndarray, *, noise: bool = True, seed: int = 0,
                  intrinsics: CameraIntrinsics | None = None, name: str = "simulated",
-                 colour: ColourParams | None = None, people: int = 0, fps: float = 30.0) -> None:
+                 colour: ColourParams | None = None, people: int = 0, fps: float = 30.0,
+                 realism: str | None = None) -> None:
         self.scene = scene  # the static scene (walking ``people`` are rendered, never part of it)
         self.people, self.fps = int(people), float(fps)
+        #: the realism preset the frames are rendered with (semmap.sim.realism)
+        self.realism = realism_of(realism, noise).name
         self.poses = np.asarray(poses, np.float64)
         self.noise = noise
         self.seed = seed
@@ -35,13 +38,14 @@ class SimulatedDataset:
     @classmethod
     def default(cls, *, scene_seed: int = 0, kind: str = "office", size: str = "medium", trajectory: str = "loop",
                 frames: int = 300, noise: bool = True, colour: ColourParams | None = None,
-                motion: MotionParams | None = None) -> SimulatedDataset:
-        """The default scene and trajectory (what ``semmap demo`` maps); ``colour`` and ``motion`` as in
-        :func:`semmap.sim.export.simulate_sequence` (default: clean)."""
+                motion: MotionParams | None = None, realism: str | None = None) -> SimulatedDataset:
+        """The default scene and trajectory (what ``semmap demo`` maps); ``colour``, ``motion`` and ``realism`` as
+        in :func:`semmap.sim.export.simulate_sequence` (default: clean)."""
+        preset = realism_of(realism, noise)
         scene = generate_scene(scene_seed, kind, size)
-        poses = make_trajectory(scene, trajectory, frames, seed=scene_seed, motion=motion)
+        poses = make_trajectory(scene, trajectory, frames, seed=scene_seed, motion=motion or preset.motion)
         return cls(scene, poses, noise=noise, seed=scene_seed, name=f"sim-{kind}-{size}-seed{scene_seed}-{trajectory}",
-                   colour=colour)
+                   colour=colour, realism=preset.name)
 
     @property
     def name(self) -> str:
@@ -64,7 +68,8 @@ class SimulatedDataset:
 
     def __iter__(self) -> Iterator[Frame]:
         yield from simulate_frames(self.scene, self.poses, noise=self.noise, seed=self.seed,
-                                   intrinsics=self._intrinsics, colour=self.colour, people=self.people, fps=self.fps)
+                                   intrinsics=self._intrinsics, colour=self.colour, people=self.people, fps=self.fps,
+                                   realism=self.realism)
 
 
 def scene_of_folder(root) -> Scene | None:
@@ -96,3 +101,4 @@ def scene_of_folder(root) -> Scene | None:
         log.warning("%s: written by another scene generator version; no 3D ground truth", path)
         return None
     return scene
+

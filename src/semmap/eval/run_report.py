@@ -287,6 +287,7 @@ class RunOutcome:
     cloud_cell_m: float | None = None  # its voxel filter's cell (m)
     dynamic: dict | None = None  # the dynamic classes and the points that only cleared free space (None: no class)
     continued: dict | None = None  # --continue: the prior and how the recording was aligned to it
+    realism: str | None = None  # the simulator's realism preset of simulated frames (None: recorded data)
 
 
 def _frames_report(o: RunOutcome) -> dict:
@@ -299,6 +300,7 @@ def _frames_report(o: RunOutcome) -> dict:
     ms["total"] = round(sum(v for k, v in ms.items() if k not in beside), 3)
     return {
         "dataset": o.dataset,
+        **({} if o.realism is None else {"realism": o.realism}),
         "resolution": primary.resolution,
         "frames_used": n,
         "frames_skipped": len(o.skipped) + len(o.record.no_pose),

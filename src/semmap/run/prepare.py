@@ -174,3 +174,29 @@ def pose_source_to_resume(config: RunConfig, dataset: Dataset) -> FramePoses:
     if source in METHODS or source in OBJECT_METHODS:
         return FramePoses(source)
     return pose_source_for(config, dataset)
+
+
+def simulated_realism(dataset: object, path: object = None) -> str | None:
+    """The realism preset simulated frames were rendered with: a simulated dataset's (its ``realism``), or the one a
+    ``semmap simulate`` folder's scene.json records (``clean`` for folders written before presets existed);
+    None for recorded data."""
+    if isinstance(getattr(dataset, "realism", None), str):
+        return dataset.realism
+    import json
+    from pathlib import Path
+
+    from semmap.errors import SemmapError
+    from semmap.files.safe import read_text_limited
+    from semmap.sim.realism import DEFAULT_REALISM
+
+    root = getattr(dataset, "root", None) or path
+    scene_json = Path(root) / "scene.json" if root is not None else None
+    if scene_json is None or not scene_json.is_file():
+        return None
+    try:
+        info = json.loads(read_text_limited(scene_json, what="scene description"))
+    except (OSError, ValueError, SemmapError):
+        return None
+    if not isinstance(info, dict) or "generator_version" not in info:
+        return None
+    return str(info.get("realism", DEFAULT_REALISM))

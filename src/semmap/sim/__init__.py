@@ -6,6 +6,8 @@ Public API (imported lazily, so ``import semmap.sim`` stays cheap)::
     Renderer(scene, intrinsics=None, *, noise=False, seed=0, backend="raster").render(T_world_cam, frame_index=0)
         -> RenderedView(rgb, depth, labels, instances)
     KinectNoise(seed=0, ...).apply(depth, cos_incidence, frame_index)
+    StructuredLight(seed=0, ...) / TimeOfFlight(...).apply_view(depth, cos_incidence, frame_index, fx=...)
+    realism("clean" | "kinect" | "hard") -> Realism (depth model, colour, motion); REALISMS
     make_trajectory(scene, kind, n_frames, seed, fps=30.0, motion=None) -> (N, 4, 4) T_world_cam
     colour_params(preset) -> ColourParams (Renderer(colour=...));  motion_params(preset) -> MotionParams
     gt_voxels(scene, resolution) -> GroundTruthVoxels;  gt_objects(scene) -> list[SceneObject]
@@ -26,6 +28,8 @@ _BY_MODULE = {
     "semmap.sim.noise": ("KinectNoise",),
     "semmap.sim.camera_model": ("ColourParams", "colour_params"),
     "semmap.sim.hand_motion": ("MotionParams", "motion_params"),
+    "semmap.sim.depth_sensor": ("StructuredLight", "TimeOfFlight"),
+    "semmap.sim.realism": ("Realism", "realism", "REALISMS"),
     "semmap.sim.trajectory": ("make_trajectory", "look_at", "TRAJECTORY_KINDS"),
     "semmap.sim.ground_truth": ("GroundTruthVoxels", "gt_voxels", "gt_objects"),
     "semmap.keys": ("coords_to_keys",),

@@ -33,8 +33,8 @@ from semmap.limits import check, check_simulation
 from semmap.sim.camera_model import ColourParams
 from semmap.sim.changes import change_scene
 from semmap.sim.hand_motion import MotionParams
-from semmap.sim.noise import KinectNoise
 from semmap.sim.people import Walker, add_people
+from semmap.sim.realism import Realism, realism
 from semmap.sim.render import Renderer
 from semmap.sim.scene import Scene, generate_scene
 from semmap.sim.trajectory import make_trajectory
@@ -65,14 +65,16 @@ def simulate_sequence(
     colour: ColourParams | None = None,
     motion: MotionParams | None = None,
     people: int = 0,
+    realism: str | Realism | None = None,
 ) -> Path:
     """Render ``frames`` frames of a ``trajectory`` through scene (``scene_seed``, ``kind``, ``size``;
     ``symmetric``: see :mod:`semmap.sim.symmetric`) into ``out_dir`` (TUM layout plus ground truth) and return the
     folder; the path is drawn from ``trajectory_seed`` (default: the scene seed). Same arguments, same bytes. A low
-    ``fps`` spreads few frames over the whole path (varied views for training data). ``colour`` and ``motion`` are the
-    colour camera and the way the camera is carried (:mod:`semmap.sim.camera_model`, :mod:`semmap.sim.hand_motion`;
-    default: the ideal image on the smooth path). ``people`` walk through the scene (:mod:`semmap.sim.people`;
-    labelled ``person``, left out of the 3D ground truth and ``objects.json``)."""
+    ``fps`` spreads few frames over the whole path (varied views for training data). ``realism`` names the
+    preset of :mod:`semmap.sim.realism` (default ``clean``: today's frames; scene.json records it): its depth
+    sensor, colour camera and hand-held motion; ``colour`` and ``motion`` override the preset's
+    (:mod:`semmap.sim.camera_model`, :mod:`semmap.sim.hand_motion`). ``people`` walk through the scene
+    (:mod:`semmap.sim.people`; labelled ``person``, left out of the 3D ground truth and ``objects.json``)."""
     if not isinstance(frames, (int, np.integer)) or frames <= 0:
         raise SimulationError(f"frames must be a positive integer, got {frames!r}")
     check_simulation(int(frames), image_size)
@@ -82,6 +84,7 @@ def simulate_sequence(
     check("seed", trajectory_seed, "--trajectory-seed")
     check("seed", changes_seed, "--changes-seed")
     check("people", people, "--people")
+    preset = realism_of(realism, noise)
     if image_size is not None:
         check_reduced_size(image_size, intrinsics or DEFAULT_INTRINSICS)
     root = Path(out_dir)
@@ -92,7 +95,8 @@ def simulate_sequence(
         _write_sequence(stage, scene_seed=scene_seed, kind=kind, trajectory=trajectory, frames=int(frames), size=size,
                         noise=noise, intrinsics=intrinsics, progress=progress, image_size=image_size, fps=fps,
                         symmetric=symmetric, trajectory_seed=trajectory_seed, layout=layout,
-                        changes=(changes, changes_seed), colour=colour, motion=motion, people=int(people))
+                        changes=(changes, changes_seed), colour=colour or preset.colour_camera(scene_seed),
+                        motion=motion or preset.motion, people=int(people), preset=preset)
         staged.commit()  # every file is there: the folder becomes ``out_dir`` in one rename
     except KeyboardInterrupt:
         staged.abandon(keep_checkpoint=False)  # Ctrl-C leaves nothing half-written, and says so
@@ -117,7 +121,7 @@ def _write_sequence(root: Path, *, scene_seed: int, kind: str, trajectory: str, 
                     image_size: tuple[int, int] | None, fps: float, symmetric: bool,
                     trajectory_seed: int | None, layout: str = "tum", changes: tuple[int, int] = (0, 1),
                     colour: ColourParams | None = None, motion: MotionParams | None = None,
-                    people: int = 0) -> None:
+                    people: int = 0, preset: Realism | None = None) -> None:
     """Render and write the whole sequence into the folder ``root`` (the staging folder)."""
     scene = generate_scene(scene_seed, kind, size, symmetric=symmetric)
     if changes[0]:
@@ -125,8 +129,9 @@ def _write_sequence(root: Path, *, scene_seed: int, kind: str, trajectory: str, 
         write_text_atomic(root / "changes.json", json.dumps(record, indent=1) + "\n")
     poses = make_trajectory(scene, trajectory, int(frames), seed=scene_seed if trajectory_seed is None
                             else trajectory_seed, fps=fps, motion=motion)
+    preset = preset or realism()
     shown, walkers = add_people(scene, people, scene_seed, poses[:, :3, 3], fps)  # (the scene stays static)
-    renderer = Renderer(shown, intrinsics, noise=KinectNoise(seed=scene_seed) if noise else False, colour=colour)
+    renderer = Renderer(shown, intrinsics, noise=preset.depth_model(scene_seed, noise) or False, colour=colour)
     frames_out = render_frames(renderer, poses, progress, fps=fps, walkers=walkers)
     stored = renderer.intrinsics
     if image_size is not None:
@@ -136,7 +141,8 @@ def _write_sequence(root: Path, *, scene_seed: int, kind: str, trajectory: str, 
     write_text_atomic(root / "objects.json", json.dumps([o.to_dict() for o in scene.objects], indent=1) + "\n")
     info = {**scene.params, "trajectory": trajectory, "frames": int(frames), "fps": fps, "noise": bool(noise),
             "depth_scale": DEPTH_SCALE, "intrinsics": stored.to_dict(),
-            "n_triangles": scene.n_triangles, "n_objects": len(scene.objects), "layout": layout}
+            "n_triangles": scene.n_triangles, "n_objects": len(scene.objects), "layout": layout,
+            "realism": preset.name}
     if layout == "scannet":
         info["label_space"] = "nyu40"  # the 3D ground truth's classes are mapped like the frames' labels
     if trajectory_seed is not None:
@@ -214,11 +220,13 @@ def render_frames(renderer: Renderer, poses: np.ndarray, progress: Callable[[int
 
 def simulate_frames(scene: Scene, poses: np.ndarray, *, noise: bool = True, seed: int = 0,
                     intrinsics: CameraIntrinsics | None = None, colour: ColourParams | None = None,
-                    people: int = 0, fps: float = FPS) -> Iterator[Frame]:
+                    people: int = 0, fps: float = FPS, realism: str | Realism | None = None) -> Iterator[Frame]:
     """In-memory counterpart of :func:`simulate_sequence` for a given scene and poses (no files), with ``people``
-    walking through it (seeded by ``seed``)."""
+    walking through it (seeded by ``seed``) and the ``realism`` preset's sensors (``colour`` overrides its camera)."""
+    preset = realism_of(realism, noise)
     scene, walkers = add_people(scene, people, seed, np.asarray(poses)[:, :3, 3], fps)
-    renderer = Renderer(scene, intrinsics, noise=KinectNoise(seed=seed) if noise else False, colour=colour)
+    renderer = Renderer(scene, intrinsics, noise=preset.depth_model(seed, noise) or False,
+                        colour=colour or preset.colour_camera(seed))
     yield from render_frames(renderer, poses, fps=fps, walkers=walkers)
 
 
@@ -231,3 +239,13 @@ def camera_info(colour: ColourParams | None, motion: MotionParams | None) -> dic
     if motion is not None and motion.hand:
         info["hand_motion"] = dataclasses.asdict(motion)
     return info
+
+
+def realism_of(name: str | Realism | None, noise: bool = True) -> Realism:
+    """The realism preset ``name``; exact depth (``noise`` off) is only offered with ``clean``, whose frames
+    are today's: the other presets are their sensor, and a noiseless one would be neither."""
+    preset = realism(name)
+    if not noise and not preset.exact_geometry:
+        raise SimulationError(f"--no-noise works only with --realism clean; --realism {preset.name} simulates a "
+                              f"real sensor's depth")
+    return preset

@@ -25,6 +25,7 @@ from semmap.errors import SimulationError
 from semmap.sim import _raster_kernels as raster_k
 from semmap.sim import _render_kernels as shade_k
 from semmap.sim.camera_model import ColourParams, apply_colour, sequence_twist
+from semmap.sim.depth_sensor import DepthSensor
 from semmap.sim.noise import KinectNoise
 from semmap.sim.scene import Scene
 from semmap.sim.textures import TextureAtlas
@@ -55,17 +56,17 @@ class RenderedView:
 class Renderer:
     """Renders a :class:`Scene` from camera poses ``T_world_cam`` (x right, y down, z forward).
 
-    ``noise`` (a :class:`KinectNoise`, ``True`` for the default model with ``seed``, or ``False``) is applied
-    to the depth; frame ``frame_index`` of :meth:`render` selects its random numbers, so frames are
-    reproducible independently of rendering order. ``backend`` picks the visibility method (see the module
-    docstring); ``nthreads`` = 0 lets open3d use all cores. ``colour`` (a
-    :class:`~semmap.sim.camera_model.ColourParams`; default: clean, the ideal image) is the colour camera: blur,
-    rolling shutter and the colour-depth time offset need the camera's motion, which :meth:`render_in` takes from
-    the neighbouring poses of a sequence.
+    ``noise`` (a :class:`KinectNoise`, ``True`` for the default model with ``seed``, a sensor model of
+    :mod:`semmap.sim.depth_sensor`, or ``False``) is applied to the depth; frame ``frame_index`` of
+    :meth:`render` selects its random numbers, so frames are reproducible independently of rendering order.
+    ``backend`` picks the visibility method (see the module docstring); ``nthreads`` = 0 lets open3d use all cores.
+    ``colour`` (a :class:`~semmap.sim.camera_model.ColourParams`; default: clean, the ideal image) is the colour
+    camera: blur, rolling shutter and the colour-depth time offset need the camera's motion, which
+    :meth:`render_in` takes from the neighbouring poses of a sequence.
     """
 
     def __init__(self, scene: Scene, intrinsics: CameraIntrinsics | None = None, *,
-                 noise: KinectNoise | bool = False, seed: int = 0, backend: str = "raster",
+                 noise: KinectNoise | DepthSensor | bool = False, seed: int = 0, backend: str = "raster",
                  nthreads: int = 0, colour: ColourParams | None = None) -> None:
         if backend not in BACKENDS:
             raise SimulationError(f"unknown render backend {backend!r}; choose one of {', '.join(BACKENDS)}")
@@ -73,13 +74,16 @@ class Renderer:
         self.backend = backend
         self.intrinsics = intrinsics or DEFAULT_INTRINSICS
         if noise is True:
-            self.noise: KinectNoise | None = KinectNoise(seed=seed)
+            self.noise: KinectNoise | DepthSensor | None = KinectNoise(seed=seed)
         else:
             self.noise = noise or None
         self.nthreads = int(nthreads)
         self.colour = colour or ColourParams()
         self._raycaster = scene_raycaster(scene, self.nthreads)
         self._tables(scene)
+        # per-triangle probability that the depth sensor gets no return (dark, glossy, transparent materials)
+        self._tri_drop = (None if self.noise is None or isinstance(self.noise, KinectNoise) else
+                          np.ascontiguousarray(self.noise.material_dropout(scene.materials)[self._tri_mat]))
         cam = self.intrinsics
         u, v = np.meshgrid(np.arange(cam.width, dtype=np.float64), np.arange(cam.height, dtype=np.float64))
         self._dirs = np.stack([(u - cam.cx) / cam.fx, (v - cam.cy) / cam.fy, np.ones_like(u)], -1) \
@@ -161,8 +165,11 @@ class Renderer:
         depth = depth.reshape(shape)
         rgb = apply_colour(rgb.reshape((*shape, 3)), depth, cam.fx, cam.fy, cam.cx, cam.cy, self.colour,
                            frame_index, twist, fps)
-        if self.noise is not None:
+        if isinstance(self.noise, KinectNoise):
             depth = self.noise.apply(depth, cos_inc.reshape(shape), frame_index)
+        elif self.noise is not None:
+            depth = self.noise.apply_view(depth, cos_inc.reshape(shape), frame_index, fx=cam.fx, tri_ids=ids,
+                                          tri_drop=self._tri_drop)
         return RenderedView(rgb, depth, labels.reshape(shape), instances.reshape(shape))
 
     def render_in(self, poses: np.ndarray, i: int, fps: float = 30.0) -> RenderedView:
