@@ -12,11 +12,12 @@ strides 2, 4, 8, 16), so that every architecture can start from the encoder trai
   2-4.  Each CBAM sits behind a scalar gate g initialised to 0: ``y + g (CBAM(y) - y)``, so at step 0 the encoder
   computes exactly the pretrained function, and g = 1 is the paper's block.
 * RGB-D net: the pretrained colour encoder plus a depth branch (four stages of a strided and a plain 3x3 conv +
-  BN + ReLU, strides 2-16, VGG-16 block widths) whose features are added to the colour features after each of the four levels (step-by-step fusion,
-  FuseNet-style, as the RGB-D paper fuses), through 1x1 projections initialised to zero (step 0 = the colour-only
-  network); then the paper's multi-scale feature fusion module on level 4 and a 1x1 classifier.  Depth encoding:
-  one channel of metric depth normalised to (d - 2.5 m) / 1.5 m, invalid (0) pixels set to 0 after normalising
-  (:func:`normalised_depth`); HHA is not used.  ``use_depth=False`` is its colour-only twin.
+  BN + ReLU, strides 2-16, VGG-16 block widths) whose features are added to the colour features after each of
+  the four levels (step-by-step fusion, FuseNet-style, as the RGB-D paper fuses), through 1x1 projections
+  initialised to zero (step 0 = the colour-only network); then the paper's multi-scale feature fusion module on
+  level 4 and a 1x1 classifier.  Depth encoding: one channel of metric depth normalised to (d - 2.5 m) / 1.5 m,
+  invalid (0) pixels set to 0 after normalising (:func:`normalised_depth`); HHA is not used.  ``use_depth=False``
+  is its colour-only twin.
 """
 
 from __future__ import annotations
