@@ -29,6 +29,8 @@ ESPNET_INITS = {"espnetv2-pascal": "espnetv2-s2", "espnetv2-pascal-s1": "espnetv
                 "espnetv2-pascal-s2": "espnetv2-s2"}
 #: ESPNetv2 backbone -> its published weight file.
 ESPNET_FILES = {"espnetv2-s1": "espnetv2_s_1.0_pascal_384x384.pth", "espnetv2-s2": "espnetv2_s_2.0_pascal_384x384.pth"}
+#: Where the ESPNetv2 files lie beside the repository (``../shared/weights/espnetv2``).
+ESPNET_SHARED_DIR = Path("shared/weights/espnetv2")
 #: Environment variable naming the folder of the ESPNetv2 files.
 PRETRAINED_ENV = "SEMMAP_PRETRAINED_DIR"
 TORCHVISION = "torchvision:"
@@ -114,7 +116,7 @@ def load_matching(model: nn.Module, source: Mapping[str, torch.Tensor], rename: 
 def espnet_dir() -> Path:
     """Folder of the ESPNetv2 PASCAL files: ``$SEMMAP_PRETRAINED_DIR``, else ``../shared/weights/espnetv2``."""
     env = os.environ.get(PRETRAINED_ENV)
-    return Path(env) if env else Path(__file__).resolve().parents[4].parent / "shared" / "weights" / "espnetv2"
+    return Path(env) if env else Path(__file__).resolve().parents[4].parent / ESPNET_SHARED_DIR
 
 
 def load_espnet_encoder(model: nn.Module, name: str, folder: Path | None = None) -> LoadSummary:
