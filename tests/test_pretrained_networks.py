@@ -213,3 +213,20 @@ def test_segmenter_applies_the_stored_temperature_unless_turned_off(tmp_path: Pa
     p_hot, p_cold = hot.probabilities(rgb).astype(np.float32), cold.probabilities(rgb).astype(np.float32)
     assert (p_hot.argmax(-1) == p_cold.argmax(-1)).mean() > 0.99  # same ranking, flatter distribution
     assert p_hot.max(-1).mean() < p_cold.max(-1).mean()
+
+
+def test_training_from_a_pretrained_start_stores_init_and_temperature(with_pascal: Path, tmp_path: Path) -> None:
+    from semmap.perception.networks.registry import load_weights
+    from semmap.train.trainer import Trainer
+    from test_train import settings, write_plain
+
+    data = write_plain(tmp_path / "data")
+    trainer = Trainer(settings(tmp_path, data, init="espnetv2-pascal-s1", iterations=1))
+    assert trainer.spec.backbone == BACKBONE and trainer.init_summary is not None
+    assert len(trainer.init_summary.loaded) == 361
+    result = trainer.run()
+    best = load_weights(result.best)
+    assert best.meta["init"] == "espnetv2-pascal-s1" and best.spec.describe().startswith("pspnet-espnetv2-s1")
+    assert best.meta["temperature"] == result.rows[-1]["val_temperature"] > 0
+    assert {"val_nll", "val_nll_calibrated", "val_ece", "val_ece_calibrated"} <= set(result.rows[-1])
+    assert result.rows[-1]["val_nll_calibrated"] <= result.rows[-1]["val_nll"]
