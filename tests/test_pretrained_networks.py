@@ -230,3 +230,21 @@ def test_training_from_a_pretrained_start_stores_init_and_temperature(with_pasca
     assert best.meta["temperature"] == result.rows[-1]["val_temperature"] > 0
     assert {"val_nll", "val_nll_calibrated", "val_ece", "val_ece_calibrated"} <= set(result.rows[-1])
     assert result.rows[-1]["val_nll_calibrated"] <= result.rows[-1]["val_nll"]
+
+
+def test_calibrate_weights_writes_a_copy_with_its_temperature(tmp_path: Path) -> None:
+    from semmap.errors import SemmapError
+    from semmap.perception.networks.registry import load_weights
+    from semmap.train.calibrate import calibrate_weights
+    from test_train import write_plain
+
+    data = write_plain(tmp_path / "data", n=3)
+    spec = NetworkSpec("fcn", 4, width=0.125, depth=18)
+    torch.manual_seed(0)
+    src = save_weights(tmp_path / "fcn.pt", build_network(spec), spec, LabelSet.generic(4), (32, 24), {})
+    record = calibrate_weights(src, [data], tmp_path / "cal.pt", pixel_step=2)
+    cal = load_weights(tmp_path / "cal.pt")
+    assert cal.meta["temperature"] == record["temperature"] > 0 and record["nll_calibrated"] <= record["nll"]
+    assert "temperature" not in load_weights(src).meta
+    with pytest.raises(SemmapError):  # the input is never an output
+        calibrate_weights(src, [data], src)

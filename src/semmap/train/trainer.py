@@ -44,7 +44,7 @@ from semmap.perception.networks.registry import (
 )
 from semmap.perception.networks.resnet import LAYOUTS
 from semmap.train.augment import Augmentation, augment
-from semmap.train.calibrate import calibration_scores, fit_temperature
+from semmap.train.calibrate import calibration_scores, fit_temperature, softmax
 from semmap.train.class_weights import IGNORE, median_frequency_weights
 from semmap.train.data import DEPTH_MM, TrainingSet, gather
 
@@ -407,15 +407,10 @@ def _calibration_row(logits: np.ndarray, labels: np.ndarray) -> dict:
     if len(labels) == 0:
         return {}
     t = fit_temperature(logits, labels)
-    before = calibration_scores(_softmax(logits), labels)
-    after = calibration_scores(_softmax(logits / t), labels)
+    before = calibration_scores(softmax(logits), labels)
+    after = calibration_scores(softmax(logits / t), labels)
     return {"val_temperature": round(t, 4), "val_nll": before["nll"], "val_nll_calibrated": after["nll"],
             "val_ece": before["ece"], "val_ece_calibrated": after["ece"]}
-
-
-def _softmax(logits: np.ndarray) -> np.ndarray:
-    z = np.exp(logits - logits.max(axis=1, keepdims=True))
-    return z / z.sum(axis=1, keepdims=True)
 
 
 def _split(ds: TrainingSet, fraction: float) -> tuple[TrainingSet, TrainingSet]:
