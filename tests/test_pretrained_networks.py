@@ -83,6 +83,12 @@ def test_missing_pascal_file_and_unknown_init_are_one_line_errors(tmp_path: Path
     assert "\n" not in str(err.value)
     with pytest.raises(ConfigError, match="choose from espnetv2-pascal"):
         pretrained.init_plan("imagenet")
+    from semmap.train.trainer import TrainSettings
+
+    with pytest.raises(ConfigError, match="--model pspnet has no vgg16 backbone"):
+        TrainSettings(model="pspnet", data=(tmp_path,), out=tmp_path / "o", init="torchvision:vgg16").with_init()
+    s = TrainSettings(model="rgb-only", data=(tmp_path,), out=tmp_path / "o", init="torchvision:vgg16").with_init()
+    assert (s.backbone, s.width) == ("vgg16", 1.0)
 
 
 def test_cbam_is_the_identity_at_step_zero(with_pascal: Path) -> None:

@@ -122,6 +122,11 @@ class TrainSettings:
         if self.init is None:
             return self
         plan = init_plan(self.init)
+        entry = MODELS[self.model]
+        fits = {"resnet": entry.chooses_backbone or entry.backbone is None,
+                "vgg16": entry.chooses_backbone or entry.backbone == "vgg16"}.get(plan.backbone, True)
+        if not fits:
+            raise ConfigError(f"--init {self.init}: --model {self.model} has no {plan.backbone} backbone")
         return replace(self, backbone=plan.backbone, depth=plan.depth or self.depth, width=plan.width or self.width)
 
     def spec(self, num_classes: int) -> NetworkSpec:
