@@ -179,6 +179,29 @@ def test_offline_torchvision_says_so_in_one_line(monkeypatch: pytest.MonkeyPatch
     assert "\n" not in str(err.value) and "offline" in str(err.value)
 
 
+
+@pytest.mark.parametrize("model", ["cbam-pspnet", "rgbd-net"])
+def test_onnx_export_of_the_espnet_heads_agrees_with_pytorch(model: str, tmp_path: Path) -> None:
+    import onnxruntime as ort
+
+    from semmap.perception.network import export_onnx
+
+    torch.manual_seed(0)
+    net = build_network(espnet_spec(model)).eval()
+    with torch.no_grad():  # open the zero-initialised gates / projections so that every branch counts
+        for name, p in net.named_parameters():
+            if name.endswith(".gate") or name.startswith("fuse."):
+                p.normal_(0.0, 0.5)
+    g = torch.Generator().manual_seed(4)
+    x, d = torch.randn(1, 3, 60, 80, generator=g), 4 * torch.rand(1, 1, 60, 80, generator=g)
+    depth = MODELS[model].uses_depth
+    path = export_onnx(net, tmp_path / f"{model}.onnx", tuple(x.shape), with_depth=depth)
+    sess = ort.InferenceSession(str(path), providers=["CPUExecutionProvider"])
+    got = sess.run(None, {"image": x.numpy()} | ({"depth": d.numpy()} if depth else {}))[0]
+    with torch.no_grad():
+        ref = net(x, d if depth else None).numpy()
+    np.testing.assert_allclose(got, ref, rtol=1e-3, atol=1e-3)
+
 # ----------------------------------------------------------------------------------------------- calibration
 def test_temperature_fit_recovers_a_known_temperature() -> None:
     rng = np.random.default_rng(0)
