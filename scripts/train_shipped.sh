@@ -18,6 +18,7 @@ ITERATIONS=${ITERATIONS:-2000}
 DEVICE=${DEVICE:-cpu}
 THREADS=${THREADS:-1}
 INIT=${INIT:-}
+mkdir -p "$RUNS"
 for model in $MODELS; do
   if [ -f "$RUNS/$model/final.pt" ]; then continue; fi
   extra=""
