@@ -8,13 +8,15 @@ pixels left out) of the top class at 640x480, parameters, and ms per 640x480 fra
 `semmap run` uses (resize, network, softmax, sampling at every pixel, top-3).  ESPNetv2 (PASCAL VOC weights in
 ../shared) is the peer: timed in the same run, scored on the classes VOC shares with the simulator
 (``miou_shared``; every network gets that column too).  ONNX rows report the share of pixels whose top class
-equals PyTorch's.
+equals PyTorch's.  PyTorch rows also give the calibration of the probabilities on the test pixels: expected
+calibration error (15 bins) and NLL with the temperature stored with the weights (``ece``, ``nll``) and without
+(``ece_uncalibrated``, ``nll_uncalibrated``); ``init`` says how the network started (``scratch`` or --init).
 
 Timings depend on the machine's load: the development machine is shared (2 cores, other jobs running).
 The last line is JSON: {"bench": "networks", "results": [{"model", "input", "params", "mpa", "miou",
-"ms_per_frame", "runtime", ...}, ...]}
+"ms_per_frame", "runtime", "init", "ece", "nll", ...}, ...]}
 
-    python benchmarks/bench_networks.py [--quick] [--threads 2] [--weights-dir weights]
+    python benchmarks/bench_networks.py [--quick] [--threads 2] [--weights-dir weights] [--networks pspnet,fcn]
 """
 
 from __future__ import annotations
@@ -33,6 +35,7 @@ from semmap.perception.registry import TRAINED_NETWORKS, make_segmenter, shipped
 from semmap.sim.export import simulate_frames
 from semmap.sim.scene import generate_scene
 from semmap.sim.trajectory import make_trajectory
+from semmap.train.calibrate import calibration_scores
 from semmap.types import Frame
 
 SHARED = Path(__file__).resolve().parents[1].parent / "shared"
@@ -44,6 +47,8 @@ TRAJECTORY_FRAMES = 300
 VOC_TO_INDOOR = {"chair": "chair", "diningtable": "table", "sofa": "sofa", "tvmonitor": "monitor",
                  "bottle": "bottle", "pottedplant": "plant", "person": "person"}
 VOID = 0
+#: Test pixels the calibration scores use: every n-th row and column.
+CALIBRATION_STEP = 4
 
 
 def test_frames(step: int) -> list[Frame]:
@@ -98,11 +103,33 @@ def evaluate(seg, frames: list[Frame], voc: bool = False) -> tuple[dict, list[np
     return out, preds
 
 
+def calibration(seg, frames: list[Frame], step: int = CALIBRATION_STEP) -> dict:
+    """ECE (15 bins) and NLL of the segmenter's probabilities on the test pixels (every ``step``-th row and
+    column, void left out), with its stored temperature and with none (``*_uncalibrated``)."""
+    stored = seg.temperature
+    out = {"temperature": stored}
+    for key, t in (("", stored), ("_uncalibrated", 1.0)):
+        seg.temperature = t
+        probs, labels = [], []
+        for f in frames:
+            p = seg.probabilities(f.rgb, f.depth if seg.uses_depth else None)[::step, ::step].astype(np.float32)
+            lab = f.labels[::step, ::step].astype(np.int64)
+            keep = lab != VOID
+            probs.append(p[keep])
+            labels.append(lab[keep])
+        sc = calibration_scores(np.concatenate(probs), np.concatenate(labels))
+        out |= {f"ece{key}": sc["ece"], f"nll{key}": sc["nll"]}
+    seg.temperature = stored
+    return out
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--quick", action="store_true", help="every 60th frame of each test loop (20 frames)")
     parser.add_argument("--threads", type=int, default=2, help="CPU threads of both runtimes")
     parser.add_argument("--weights-dir", type=Path, default=None, help="folder of <network>.pt (default: weights/)")
+    parser.add_argument("--networks", default=None, help="comma-separated networks to run (default: all shipped)")
+    parser.add_argument("--no-peer", action="store_true", help="leave out the ESPNetv2 VOC peer")
     args = parser.parse_args()
     wdir = args.weights_dir or shipped_weights_dir()
     t0 = time.perf_counter()
@@ -110,13 +137,15 @@ def main() -> None:
     print(f"{len(frames)} test frames (scene seeds {[s for s, _ in TEST_SCENES]}) rendered in "
           f"{time.perf_counter() - t0:.1f} s; machine shared: timings are indicative")
     results = []
-    for name in TRAINED_NETWORKS:
+    wanted = TRAINED_NETWORKS if args.networks is None else tuple(n.strip() for n in args.networks.split(","))
+    for name in (n for n in TRAINED_NETWORKS if n in wanted):
         path = wdir / f"{name}.pt"
         if not path.is_file():
             print(f"skipping {name}: {path} not found")
             continue
         loaded = load_weights(path)
-        base = {"model": loaded.spec.describe(), "network": name,
+        init = loaded.meta.get("init") or (loaded.meta.get("settings") or {}).get("init") or "scratch"
+        base = {"model": loaded.spec.describe(), "network": name, "init": init,
                 "input": "x".join(map(str, loaded.input_size)), "params": count_parameters(loaded.model)}
         torch_preds = None
         for runtime in ("torch", "onnx"):
@@ -125,6 +154,7 @@ def main() -> None:
             row = base | row | {"runtime": runtime}
             if torch_preds is None:
                 torch_preds = preds
+                row |= calibration(seg, frames)  # the same probabilities in both runtimes: scored once
             else:
                 same = np.mean([np.mean(a == b) for a, b in zip(preds, torch_preds, strict=True)])
                 row["agreement_with_torch"] = round(float(same), 5)
@@ -132,8 +162,12 @@ def main() -> None:
             print(f"{row['model']:26s} {runtime:5s} {row['input']:>7s}  MIoU {row['miou']:.3f}  MPA {row['mpa']:.3f}"
                   f"  shared-class MIoU {row['miou_shared']:.3f}  {row['ms_per_frame']:6.1f} ms/frame"
                   + (f"  agrees with torch on {100 * row['agreement_with_torch']:.2f} % of pixels"
-                     if "agreement_with_torch" in row else ""))
-    if ESPNETV2.is_file():
+                     if "agreement_with_torch" in row else "")
+                  + (f"  ECE {row['ece_uncalibrated']:.3f} -> {row['ece']:.3f}, NLL {row['nll_uncalibrated']:.3f} -> "
+                     f"{row['nll']:.3f} (T {row['temperature']:g})" if "ece" in row else ""))
+    if args.no_peer:
+        pass
+    elif ESPNETV2.is_file():
         for runtime in ("torch", "onnx"):
             seg = make_segmenter("espnetv2", weights=ESPNETV2, backend=runtime, threads=args.threads)
             row, _ = evaluate(seg, frames, voc=True)

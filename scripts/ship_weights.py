@@ -36,19 +36,27 @@ def command(config: dict) -> str:
             f"--val {' --val '.join(config['val'])} --out {config['out']} --iterations {config['iterations_total']} "
             f"--batch {config['batch']} --lr {config['lr']:g} --input-size {w}x{h} --width {config['width']:g} "
             f"--resnet-depth {config['depth']} --seed {config['seed']} --threads {config['threads']} "
-            f"--eval-every {config['eval_every']}")
+            f"--eval-every {config['eval_every']}"
+            + (f" --init {config['init']}" if config.get("init") else "")
+            + (f" --backbone {config['backbone']}" if config.get("backbone") not in (None, "resnet") else ""))
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--runs", type=Path, default=Path("outputs/train-runs"))
     parser.add_argument("--bench", type=Path, default=None, help="JSON line of benchmarks/bench_networks.py")
+    parser.add_argument("--networks", default=None, help="comma-separated networks to ship from --runs; the other "
+                        "entries of the manifest are kept as they are (default: all, manifest rewritten)")
+    parser.add_argument("--data-command", default=None, help="the make_training_data.py command of these runs' data, "
+                        "recorded per network (when it differs from the manifest's)")
     args = parser.parse_args()
     out = shipped_weights_dir()
     out.mkdir(parents=True, exist_ok=True)
     bench = json.loads(args.bench.read_text().strip().splitlines()[-1]) if args.bench else None
-    networks = {}
-    for name in TRAINED_NETWORKS:
+    old_manifest = json.loads((out / MANIFEST).read_text()) if (out / MANIFEST).is_file() else {}
+    only = None if args.networks is None else {n.strip() for n in args.networks.split(",")}
+    networks = {} if only is None else dict(old_manifest.get("networks", {}))
+    for name in (n for n in TRAINED_NETWORKS if only is None or n in only):
         run = args.runs / name
         if not (run / "final.pt").is_file():
             print(f"{name}: no finished run in {run}; not shipped")
@@ -67,11 +75,16 @@ def main() -> None:
                  "command": command(config),
                  "best_iteration": loaded.meta.get("iteration"), "validation": loaded.meta.get("metrics"),
                  "train_seconds": log["rows"][-1]["seconds"], "train_images": config["train_images"],
-                 "val_images": config["val_images"]}
+                 "val_images": config["val_images"], "init": config.get("init") or "scratch",
+                 "temperature": loaded.meta.get("temperature", 1.0)}
+        if args.data_command:
+            entry["data_command"] = args.data_command
         if bench is not None:
             rows = [r for r in bench["results"] if r["network"] == name]
             entry["test"] = {r["runtime"]: {k: r.get(k) for k in ("miou", "mpa", "pixel_accuracy", "miou_shared",
-                                                                   "ms_per_frame", "agreement_with_torch")}
+                                                                   "ms_per_frame", "agreement_with_torch", "ece",
+                                                                   "nll", "ece_uncalibrated", "nll_uncalibrated")
+                                            if k in r}
                              for r in rows}
         networks[name] = entry
         print(f"{name}: {entry['network']}, {len(data) / 1e6:.2f} MB, val mIoU {entry['validation']['val_miou']}")
@@ -87,17 +100,17 @@ def main() -> None:
                  "generate": "python scripts/make_training_data.py --out outputs/train-data --image-size 160x120"},
         "networks": networks,
     }
-    if bench is not None:
+    if only is not None:  # the data section describes the networks kept from before
+        manifest["data"] = old_manifest.get("data", manifest["data"])
+    if bench is not None and only is None:
         onnx = {n: e["test"]["onnx"] for n, e in networks.items() if "onnx" in e.get("test", {})}
         best = max(onnx, key=lambda n: onnx[n]["miou"] / onnx[n]["ms_per_frame"])
         manifest["demo"] = {"network": best, "rule": "highest test MIoU per ms (ONNX Runtime, 640x480 frame)",
                             "miou": onnx[best]["miou"], "ms_per_frame": onnx[best]["ms_per_frame"],
                             "bench_frames": bench["frames"], "bench_threads": bench["threads"]}
         print(f"demo network: {best}")
-    elif (out / MANIFEST).is_file():  # keep an earlier choice when only re-copying
-        old = json.loads((out / MANIFEST).read_text())
-        if "demo" in old:
-            manifest["demo"] = old["demo"]
+    elif "demo" in old_manifest:  # keep an earlier choice when only re-copying
+        manifest["demo"] = old_manifest["demo"]
     write_text_atomic(out / MANIFEST, json.dumps(manifest, indent=1) + "\n")
 
 

@@ -178,6 +178,10 @@ def run(
     class_map: Annotated[Path | None, typer.Option(help="JSON mapping of an onnx:/hf: model's classes to the map's "
                                                    "labels (or a shipped one: ade20k-150, nyu40, coco-panoptic-133)",
                                                    rich_help_panel=_SEMANTICS)] = None,
+    calibration: Annotated[bool, typer.Option("--calibration/--no-calibration",
+                                              help="scale a trained network's probabilities by the temperature "
+                                                   "fitted on its validation scenes (stored with its weights)",
+                                              rich_help_panel=_SEMANTICS)] = True,
     segment_every: Annotated[int, typer.Option(help="segment every k-th frame (others add geometry and colour)",
                                                rich_help_panel=_SEMANTICS)] = _default(SemanticsConfig,
                                                                                        "segment_every"),
@@ -301,7 +305,7 @@ def run(
                                   temperature=temperature,
                                   max_confidence=max_confidence, segmenter=segmenter,
                                   weights=weights, trust_weights=trust_weights, segmenter_config=segmenter_config,
-                                  class_map=class_map, segment_every=segment_every,
+                                  class_map=class_map, calibration=calibration, segment_every=segment_every,
                                   keyframes=keyframes,
                                   batch_size=batch_size, backend=backend, input_size=_size(input_size),
                                   fusion=fusion, class_prior=class_prior),
@@ -567,7 +571,11 @@ def train(
                           ] = "160x120",
     width: Annotated[float, typer.Option(help="width multiplier (1 = the papers' full size)")] = 0.25,
     resnet_depth: Annotated[int, typer.Option(help="ResNet depth 18 | 34 | 50 (fcn, pspnet, cbam-pspnet)")] = 18,
-    backbone: Annotated[str, typer.Option(help="fcn backbone: resnet | vgg16")] = "resnet",
+    backbone: Annotated[str, typer.Option(help="backbone: resnet | vgg16 (fcn) | espnetv2-s1 | espnetv2-s2 (every "
+                                               "model; set by --init)")] = "resnet",
+    init: Annotated[str | None, typer.Option(help="pretrained start: espnetv2-pascal[-s1|-s2] (ESPNetv2 encoder, "
+                                                  "../shared/weights/espnetv2) | torchvision:resnet18|34|50|vgg16 "
+                                                  "(downloads ImageNet weights)")] = None,
     device: Annotated[str, typer.Option(help="cpu | cuda")] = "cpu",
     resume: Annotated[bool, typer.Option("--resume", help="continue the run in --out from its last checkpoint")
                       ] = False,
@@ -596,8 +604,10 @@ def train(
                              iterations=iterations, batch=batch, lr=lr, input_size=size, width=width,
                              depth=resnet_depth, backbone=backbone, device=device, seed=seed, threads=threads,
                              eval_every=eval_every, class_map=class_map, label_set=labelset,
-                             depth_scale=depth_scale, augment=augment)
+                             depth_scale=depth_scale, augment=augment, init=init)
     trainer = Trainer(settings, resume=resume)
+    if trainer.init_summary is not None:
+        _console().print(trainer.init_summary.text(), markup=False, highlight=False)
     _console().print(f"{trainer.spec.describe()}: {len(trainer.train_set)} training and {len(trainer.val_set)} "
                      f"validation images at {size[0]}x{size[1]}, {trainer.total} steps of {batch}")
     with _TrainProgress(trainer.total, trainer.iteration) as progress:

@@ -207,6 +207,8 @@ class SemanticsConfig(_Section):
     weights: Path | None = Field(None, description="network weights, or the folder of precomputed predictions")
     trust_weights: bool = Field(False, description="use shipped weights whose sha256 differs from weights/manifest.json"
                                                    " (with a warning) instead of refusing them")
+    calibration: bool = Field(True, description="apply the temperature stored with a trained network's weights "
+                                                "(--no-calibration: raw softmax)")
     segment_every: int = Field(1, **field_bounds("segment_every", "--segment-every"),
                                description="segment every k-th frame")
     keyframes: bool = Field(False, description="segment only frames where the camera moved enough")

@@ -97,7 +97,7 @@ def segmenter_for(config: RunConfig, dataset: Dataset | None = None):
     return make_segmenter(name, weights=s.weights, label_set=label_set, k=s.k, label_confidence=s.label_confidence,
                           oracle_preset=s.oracle_preset, seed=s.seed, backend=s.backend, batch_size=s.batch_size,
                           input_size=s.input_size, threads=threads, trust_weights=s.trust_weights, model=s.model,
-                          model_config=s.segmenter_config, class_map=s.class_map)
+                          model_config=s.segmenter_config, class_map=s.class_map, calibration=s.calibration)
 
 
 def instance_source_for(config: RunConfig, segmenter, dataset: Dataset | None = None):

@@ -1,4 +1,6 @@
-"""Temperature scaling of a segmenter's class probabilities (Guo et al. 2017), applied before fusion.
+"""Temperature scaling of a segmenter's class probabilities (Guo et al. 2017), applied before fusion: one scalar T
+per network, fitted on validation images by negative log-likelihood (:mod:`semmap.train.calibrate`) and stored with
+its weights (a trained network divides its logits by it), or ``semmap run --temperature T``.
 
 ``softmax(z / T)`` is ``p^(1/T)`` renormalised, with ``p = softmax(z)``: the probabilities a segmenter produces can
 be re-tempered without its logits. ``T > 1`` softens an over-confident network, ``T < 1`` sharpens, ``T = 1`` is the

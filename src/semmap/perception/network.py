@@ -107,7 +107,7 @@ class NetworkSegmenter:
 
     def __init__(self, model, label_set: LabelSet, *, name: str, net_input: NetworkInput = NetworkInput(),
                  k: int = 3, batch_size: int = 4, backend: str = "torch", threads: int | None = None,
-                 cache_dir: Path | None = None, cache_key: str = ""):
+                 cache_dir: Path | None = None, cache_key: str = "", temperature: float = 1.0):
         if backend not in BACKENDS:
             raise ConfigError(f"segmenter backend must be one of {BACKENDS}, got {backend!r}")
         if k < 1:
@@ -127,6 +127,10 @@ class NetworkSegmenter:
         self._model = model.eval()
         self._threads = threads
         self._cache_dir, self._cache_key = cache_dir, cache_key
+        if not (np.isfinite(temperature) and temperature > 0):
+            raise ConfigError(f"{name}: calibration temperature must be a positive number, got {temperature}")
+        #: the network's calibration temperature: probabilities are softmax(logits / temperature)
+        self.temperature = float(temperature)
         self._sessions: dict[tuple[int, ...], object] = {}  # ONNX graphs are traced for one input shape
 
     @property
@@ -181,6 +185,8 @@ class NetworkSegmenter:
             raise ConfigError(f"{self.name}: network predicts {logits.shape[1]} classes but its label set has "
                               f"{len(self._label_set)}")
         _check_finite_logits(logits, self.name, names)
+        if self.temperature != 1.0:  # temperature scaling (perception/calibration.py): softmax(logits / T)
+            logits *= np.float32(1.0 / self.temperature)
         in_w, in_h = self.net_input.size_for(w, h)
         align = bool(getattr(self._model, "logits_align_corners", False))
         sy, oy = sampling_map(h, in_h, logits.shape[2], align)

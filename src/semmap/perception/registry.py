@@ -150,9 +150,10 @@ def _espnetv2(*, weights: Path | None, k: int, backend: str, batch_size: int,
 def _trained(name: str) -> Callable[..., Segmenter]:
     def make(*, weights: Path | None, k: int, backend: str, batch_size: int,
              input_size: tuple[int, int] | int | None, threads: int | None, trust_weights: bool = False,
-             **_) -> Segmenter:
+             calibration: bool = True, **_) -> Segmenter:
         return trained_network_segmenter(name, weights=weights, k=k, backend=backend, batch_size=batch_size,
-                                         input_size=input_size, threads=threads, trust_weights=trust_weights)
+                                         input_size=input_size, threads=threads, trust_weights=trust_weights,
+                                         calibration=calibration)
 
     return make
 
@@ -224,11 +225,12 @@ def make_segmenter(name: str, *, weights: Path | None = None, label_set: LabelSe
                    label_confidence: float = 0.9, oracle_preset: str = "cnn-like", seed: int = 0,
                    backend: str = "torch", batch_size: int = 1, input_size: tuple[int, int] | int | None = None,
                    threads: int | None = None, trust_weights: bool = False, model: str | None = None,
-                   model_config: Path | None = None, class_map: Path | None = None) -> Segmenter:
+                   model_config: Path | None = None, class_map: Path | None = None,
+                   calibration: bool = True) -> Segmenter:
     """Build the segmenter ``name`` (``NAME:MODEL`` for the user's own model, or ``model``); ``label_set`` is the
     dataset's (the oracle predicts its classes); ``trust_weights`` uses shipped weights whose sha256 differs from
     the manifest (with a warning); ``model_config`` is an ONNX model's sidecar and ``class_map`` folds a user
-    model's classes into the map's."""
+    model's classes into the map's; ``calibration=False`` ignores a trained network's temperature."""
     name, named_model = split_segmenter(name)
     entry = SEGMENTERS[name]
     if not entry.takes_model and (model or model_config is not None or class_map is not None):
@@ -237,15 +239,17 @@ def make_segmenter(name: str, *, weights: Path | None = None, label_set: LabelSe
     return entry.factory(weights=weights, label_set=label_set, k=k, label_confidence=label_confidence,
                          oracle_preset=oracle_preset, seed=seed, backend=backend, batch_size=batch_size,
                          input_size=input_size, threads=threads, trust_weights=trust_weights,
-                         model=named_model or model, model_config=model_config, class_map=class_map)
+                         model=named_model or model, model_config=model_config, class_map=class_map,
+                         calibration=calibration)
 
 
 def trained_network_segmenter(name: str, *, weights: Path | None = None, k: int = 3, backend: str = "torch",
                               batch_size: int = 1, input_size: tuple[int, int] | int | None = None,
-                              threads: int | None = None, trust_weights: bool = False) -> Segmenter:
+                              threads: int | None = None, trust_weights: bool = False,
+                              calibration: bool = True) -> Segmenter:
     """A segmenter running one of semmap's trained networks from its weight file (default: the shipped one,
     checked against the manifest's sha256), at the input size it was trained at unless ``input_size`` says
-    otherwise."""
+    otherwise; its probabilities use the temperature stored with the weights unless ``calibration`` is off."""
     import cv2
 
     from semmap.perception.network import NetworkInput, NetworkSegmenter
@@ -266,4 +270,13 @@ def trained_network_segmenter(name: str, *, weights: Path | None = None, k: int 
     stat = path.stat()
     return NetworkSegmenter(loaded.model, loaded.label_set, name=name, net_input=net_input, k=k, backend=backend,
                             batch_size=batch_size, threads=threads,
-                            cache_key=f"{path.resolve()}|{stat.st_size}|{stat.st_mtime_ns}")
+                            cache_key=f"{path.resolve()}|{stat.st_size}|{stat.st_mtime_ns}",
+                            temperature=weights_temperature(loaded.meta, path) if calibration else 1.0)
+
+
+def weights_temperature(meta: dict, path: Path) -> float:
+    """The calibration temperature stored in a weight file's metadata (1 when it has none)."""
+    t = meta.get("temperature", 1.0)
+    if isinstance(t, bool) or not isinstance(t, int | float) or not (0 < t < float("inf")):
+        raise FormatError(f"{path}: calibration temperature {t!r} in the metadata is not a positive number")
+    return float(t)

@@ -32,6 +32,7 @@ from semmap.files.atomic import write_bytes_atomic, write_text_atomic
 from semmap.files.outputs import OutputKind, check_outputs
 from semmap.limits import check, check_network_input
 from semmap.perception.network import IMAGENET_MEAN, IMAGENET_STD
+from semmap.perception.networks.pretrained import LoadSummary, init_plan, load_pretrained
 from semmap.perception.networks.pspnet import AUX_WEIGHT
 from semmap.perception.networks.registry import (
     MODELS,
@@ -43,6 +44,7 @@ from semmap.perception.networks.registry import (
 )
 from semmap.perception.networks.resnet import LAYOUTS
 from semmap.train.augment import Augmentation, augment
+from semmap.train.calibrate import calibration_scores, fit_temperature, softmax
 from semmap.train.class_weights import IGNORE, median_frequency_weights
 from semmap.train.data import DEPTH_MM, TrainingSet, gather
 
@@ -52,8 +54,10 @@ CHECKPOINT_FORMAT = "semmap-train-checkpoint"
 #: The RGB-D paper's fusion-module dilation (12) belongs to 480-pixel-wide inputs; smaller inputs scale it.
 PAPER_INPUT_WIDTH = 480
 #: Settings that must match to resume a run.
+#: Validation pixels the temperature is fitted on: every n-th row and column of each image.
+CALIBRATION_PIXEL_STEP = 8
 RESUME_KEYS = ("model", "width", "depth", "backbone", "msff_dilation", "input_size", "batch", "lr", "momentum",
-               "weight_decay", "poly_power", "seed", "augment", "class_weighting", "iterations_total")
+               "weight_decay", "poly_power", "seed", "augment", "class_weighting", "iterations_total", "init")
 
 
 @dataclass(frozen=True)
@@ -87,6 +91,7 @@ class TrainSettings:
     depth_scale: float | None = None
     augment: bool = True
     class_weighting: bool = True
+    init: str | None = None  #: pretrained start (``--init``, :mod:`~semmap.perception.networks.pretrained`)
 
     def __post_init__(self) -> None:
         if not self.data:
@@ -109,6 +114,20 @@ class TrainSettings:
                               f"got {self.depth}")
         if self.device == "cpu":  # one step's activations and gradients, in this machine's memory
             check_network_input(*self.input_size, self.batch, training=True)
+        if self.init is not None:
+            init_plan(self.init)
+
+    def with_init(self) -> TrainSettings:
+        """These settings with the backbone (and, for torchvision, depth and full width) ``--init`` needs."""
+        if self.init is None:
+            return self
+        plan = init_plan(self.init)
+        entry = MODELS[self.model]
+        fits = {"resnet": entry.chooses_backbone or entry.backbone is None,
+                "vgg16": entry.chooses_backbone or entry.backbone == "vgg16"}.get(plan.backbone, True)
+        if not fits:
+            raise ConfigError(f"--init {self.init}: --model {self.model} has no {plan.backbone} backbone")
+        return replace(self, backbone=plan.backbone, depth=plan.depth or self.depth, width=plan.width or self.width)
 
     def spec(self, num_classes: int) -> NetworkSpec:
         dil = self.msff_dilation or max(1, round(12 * self.input_size[0] / PAPER_INPUT_WIDTH))
@@ -165,6 +184,7 @@ class Trainer:
     """Holds the data, network and optimiser of one run; :meth:`run` trains to the end or ``stop_after``."""
 
     def __init__(self, settings: TrainSettings, *, resume: bool = False) -> None:
+        settings = settings.with_init()
         self.s = settings
         check_outputs([("--out", settings.out, OutputKind.FOLDER)],
                       [*(("--data", d) for d in settings.data), *(("--val", v) for v in settings.val),
@@ -192,7 +212,13 @@ class Trainer:
                    else (np.arange(k) != IGNORE).astype(np.float32))
         self.class_weights = weights
         torch.manual_seed(int(np.random.SeedSequence([settings.seed, 0, 4]).generate_state(1)[0]))  # initial weights
-        self.model = build_network(self.spec).to(self.device)
+        self.model = build_network(self.spec)
+        #: what ``--init`` loaded (None: trained from scratch, or resumed from a checkpoint)
+        self.init_summary: LoadSummary | None = None
+        if settings.init is not None and not resume:
+            self.init_summary = load_pretrained(self.model, settings.init)
+            log.info("%s", self.init_summary.text())
+        self.model = self.model.to(self.device)
         self.optimizer = torch.optim.SGD(self.model.parameters(), lr=settings.lr, momentum=settings.momentum,
                                          weight_decay=settings.weight_decay)
         n = len(self.train_set)
@@ -278,14 +304,19 @@ class Trainer:
         self.model.eval()
         k = len(self.label_set)
         conf = np.zeros((k, k), np.int64)
+        sample_logits, sample_labels = [], []
         for start in range(0, len(self.val_set), batch):
             idx = np.arange(start, min(start + batch, len(self.val_set)))
             rgb, labels, depth = self._batch(self.val_set, idx)
             logits, _ = self.model.forward_train(self._normalise(rgb.to(self.device)),
                                                  None if depth is None else depth.to(self.device))
             conf += confusion(logits.argmax(1).cpu().numpy(), labels.numpy(), k, ignore=IGNORE)
+            step = CALIBRATION_PIXEL_STEP
+            sample_logits.append(logits[:, :, ::step, ::step].permute(0, 2, 3, 1).reshape(-1, k).cpu().numpy())
+            sample_labels.append(labels[:, ::step, ::step].reshape(-1).numpy())
         sc = scores(conf, ignore=IGNORE)
-        return {"val_miou": round(sc.miou, 4), "val_mpa": round(sc.mpa, 4), "val_pixel_accuracy": round(sc.accuracy, 4)}
+        row = {"val_miou": round(sc.miou, 4), "val_mpa": round(sc.mpa, 4), "val_pixel_accuracy": round(sc.accuracy, 4)}
+        return row | _calibration_row(np.concatenate(sample_logits), np.concatenate(sample_labels))
 
     # ------------------------------------------------------------------ the run
     def run(self, *, progress: Progress | None = None, stop_after: int | None = None) -> TrainResult:
@@ -329,7 +360,9 @@ class Trainer:
     # ------------------------------------------------------------------ files
     def _save_weights(self, path: Path, row: dict) -> None:
         meta = {"network": self.spec.describe(), "iteration": self.iteration, "metrics": row,
-                "settings": self.s.to_dict(), "parameters": count_parameters(self.model)}
+                "settings": self.s.to_dict(), "parameters": count_parameters(self.model), "init": self.s.init}
+        if "val_temperature" in row:  # the segmenter divides the logits by it (--no-calibration: not)
+            meta["temperature"] = row["val_temperature"]
         save_weights(path, self.model, self.spec, self.label_set, self.s.input_size, meta)
 
     def _save_checkpoint(self) -> None:
@@ -370,6 +403,19 @@ class Trainer:
         write_text_atomic(out / "log.json", json.dumps({"network": self.spec.describe(), "rows": self.rows,
                                                         "best_val_miou": self.best_miou}, indent=1))
         write_bytes_atomic(out / "curve.png", _curve_png(self.rows, self.spec.describe()))
+
+
+def _calibration_row(logits: np.ndarray, labels: np.ndarray) -> dict:
+    """The temperature fitted on validation pixels (void left out) and NLL / ECE before and after it."""
+    keep = labels != IGNORE
+    logits, labels = logits[keep], labels[keep]
+    if len(labels) == 0:
+        return {}
+    t = fit_temperature(logits, labels)
+    before = calibration_scores(softmax(logits), labels)
+    after = calibration_scores(softmax(logits / t), labels)
+    return {"val_temperature": round(t, 4), "val_nll": before["nll"], "val_nll_calibrated": after["nll"],
+            "val_ece": before["ece"], "val_ece_calibrated": after["ece"]}
 
 
 def _split(ds: TrainingSet, fraction: float) -> tuple[TrainingSet, TrainingSet]:

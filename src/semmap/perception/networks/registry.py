@@ -30,24 +30,45 @@ class NetworkEntry:
     factory: Callable[[NetworkSpec, bool], SegmentationNet]
     help: str
     uses_depth: bool = False  #: takes the depth image as a fourth channel
-    backbone: str | None = None  #: fixed backbone (None: a ResNet of ``spec.depth``)
+    backbone: str | None = None  #: default backbone (None: a ResNet of ``spec.depth``); an ESPNetv2 one replaces it
     chooses_backbone: bool = False  #: ``spec.backbone`` picks ResNet or VGG-16
 
 
+#: ESPNetv2 encoders any network can be built on (``NetworkSpec.backbone``) -> width multiplier s.
+ESPNET_BACKBONES: dict[str, float] = {"espnetv2-s1": 1.0, "espnetv2-s2": 2.0}
+#: Every backbone a spec may name (``resnet`` for FCN/PSPNet/CBAM-PSPNet, ``vgg16`` for FCN and the RGB-D net).
+BACKBONES = ("resnet", "vgg16", *ESPNET_BACKBONES)
+
+
 def _fcn(spec: NetworkSpec, full_resolution: bool) -> SegmentationNet:
+    if spec.backbone in ESPNET_BACKBONES:
+        from semmap.perception.networks.espnet import ESPNetFCN
+
+        return ESPNetFCN(spec.num_classes, backbone=spec.backbone, full_resolution=full_resolution)
     from semmap.perception.networks.fcn import FCN8s
 
     return FCN8s(spec.num_classes, backbone=spec.backbone, depth=spec.depth, width=spec.width,
                  full_resolution=full_resolution)
 
 
+def _espnet_psp(spec: NetworkSpec, full_resolution: bool, attention: bool) -> SegmentationNet:
+    from semmap.perception.networks.espnet import ESPNetPSP
+
+    return ESPNetPSP(spec.num_classes, backbone=spec.backbone, width=spec.width, attention=attention,
+                     full_resolution=full_resolution)
+
+
 def _pspnet(spec: NetworkSpec, full_resolution: bool) -> SegmentationNet:
+    if spec.backbone in ESPNET_BACKBONES:
+        return _espnet_psp(spec, full_resolution, attention=False)
     from semmap.perception.networks.pspnet import PSPNet
 
     return PSPNet(spec.num_classes, depth=spec.depth, width=spec.width, full_resolution=full_resolution)
 
 
 def _cbam_pspnet(spec: NetworkSpec, full_resolution: bool) -> SegmentationNet:
+    if spec.backbone in ESPNET_BACKBONES:
+        return _espnet_psp(spec, full_resolution, attention=True)
     from semmap.perception.networks.cbam_pspnet import CBAMPSPNet
 
     return CBAMPSPNet(spec.num_classes, depth=spec.depth, width=spec.width, full_resolution=full_resolution)
@@ -55,6 +76,11 @@ def _cbam_pspnet(spec: NetworkSpec, full_resolution: bool) -> SegmentationNet:
 
 def _rgbd_net(use_depth: bool) -> Callable[[NetworkSpec, bool], SegmentationNet]:
     def build(spec: NetworkSpec, full_resolution: bool) -> SegmentationNet:
+        if spec.backbone in ESPNET_BACKBONES:
+            from semmap.perception.networks.espnet import ESPNetRGBD
+
+            return ESPNetRGBD(spec.num_classes, backbone=spec.backbone, width=spec.width, use_depth=use_depth,
+                              msff_dilation=spec.msff_dilation, full_resolution=full_resolution)
         from semmap.perception.networks.rgbd_net import RGBDNet
 
         return RGBDNet(spec.num_classes, width=spec.width, use_depth=use_depth, msff_dilation=spec.msff_dilation,
@@ -95,6 +121,8 @@ class NetworkSpec:
             raise ConfigError(MODELS.unknown(self.model))
         if not (math.isfinite(self.width) and 0 < self.width <= 4):
             raise ConfigError(f"width multiplier must be in (0, 4], got {self.width}")
+        if self.backbone not in BACKBONES:
+            raise ConfigError(f"--backbone: unknown backbone {self.backbone!r}; choose from {', '.join(BACKBONES)}")
 
     @property
     def uses_depth(self) -> bool:
@@ -103,6 +131,8 @@ class NetworkSpec:
     def describe(self) -> str:
         """Short name with the size, e.g. ``cbam-pspnet-r18-w0.25``."""
         entry = MODELS[self.model]
+        if self.backbone in ESPNET_BACKBONES:
+            return f"{self.model}-{self.backbone}-w{self.width:g}"
         if entry.backbone is not None:
             return f"{self.model}-{entry.backbone}-w{self.width:g}"
         bb = "vgg16" if entry.chooses_backbone and self.backbone == "vgg16" else f"r{self.depth}"
