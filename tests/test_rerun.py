@@ -112,7 +112,7 @@ def test_spawning_a_viewer_without_a_display_is_one_clear_line(room, tmp_path):
     env = {k: v for k, v in os.environ.items() if k not in ("DISPLAY", "WAYLAND_DISPLAY")}
     r = subprocess.run([sys.executable, "-m", "semmap.cli", "run", str(room), "--out", str(tmp_path / "o"),
                         "--rerun-spawn"], capture_output=True, text=True, timeout=120, env=env)
-    assert r.returncode == 1 and "cannot open a rerun viewer: no display" in r.stderr
+    assert r.returncode == 1 and "--rerun-spawn: cannot open a rerun viewer: no display" in r.stderr
     assert "Traceback" not in r.stderr and not (tmp_path / "o").exists()
 
 

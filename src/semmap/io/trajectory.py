@@ -19,7 +19,7 @@ from semmap.files.atomic import write_text_atomic
 from semmap.files.parse import is_number
 from semmap.files.safe import read_text_limited
 from semmap.limits import LIMITS
-from semmap.types import Trajectory, interpolate_pose, orthonormality_error, pose_from_tum, pose_to_tum, snap_rigid
+from semmap.types import Trajectory, interpolate_pose, pose_from_tum, pose_to_tum
 
 LOG = logging.getLogger("semmap")
 
@@ -159,18 +159,30 @@ def write_trajectory(path: str | Path, trajectory: Trajectory) -> Path:
 def clean_poses(poses: np.ndarray, source: str, tol: float = ORTHO_TOL) -> np.ndarray:
     """Copy of (N, 4, 4) poses with every rotation re-orthonormalised; :class:`FormatError` naming ``source``
     and the pose index when a rotation is further than ``tol`` from orthonormal or a reflection, or a pose is
-    non-finite or not rigid (last row not 0 0 0 1)."""
+    non-finite or not rigid (last row not 0 0 0 1). Vectorised: a million poses take a second, not a minute."""
     poses = np.array(poses, dtype=np.float64).reshape(-1, 4, 4)
-    for i, T in enumerate(poses):
-        if not np.isfinite(T).all():
-            raise FormatError(f"{source}: pose {i} has non-finite entries")
-        if not np.allclose(T[3], [0.0, 0.0, 0.0, 1.0], atol=1e-9):
-            raise FormatError(f"{source}: pose {i} is not a rigid transform (last row {T[3].tolist()})")
-        err = orthonormality_error(T[:3, :3])
-        if err > tol or np.linalg.det(T[:3, :3]) <= 0:
-            raise FormatError(f"{source}: pose {i} has a rotation that is not orthonormal "
-                              f"(max |R Rᵀ - I| = {err:.2g}, tolerance {tol:g}) or is a reflection")
-        poses[i] = snap_rigid(T)
+    if len(poses) == 0:
+        return poses
+    bad = np.flatnonzero(~np.isfinite(poses).all(axis=(1, 2)))
+    if len(bad):
+        raise FormatError(f"{source}: pose {int(bad[0])} has non-finite entries")
+    bottom = np.array([0.0, 0.0, 0.0, 1.0])
+    bad = np.flatnonzero(~np.isclose(poses[:, 3], bottom, rtol=1e-5, atol=1e-9).all(axis=1))
+    if len(bad):
+        i = int(bad[0])
+        raise FormatError(f"{source}: pose {i} is not a rigid transform (last row {poses[i, 3].tolist()})")
+    R = poses[:, :3, :3]
+    err = np.abs(R @ np.swapaxes(R, 1, 2) - np.eye(3)).max(axis=(1, 2))
+    bad = np.flatnonzero((err > tol) | (np.linalg.det(R) <= 0))
+    if len(bad):
+        i = int(bad[0])
+        raise FormatError(f"{source}: pose {i} has a rotation that is not orthonormal "
+                          f"(max |R Rᵀ - I| = {err[i]:.2g}, tolerance {tol:g}) or is a reflection")
+    U, _, Vt = np.linalg.svd(R)  # the nearest proper rotation of each (see semmap.types.orthonormalize)
+    sign = np.sign(np.linalg.det(U @ Vt))
+    U[:, :, 2] *= sign[:, None]
+    poses[:, :3, :3] = U @ Vt
+    poses[:, 3] = bottom
     return poses
 
 

@@ -277,6 +277,7 @@ def load_prior(path: str | Path, **kwargs) -> PriorMap:
                           f"{', '.join(MAP_FILES)} (or the run folder holding it); a {path.suffix} file has no "
                           f"class sets to localize against")
     m = load_map(path)
-    if m.kind == MapKind.OCTOMAP:
-        return prior_from_octomap(m, **kwargs)
-    return prior_from_grid_map(m, **kwargs)
+    try:
+        return prior_from_octomap(m, **kwargs) if m.kind == MapKind.OCTOMAP else prior_from_grid_map(m, **kwargs)
+    except ConfigError as exc:  # an empty or odd map: say which file
+        raise ConfigError(f"{path}: {exc}") from None

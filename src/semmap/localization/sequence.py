@@ -107,7 +107,9 @@ def _segment_fn(options: LocalizeOptions, dataset, prior):
         name = SegmenterName.ORACLE if _has_labels(dataset) else None
     if name in (None, "none"):
         if model != ObservationKind.GEOMETRY:
-            raise ConfigError(f"the {model.value} model needs class sets for the frames: pass --segmenter "
+            where = getattr(dataset, "root", "the sequence")
+            raise ConfigError(f"{where}: no label images, and the {model.value} model needs class sets for "
+                              f"the frames: pass --segmenter "
                               f"(oracle for sequences with label images, espnetv2 --weights ...) or --model geometry")
         return None
     if prior.label_set is None:

@@ -186,7 +186,7 @@ def partial_recording(save: str | Path) -> Path:
     return Path(save).with_name(f".{Path(save).name}.partial")
 
 
-def open_recording(name: str, *, save: str | Path | None, spawn: bool):
+def open_recording(name: str, *, save: str | Path | None, spawn: bool, viewer_for: str = "--rerun-spawn"):
     """A rerun recording stream writing to ``save`` (.rrd) and/or a newly spawned viewer."""
     quiet_rerun_log()
     import rerun as rr
@@ -200,9 +200,9 @@ def open_recording(name: str, *, save: str | Path | None, spawn: bool):
         sinks.append(rr.FileSink(str(save)))
     if spawn:
         if sys.platform.startswith("linux") and not (os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY")):
-            raise ConfigError("cannot open a rerun viewer: no display (DISPLAY / WAYLAND_DISPLAY unset); write a "
-                              "recording instead (semmap run --rerun FILE.rrd, semmap view MAP --save FILE.rrd) and "
-                              "open it with `rerun FILE.rrd` where there is a screen")
+            raise ConfigError(f"{viewer_for}: cannot open a rerun viewer: no display (DISPLAY / WAYLAND_DISPLAY "
+                              "unset); write a recording instead (semmap run --rerun FILE.rrd, semmap view MAP "
+                              "--save FILE.rrd) and open it with `rerun FILE.rrd` where there is a screen")
         executable = viewer_executable()
         if executable is None:
             raise ConfigError("--rerun-spawn: no rerun viewer found (pip install rerun-sdk puts `rerun` beside "
@@ -419,7 +419,7 @@ def view_map(path: str | Path, *, save: str | Path | None = None, spawn: bool = 
         partial = partial_recording(save)
     cloud, label_set = map_file_cloud(path)
     try:
-        rec = open_recording(f"semmap view {Path(path).name}", save=partial, spawn=spawn)
+        rec = open_recording(f"semmap view {Path(path).name}", save=partial, spawn=spawn, viewer_for=f"view {path}")
         rec.log("world", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
         if label_set is not None:
             log_classes(rec, label_set)
