@@ -405,3 +405,25 @@ def test_ground_truth_recorder_reads_frames_once_in_time_order_and_matches_traje
     assert traj.poses[:, 0, 3].tolist() == [3.0, 2.0, 0.0]
     same = trajectory_of_dataset(frames)
     assert same.names == traj.names and np.array_equal(same.poses, traj.poses)
+
+
+def test_whole_file_pose_conversions_equal_the_row_by_row_ones_bit_for_bit() -> None:
+    """A million-pose file is converted at once; the result must be the same bits as one row at a time."""
+    from scipy.spatial.transform import Rotation
+
+    from semmap.io.trajectory import clean_poses
+    from semmap.types import pose_from_tum, pose_to_tum, poses_from_tum, snap_rigid, tum_rows
+
+    rng = np.random.default_rng(7)
+    q = Rotation.random(3000, random_state=3).as_quat() * rng.uniform(0.9, 1.1, (3000, 1))
+    q[:4] = [[0, 0, 0, 1], [1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0]]  # every branch of Shepperd's method
+    rows = np.concatenate([rng.normal(size=(3000, 3)), q], axis=1)
+    poses = poses_from_tum(rows)
+    assert np.array_equal(poses, np.stack([pose_from_tum(r) for r in rows]))
+    assert np.array_equal(tum_rows(poses), np.stack([pose_to_tum(T) for T in poses]))
+    drifted = poses.copy()
+    drifted[:, :3, :3] += rng.normal(0, 1e-7, (3000, 3, 3))
+    assert np.array_equal(clean_poses(drifted, "x"), np.stack([snap_rigid(T) for T in drifted]))
+    drifted[5, :3, :3] *= 1.1
+    with pytest.raises(Exception, match="x: pose 5 has a rotation that is not orthonormal"):
+        clean_poses(drifted, "x")

@@ -526,6 +526,55 @@ def pose_to_tum(T: np.ndarray) -> np.ndarray:
     return np.concatenate([T[:3, 3], rot_to_quat_xyzw(T[:3, :3])])
 
 
+def poses_from_tum(rows: np.ndarray) -> np.ndarray:
+    """(N, 4, 4) ``T_world_cam`` from (N, 7) TUM rows, all at once (:func:`pose_from_tum` row by row)."""
+    v = np.asarray(rows, dtype=np.float64).reshape(-1, 7)
+    # each row's norm as pose_from_tum takes it (a vector norm rounds unlike an axis norm): the same bits
+    norms = np.fromiter((np.linalg.norm(r) for r in v[:, 3:7]), np.float64, len(v))
+    q = v[:, 3:7] / norms[:, None]
+    x, y, z, w = q.T
+    out = np.zeros((len(v), 4, 4))
+    out[:, 0] = np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w), v[:, 0]], 1)
+    out[:, 1] = np.stack([2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w), v[:, 1]], 1)
+    out[:, 2] = np.stack([2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y), v[:, 2]], 1)
+    out[:, 3, 3] = 1.0
+    return out
+
+
+def tum_rows(poses: np.ndarray) -> np.ndarray:
+    """(N, 7) TUM rows of (N, 4, 4) transforms, all at once, bit for bit :func:`pose_to_tum` row by row (the same
+    branches of Shepperd's method, qw >= 0)."""
+    T = np.asarray(poses, dtype=np.float64).reshape(-1, 4, 4)
+    R = T[:, :3, :3]
+    r00, r11, r22 = R[:, 0, 0], R[:, 1, 1], R[:, 2, 2]
+    tr = np.trace(R, axis1=1, axis2=2)
+    q = np.empty((len(T), 4))
+    taken = np.zeros(len(T), bool)
+    for k, case in enumerate([tr > 0, (r00 > r11) & (r00 > r22), r11 > r22, np.ones(len(T), bool)]):
+        m = case & ~taken
+        taken |= m
+        a = R[m]
+        if k == 0:
+            s = np.sqrt(tr[m] + 1.0) * 2
+            q[m] = np.stack([(a[:, 2, 1] - a[:, 1, 2]) / s, (a[:, 0, 2] - a[:, 2, 0]) / s,
+                             (a[:, 1, 0] - a[:, 0, 1]) / s, 0.25 * s], 1)
+        elif k == 1:
+            s = np.sqrt(1.0 + a[:, 0, 0] - a[:, 1, 1] - a[:, 2, 2]) * 2
+            q[m] = np.stack([0.25 * s, (a[:, 0, 1] + a[:, 1, 0]) / s, (a[:, 0, 2] + a[:, 2, 0]) / s,
+                             (a[:, 2, 1] - a[:, 1, 2]) / s], 1)
+        elif k == 2:
+            s = np.sqrt(1.0 + a[:, 1, 1] - a[:, 0, 0] - a[:, 2, 2]) * 2
+            q[m] = np.stack([(a[:, 0, 1] + a[:, 1, 0]) / s, 0.25 * s, (a[:, 1, 2] + a[:, 2, 1]) / s,
+                             (a[:, 0, 2] - a[:, 2, 0]) / s], 1)
+        else:
+            s = np.sqrt(1.0 + a[:, 2, 2] - a[:, 0, 0] - a[:, 1, 1]) * 2
+            q[m] = np.stack([(a[:, 0, 2] + a[:, 2, 0]) / s, (a[:, 1, 2] + a[:, 2, 1]) / s, 0.25 * s,
+                             (a[:, 1, 0] - a[:, 0, 1]) / s], 1)
+    q /= np.fromiter((np.linalg.norm(r) for r in q), np.float64, len(q))[:, None]  # as pose_to_tum rounds
+    q[q[:, 3] < 0] *= -1
+    return np.concatenate([T[:, :3, 3], q], axis=1)
+
+
 def slerp(q0: np.ndarray, q1: np.ndarray, alpha: float) -> np.ndarray:
     """Spherical linear interpolation of unit quaternions (xyzw), shortest path."""
     q0 = np.asarray(q0, float) / np.linalg.norm(q0)

@@ -19,7 +19,7 @@ from semmap.files.atomic import write_text_atomic
 from semmap.files.parse import is_number
 from semmap.files.safe import read_text_limited
 from semmap.limits import LIMITS
-from semmap.types import Trajectory, interpolate_pose, pose_from_tum, pose_to_tum
+from semmap.types import Trajectory, interpolate_pose, pose_from_tum, pose_to_tum, poses_from_tum
 
 LOG = logging.getLogger("semmap")
 
@@ -77,7 +77,7 @@ def read_trajectory(path: str | Path, *, strict: bool = False) -> Trajectory:
     if not len(rows):
         raise FormatError(f"{path}: no poses (expected rows 'timestamp tx ty tz qx qy qz qw')")
     first = np.concatenate([[True], stamps[1:] != stamps[:-1]])
-    return Trajectory(stamps[first], np.stack([pose_from_tum(r) for r in rows[first]]))
+    return Trajectory(stamps[first], poses_from_tum(rows[first]))
 
 
 def _parse_row(path: Path, number: int, line: str, *, strict: bool) -> tuple[float, np.ndarray]:

@@ -10,7 +10,7 @@ import numpy as np
 
 from semmap.errors import ConfigError
 from semmap.io.trajectory import pose_at, read_trajectory
-from semmap.types import Frame, Trajectory, pose_to_tum
+from semmap.types import Frame, Trajectory, tum_rows
 
 
 @dataclass(frozen=True)
@@ -40,7 +40,7 @@ class TrajectoryPoses:
         self.max_gap = float(max_gap)
         self.source = source
         self._stamps = trajectory.timestamps
-        self._rows = np.array([pose_to_tum(T) for T in trajectory.poses])
+        self._rows = tum_rows(trajectory.poses)
 
     @classmethod
     def from_file(cls, path: str | Path, **kwargs) -> TrajectoryPoses:
