@@ -26,12 +26,16 @@ Two sweeps replace the presets when asked (each row keeps the fields above):
   ``CRF_SETTINGS`` (the default, SemanticFusion's, and one parameter changed at a time) on the same fused map;
   each row has ``crf_setting`` and its ``gain`` at the same pixels (``crf_gain``: map after the CRF minus before).
 
+Frames are rendered with the ``--realism`` preset (default ``kinect``: structured-light depth, a real colour camera,
+hand-held motion; ``clean`` for today's exact frames); every row names it.
+
     python benchmarks/bench_fusion.py [--quick] [--scenes N] [--temperatures T,...] [--crf-sweep]
+                                      [--realism clean|kinect|hard]
 
 Prints a table and, last, one JSON line:
-{"bench": "fusion", "results": [{"scene", "preset", "map", "fusion", "crf", "miou", "accuracy", "bytes_per_voxel",
-"ms_per_frame", "pixel_miou_network", "pixel_miou_map", "gain", "pixel_coverage", "ceiling_voxel_accuracy",
-"unreachable_share", "temperature"}...], "upper_bound": {"<scene>": miou}, "timing": {...}}
+{"bench": "fusion", "realism", "results": [{"scene", "realism", "preset", "map", "fusion", "crf", "miou", "accuracy",
+"bytes_per_voxel", "ms_per_frame", "pixel_miou_network", "pixel_miou_map", "gain", "pixel_coverage",
+"ceiling_voxel_accuracy", "unreachable_share", "temperature"}...], "upper_bound": {"<scene>": miou}, "timing": {...}}
 """
 
 from __future__ import annotations
@@ -59,6 +63,7 @@ from semmap.perception.oracle import OracleSegmenter
 from semmap.perception.registry import demo_network, trained_network_segmenter
 from semmap.perception.schedule import Scheduler, SegmentationSchedule
 from semmap.sim.ground_truth import gt_voxels
+from semmap.sim.realism import REALISMS, realism
 from semmap.sim.scene import generate_scene
 from semmap.sim.trajectory import make_trajectory
 from semmap.types import CameraIntrinsics, LabelSet, Observation, TopKProbs, distinct_colors
@@ -71,6 +76,8 @@ PERFECT_RULES = (FusionRule.TOPK, FusionRule.BAYES, FusionRule.VOTE)
 #: (kind, seed, size) of the scenes.
 SCENES = (("office", 0, "medium"), ("kitchen", 1, "medium"), ("bedroom", 2, "medium"))
 QUICK_SCENES = (("office", 0, "small"), ("kitchen", 1, "small"), ("bedroom", 2, "small"))
+#: the simulator's preset by default (issue 34)
+DEFAULT_REALISM = "kinect"
 
 
 def padded_labels(n: int) -> LabelSet:
@@ -95,10 +102,13 @@ class Frames:
         return np.take(self.frames[i].labels.reshape(-1), self.pixels[i])
 
 
-def render(kind: str, seed: int, size: str, n: int, stride: int, intrinsics: CameraIntrinsics) -> Frames:
+def render(kind: str, seed: int, size: str, n: int, stride: int, intrinsics: CameraIntrinsics,
+           preset: str = DEFAULT_REALISM) -> Frames:
+    """Every ``stride``-th of ``n * stride`` frames of a loop through one scene, with the ``preset`` realism."""
     scene = generate_scene(seed, kind, size)
-    poses = make_trajectory(scene, "loop", n * stride, seed=seed)[::stride]
-    ds = SimulatedDataset(scene, poses, seed=seed, intrinsics=intrinsics, name=f"{kind}-{size}-{seed}")
+    poses = make_trajectory(scene, "loop", n * stride, seed=seed, motion=realism(preset).motion)[::stride]
+    ds = SimulatedDataset(scene, poses, seed=seed, intrinsics=intrinsics, name=f"{kind}-{size}-{seed}",
+                          realism=preset)
     keyframe = Scheduler(SegmentationSchedule(keyframes=True))
     frames, obs, pixels = [], [], []
     for f in ds:
@@ -405,6 +415,7 @@ def main() -> None:
     parser.add_argument("--crf-sweep", action="store_true", help="sweep the CRF settings instead of the presets")
     parser.add_argument("--crf-settings", default=None, help="only these CRF_SETTINGS names (comma-separated)")
     parser.add_argument("--first-scene", type=int, default=0, help="start at this scene (0-based)")
+    parser.add_argument("--realism", default=DEFAULT_REALISM, choices=REALISMS, help="the simulator's preset")
     parser.add_argument("--network", default=demo_network(), help="shipped network of the sweeps (default: the "
                         "demo's)")
     args = parser.parse_args()
@@ -416,13 +427,14 @@ def main() -> None:
     t_start = time.perf_counter()
     compile_kernels(list(MapKind))
     label_set = padded_labels(40)
-    rendered = [render(kind, seed, size, n, stride, SMALL) for kind, seed, size in scenes]
+    rendered = [render(kind, seed, size, n, stride, SMALL, args.realism) for kind, seed, size in scenes]
     print(f"rendered {len(scenes)} scenes x {n} frames ({SMALL.width}x{SMALL.height}) in "
           f"{time.perf_counter() - t_start:.0f} s", flush=True)
     if args.temperatures or args.crf_sweep:
-        rows = run_sweeps(args, rendered, label_set, point_resolution)
+        rows = [{**r, "realism": args.realism} for r in run_sweeps(args, rendered, label_set, point_resolution)]
         print(f"total {time.perf_counter() - t_start:.0f} s")
-        print(json.dumps({"bench": "fusion-sweeps", "quick": args.quick, "frames": n, "resolution": RESOLUTION,
+        print(json.dumps({"bench": "fusion-sweeps", "realism": args.realism, "quick": args.quick, "frames": n,
+                          "resolution": RESOLUTION,
                           "point_resolution": point_resolution, "classes": len(label_set), "network": args.network,
                           "results": rows}))
         return
@@ -441,7 +453,7 @@ def main() -> None:
             maps = build_maps(label_set, prior, point_resolution, rules)
             rows = run_preset(fr, sems, maps, gt, label_set, crf=not perfect, viewpoint=viewpoint)
             for r in rows:
-                r.update(scene=fr.name, preset=preset, temperature=1.0)
+                r.update(scene=fr.name, preset=preset, temperature=1.0, realism=args.realism)
             if perfect:
                 upper[fr.name] = max(r["miou"] for r in rows)
             results += rows
@@ -452,10 +464,11 @@ def main() -> None:
           f"{timed['voxelgrid_bayes_k40_ms']} ms/frame (ratio {timed['ratio']}); bytes per voxel "
           f"{timed['bytes_per_voxel']} (machine shared: ratios, not absolute times)")
     print(f"total {time.perf_counter() - t_start:.0f} s")
-    order = ("scene", "preset", "map", "fusion", "crf", "miou", "accuracy", "bytes_per_voxel", "ms_per_frame",
-             "pixel_miou_network", "pixel_miou_map", "gain", "pixel_coverage", "ceiling_voxel_accuracy",
+    order = ("scene", "realism", "preset", "map", "fusion", "crf", "miou", "accuracy", "bytes_per_voxel",
+             "ms_per_frame", "pixel_miou_network", "pixel_miou_map", "gain", "pixel_coverage", "ceiling_voxel_accuracy",
              "unreachable_share", "temperature")
-    print(json.dumps({"bench": "fusion", "quick": args.quick, "frames": n, "resolution": RESOLUTION,
+    print(json.dumps({"bench": "fusion", "realism": args.realism, "quick": args.quick, "frames": n,
+                      "resolution": RESOLUTION,
                       "point_resolution": point_resolution, "classes": len(label_set),
                       "results": [{k: r[k] for k in order} for r in results], "upper_bound": upper,
                       "timing": timed}))

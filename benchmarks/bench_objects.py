@@ -18,7 +18,11 @@ run, a table, and the summary JSON last:
 ``{"bench": "objects", "results": [{"scene", "instances", "count_error", "centroid_error_m", "id_switches",
 "ms_per_frame", "ate_without_m", "ate_with_m"}, ...]}``.
 
-    python benchmarks/bench_objects.py [--quick] [--levels maskrcnn-like,noisy] [--no-poses]
+Frames are rendered with the ``--realism`` preset (default ``kinect``; ``clean`` for today's exact frames); every
+row names it.
+
+    python benchmarks/bench_objects.py [--quick] [--levels maskrcnn-like,noisy] [--no-poses] [--scenes a,b]
+                                       [--frames N] [--realism clean|kinect|hard]
 
 Timings are wall-clock on whatever else the machine runs; compare the ratios.
 """
@@ -41,6 +45,7 @@ from semmap.object_slam import make_pose_tracker
 from semmap.perception.instances.oracle import OracleInstances
 from semmap.perception.schedule import Scheduler, SegmentationSchedule
 from semmap.perception.tracking import DeepSort
+from semmap.sim.realism import REALISMS
 from semmap.types import Trajectory
 
 #: name -> (scene seed, kind, trajectory, frames)
@@ -53,13 +58,16 @@ POSE_RUNS = {"sim-loop-features": (1, "office", "loop", 450, "slam-features"),
              "sim-loop-noloop": (1, "office", "loop", 450, "slam-noloop")}
 QUICK_POSE_RUNS = {"sim-loop-features": (1, "office", "loop", 300, "slam-features")}
 LEVELS = ("maskrcnn-like", "noisy")
+#: the simulator's preset by default (issue 34)
+DEFAULT_REALISM = "kinect"
 #: visibility rule of the ground truth: pixels in a keyframe, keyframes
 MIN_PIXELS, MIN_SIGHTINGS = 150, 3
 
 
-def map_scene(name: str, seed: int, kind: str, trajectory: str, frames: int, level: str) -> dict:
-    """One object-map run with ground-truth poses; its metrics and timings."""
-    ds = SimulatedDataset.default(scene_seed=seed, kind=kind, trajectory=trajectory, frames=frames)
+def map_scene(name: str, seed: int, kind: str, trajectory: str, frames: int, level: str,
+              realism: str = DEFAULT_REALISM) -> dict:
+    """One object-map run with ground-truth poses on frames of the ``realism`` preset; its metrics and timings."""
+    ds = SimulatedDataset.default(scene_seed=seed, kind=kind, trajectory=trajectory, frames=frames, realism=realism)
     source = OracleInstances(ds.label_set, preset=level, seed=seed)
     tracker = DeepSort(num_classes=len(ds.label_set))
     omap = ObjectMap(ds.label_set)
@@ -102,7 +110,7 @@ def map_scene(name: str, seed: int, kind: str, trajectory: str, frames: int, lev
              if gid in scene_objects]
     object_points = sum(len(o) for o in real)
     ms_stage = 1e3 * (t_track + t_map) / max(keyframes, 1)
-    return {"scene": name, "instances": level, "frames": frames, "keyframes": keyframes,
+    return {"scene": name, "instances": level, "realism": realism, "frames": frames, "keyframes": keyframes,
             "count_error": counts["count_error"], "count_error_eq24": counts["count_error_eq24"],
             "objects": counts["objects_detected"], "objects_ground_truth": counts["objects_ground_truth"],
             "centroid_error_m": round(float(np.mean(observed)), 4) if observed else None,
@@ -152,12 +160,14 @@ def _true_surface(frame, stride: int, min_depth: float, max_depth: float) -> tup
     return pc @ T[:3, :3].T + T[:3, 3], inst[v, u].astype(np.int64)
 
 
-def pose_run(name: str, seed: int, kind: str, trajectory: str, frames: int, tracker: str, level: str) -> dict:
-    """ATE of ``tracker`` and of ``tracker-objects`` on one simulated sequence."""
-    seq = list(SimulatedDataset.default(scene_seed=seed, kind=kind, trajectory=trajectory, frames=frames))
+def pose_run(name: str, seed: int, kind: str, trajectory: str, frames: int, tracker: str, level: str,
+             realism: str = DEFAULT_REALISM) -> dict:
+    """ATE of ``tracker`` and of ``tracker-objects`` on one simulated sequence of the ``realism`` preset."""
+    seq = list(SimulatedDataset.default(scene_seed=seed, kind=kind, trajectory=trajectory, frames=frames,
+                                        realism=realism))
     gt = Trajectory(np.array([f.timestamp for f in seq]), np.array([f.T_world_cam for f in seq]),
                     tuple(f.name for f in seq))
-    row = {"scene": name, "instances": level, "tracker": tracker}
+    row = {"scene": name, "instances": level, "realism": realism, "tracker": tracker}
     for suffix, key in (("", "without"), ("-objects", "with")):
         t = make_pose_tracker(tracker + suffix, instances=OracleInstances(INDOOR_LABELS, preset=level, seed=seed))
         t0 = time.perf_counter()
@@ -177,35 +187,54 @@ def main() -> None:
     ap.add_argument("--quick", action="store_true", help="two scenes of 150 frames, one pose run of 300 frames")
     ap.add_argument("--levels", default=",".join(LEVELS), help="oracle instance error presets")
     ap.add_argument("--no-poses", action="store_true", help="skip the object-constrained pose runs")
+    ap.add_argument("--realism", default=DEFAULT_REALISM, choices=REALISMS, help="the simulator's preset")
+    ap.add_argument("--scenes", help=f"comma-separated subset of {', '.join(SCENES)}")
+    ap.add_argument("--frames", type=int, help="frames per object scene (default 300, quick 150)")
     args = ap.parse_args()
     levels = [s for s in args.levels.split(",") if s]
+    scenes = _chosen_scenes(ap, args)
     rows = []
-    for name, spec in (QUICK_SCENES if args.quick else SCENES).items():
+    for name, spec in scenes.items():
         for level in levels:
-            row = map_scene(name, *spec, level)
+            row = map_scene(name, *spec, level, args.realism)
             print(json.dumps(row), flush=True)
             rows.append(row)
     pose_rows = []
     if not args.no_poses:
         for name, spec in (QUICK_POSE_RUNS if args.quick else POSE_RUNS).items():
-            row = pose_run(name, *spec, levels[0])
+            row = pose_run(name, *spec, levels[0], args.realism)
             print(json.dumps(row), flush=True)
             pose_rows.append(row)
     _table(rows, pose_rows)
-    keys = ("scene", "instances", "count_error", "centroid_error_m", "id_switches", "ms_per_frame", "ate_without_m",
-            "ate_with_m")
+    keys = ("scene", "instances", "realism", "count_error", "centroid_error_m", "id_switches", "ms_per_frame",
+            "ate_without_m", "ate_with_m")
     results = [{k: r.get(k) for k in keys} for r in rows]
     results += [{**{k: r.get(k) for k in keys}, "count_error": None, "centroid_error_m": None, "id_switches": None,
                  "ms_per_frame": r["ms_per_frame_with"], "tracker": r["tracker"]} for r in pose_rows]
     print(json.dumps({"bench": "objects", "results": results}))
 
 
+def _chosen_scenes(ap: argparse.ArgumentParser, args: argparse.Namespace) -> dict:
+    """The object scenes ``--quick``, ``--scenes`` and ``--frames`` ask for: name -> (seed, kind, path, frames)."""
+    scenes = dict(QUICK_SCENES if args.quick else SCENES)
+    if args.scenes:
+        unknown = [s for s in args.scenes.split(",") if s not in SCENES]
+        if unknown:
+            ap.error(f"unknown scene {', '.join(unknown)}; known: {', '.join(SCENES)}")
+        scenes = {s: scenes.get(s, SCENES[s]) for s in args.scenes.split(",")}
+    if args.frames:
+        if args.frames < 2:
+            ap.error("--frames must be at least 2")
+        scenes = {name: (*spec[:3], args.frames) for name, spec in scenes.items()}
+    return scenes
+
+
 def _table(rows: list[dict], pose_rows: list[dict]) -> None:
-    print("\n| scene | instances | objects / truth | count error | centroid error cm (whole object) | id switches |"
-          " point reduction | tracking ms/frame | map ms/keyframe | Open3D filters ms/keyframe |")
-    print("|---|---|---|---|---|---|---|---|---|---|")
+    print("\n| scene | instances | realism | objects / truth | count error | centroid error cm (whole object) |"
+          " id switches | point reduction | tracking ms/frame | map ms/keyframe | Open3D filters ms/keyframe |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|")
     for r in rows:
-        print(f"| {r['scene']} | {r['instances']} | {r['objects']} / {r['objects_ground_truth']} | "
+        print(f"| {r['scene']} | {r['instances']} | {r['realism']} | {r['objects']} / {r['objects_ground_truth']} | "
               f"{100 * r['count_error']:.1f} % | {100 * (r['centroid_error_m'] or 0):.2f} "
               f"({100 * (r['centroid_error_whole_m'] or 0):.1f}) | {r['id_switches']} | "
               f"{100 * r['point_reduction']:.1f} % | {r['tracking_ms_per_frame']:.1f} | "

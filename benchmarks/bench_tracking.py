@@ -9,11 +9,14 @@ refinement), semmap-slam-features (the feature SLAM alone), semmap-odometry (den
 peers open3d-f2f (legacy hybrid odometry, frame to frame) and open3d-f2f-tensor (tensor hybrid, frame to
 frame). Frames are loaded into memory before timing, so ms/frame measures tracking only (the final
 ``trajectory()`` call, e.g. SLAM's global optimisation, is included). Every method sees the same frames (7-Scenes
-colour registered onto depth, as ``semmap run`` reads it). Prints one JSON line per sequence and method, then a
-table with the ATE ratio against open3d-f2f, then all rows again as one JSON line (``tracking-summary``).
+colour registered onto depth, as ``semmap run`` reads it). Simulated sequences are rendered with the
+``--realism`` preset (default ``kinect``: structured-light depth, a real colour camera, hand-held motion;
+``clean`` for today's exact frames); every row names it (7-Scenes rows: ``real``).
+Prints one JSON line per sequence and method, then a table with the ATE ratio against open3d-f2f, then all rows
+again as one JSON line (``tracking-summary``).
 
     python benchmarks/bench_tracking.py [--quick] [--sequences 7scenes-redkitchen,sim-desk] [--methods ...]
-                                        [--frames N] [--out DIR]
+                                        [--frames N] [--out DIR] [--realism clean|kinect|hard]
 """
 
 from __future__ import annotations
@@ -31,6 +34,7 @@ from semmap.eval.trajectory import evaluate_trajectory, plot_trajectories
 from semmap.io.trajectory import write_trajectory
 from semmap.poses.file import trajectory_of_dataset
 from semmap.poses.track import make_tracker
+from semmap.sim.realism import REALISMS
 from semmap.types import Frame, Trajectory
 
 SEVEN_SCENES = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "7scenes-redkitchen"
@@ -45,10 +49,13 @@ METHODS = {"semmap-slam": "slam", "semmap-slam-noloop": "slam-noloop", "semmap-s
            "semmap-slam-features": "slam-features", "semmap-odometry": "odometry",
            "open3d-f2f": "open3d-f2f", "open3d-f2f-tensor": "open3d-f2f-tensor"}
 PEER = "open3d-f2f"
+#: the simulator's preset these benchmarks use by default (issue 34: what real sensors and hands look like)
+DEFAULT_REALISM = "kinect"
 
 
-def load_sequence(name: str, frames: int) -> list[Frame] | None:
-    """Up to ``frames`` frames of a sequence, in memory; None (with a message) when it is not available."""
+def load_sequence(name: str, frames: int, realism: str = DEFAULT_REALISM) -> list[Frame] | None:
+    """Up to ``frames`` frames of a sequence (simulated ones with the ``realism`` preset), in memory; None (with a
+    message) when it is not available."""
     if name == "7scenes-redkitchen":
         if not SEVEN_SCENES.is_dir():
             print(f"skipping {name}: {SEVEN_SCENES} is not present", file=sys.stderr)
@@ -56,7 +63,8 @@ def load_sequence(name: str, frames: int) -> list[Frame] | None:
         # registered colour only: the colour camera's own image is for segmentation (and would double the memory)
         return [f.with_(raw_color=None) for f in open_dataset(SEVEN_SCENES, max_frames=frames)]
     seed, kind, _ = SIM_SEQUENCES[name]
-    return list(SimulatedDataset.default(scene_seed=seed, trajectory=kind, frames=frames))
+    return list(SimulatedDataset.default(scene_seed=seed, trajectory=kind, frames=frames,
+                                        realism=realism))
 
 
 def slam_available() -> str:
@@ -103,6 +111,8 @@ def main() -> None:
                                             f"(default: all but sim-orbit)")
     parser.add_argument("--methods", help=f"comma-separated subset of {', '.join(METHODS)}")
     parser.add_argument("--frames", type=int, help="frames per sequence (default 600 real, 200 or 450 simulated)")
+    parser.add_argument("--realism", default=DEFAULT_REALISM, choices=REALISMS,
+                        help="the simulator's preset for sim-* sequences (default kinect)")
     parser.add_argument("--out", type=Path, help="write trajectories (TUM) and a plot per sequence here")
     args = parser.parse_args()
 
@@ -122,7 +132,7 @@ def main() -> None:
     for sequence in sequences:
         real = sequence.startswith("7scenes")
         n = args.frames or ((150 if real else 100) if args.quick else (600 if real else SIM_SEQUENCES[sequence][2]))
-        frames = load_sequence(sequence, n)
+        frames = load_sequence(sequence, n, args.realism)
         if frames is None:
             continue
         gt = trajectory_of_dataset(frames)
@@ -136,6 +146,7 @@ def main() -> None:
                 continue
             estimates[method] = est
             row = {"bench": "tracking", "sequence": sequence, "method": method, "frames": len(frames),
+                   "realism": "real" if real else args.realism,
                    "ate_rmse_m": round(metrics["ate_rmse_m"], 5), "rpe_trans_m": round(metrics["rpe_trans_m"], 5),
                    "ms_per_frame": round(ms, 1), "rpe_rot_deg": round(metrics["rpe_rot_deg"], 4),
                    "ate_max_m": round(metrics["ate_max_m"], 5),
@@ -147,7 +158,7 @@ def main() -> None:
         if args.out:
             _write_outputs(args.out, sequence, gt, estimates)
     print_table(rows)
-    print(json.dumps({"bench": "tracking-summary", "peer": PEER, "results": rows}))
+    print(json.dumps({"bench": "tracking-summary", "peer": PEER, "realism": args.realism, "results": rows}))
 
 
 def _write_outputs(out: Path, sequence: str, gt: Trajectory, estimates: dict[str, Trajectory]) -> None:
