@@ -5,6 +5,9 @@ A voxel counts as changed only where both maps observed it: occupied in B and se
 occupied in A and seen free in B has disappeared; a voxel that one map never saw is unobserved, not a change
 (a second recording that skipped a corner must not erase it). Objects are matched by class, nearest centroids
 first (an optimal assignment within ``match_radius``); a matched pair farther apart than ``move_threshold`` moved.
+Given the voxel changes, an unmatched object counts as appeared or disappeared only where voxels of that kind lie
+near its centroid (:func:`confirmed_by_voxels`): an object one recording did not pick out as an instance, but whose
+space the other map still saw occupied (books in a shelf seen from afar), is not a change.
 """
 
 from __future__ import annotations
@@ -95,4 +98,21 @@ def object_changes(before: list[dict], after: list[dict], *, match_radius: float
                           for i, o in enumerate(before) if i not in matched_a]
     out["appeared"] = [{"class": o["class"], "after": int(o["id"]), "at": o["centroid"]}
                        for i, o in enumerate(after) if i not in matched_b]
+    return out
+
+
+#: An unmatched object is a change only if this many changed voxels of its kind lie within ``EVIDENCE_RADIUS``.
+EVIDENCE_VOXELS = 3
+EVIDENCE_RADIUS = 0.3
+
+
+def confirmed_by_voxels(objects: dict[str, list[dict]], voxels: VoxelChanges) -> dict[str, list[dict]]:
+    """``objects`` (of :func:`object_changes`) less the appeared / disappeared objects with no appeared /
+    disappeared voxels near their centroid (in xy): the other map saw their space occupied or never saw it."""
+    out = dict(objects)
+    for kind in ("appeared", "disappeared"):
+        pts = voxels.centers[kind][:, :2]
+        out[kind] = [r for r in objects[kind] if len(pts) and int(
+            (np.linalg.norm(pts - np.asarray(r["at"], np.float64)[:2], axis=1) <= EVIDENCE_RADIUS).sum())
+            >= EVIDENCE_VOXELS]
     return out
