@@ -5,9 +5,9 @@ A voxel counts as changed only where both maps observed it: occupied in B and se
 occupied in A and seen free in B has disappeared; a voxel that one map never saw is unobserved, not a change
 (a second recording that skipped a corner must not erase it). Objects are matched by class, nearest centroids
 first (an optimal assignment within ``match_radius``); a matched pair farther apart than ``move_threshold`` moved.
-Given the voxel changes, an unmatched object counts as appeared or disappeared only where voxels of that kind lie
-near its centroid (:func:`confirmed_by_voxels`): an object one recording did not pick out as an instance, but whose
-space the other map still saw occupied (books in a shelf seen from afar), is not a change.
+An unmatched object counts as appeared or disappeared only where the other map saw most of its voxels free
+(:func:`confirmed_by_space`): an object one recording did not pick out as an instance, but whose space the other
+map still saw occupied (books in a shelf seen from afar) or never saw, is not a change.
 """
 
 from __future__ import annotations
@@ -101,18 +101,28 @@ def object_changes(before: list[dict], after: list[dict], *, match_radius: float
     return out
 
 
-#: An unmatched object is a change only if this many changed voxels of its kind lie within ``EVIDENCE_RADIUS``.
-EVIDENCE_VOXELS = 3
-EVIDENCE_RADIUS = 0.3
+
+#: An unmatched object is a change only if the other map saw most of its voxels (those its own map holds occupied
+#: within ``EVIDENCE_RADIUS`` of its centroid) free.
+EVIDENCE_RADIUS = 0.2
 
 
-def confirmed_by_voxels(objects: dict[str, list[dict]], voxels: VoxelChanges) -> dict[str, list[dict]]:
-    """``objects`` (of :func:`object_changes`) less the appeared / disappeared objects with no appeared /
-    disappeared voxels near their centroid (in xy): the other map saw their space occupied or never saw it."""
-    out = dict(objects)
-    for kind in ("appeared", "disappeared"):
-        pts = voxels.centers[kind][:, :2]
-        out[kind] = [r for r in objects[kind] if len(pts) and int(
-            (np.linalg.norm(pts - np.asarray(r["at"], np.float64)[:2], axis=1) <= EVIDENCE_RADIUS).sum())
-            >= EVIDENCE_VOXELS]
-    return out
+def _freed(centroid, own: OccupancyVolume, other: OccupancyVolume) -> bool:
+    """Whether most of the voxels ``own`` holds occupied near ``centroid`` are seen free in ``other``."""
+    r = int(np.ceil(EVIDENCE_RADIUS / own.resolution))
+    c = own.index_of(np.asarray(centroid, np.float64)[None])[0]
+    lo, hi = np.maximum(c - r, 0), np.minimum(c + r + 1, own.shape)
+    if np.any(hi <= lo):
+        return False
+    box = tuple(slice(a, b) for a, b in zip(lo, hi, strict=True))
+    occ = own.state[box] == OCCUPIED
+    return bool(occ.any() and (other.state[box][occ] == FREE).mean() > 0.5)
+
+
+def confirmed_by_space(objects: dict[str, list[dict]], a: SemanticMap, b: SemanticMap) -> dict[str, list[dict]]:
+    """``objects`` (of :func:`object_changes` from map ``a`` to map ``b``) less the disappeared objects whose space
+    ``b`` did not see free and the appeared ones whose space ``a`` did not see free: an object one recording did
+    not pick out as an instance (books in a shelf seen from afar) or never saw is not a change."""
+    va, vb = _common_volumes(a, b)
+    return {**objects, "disappeared": [r for r in objects["disappeared"] if _freed(r["at"], va, vb)],
+            "appeared": [r for r in objects["appeared"] if _freed(r["at"], vb, va)]}
