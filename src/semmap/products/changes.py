@@ -107,15 +107,19 @@ def object_changes(before: list[dict], after: list[dict], *, match_radius: float
 EVIDENCE_RADIUS = 0.2
 
 
-def _freed(centroid, own: OccupancyVolume, other: OccupancyVolume) -> bool:
-    """Whether most of the voxels ``own`` holds occupied near ``centroid`` are seen free in ``other``."""
+def _freed(record: dict, own: OccupancyVolume, other: OccupancyVolume) -> bool:
+    """Whether most of the voxels ``own`` holds occupied by the object's class near its centroid (any class when
+    the map has no class names) are seen free in ``other``."""
     r = int(np.ceil(EVIDENCE_RADIUS / own.resolution))
-    c = own.index_of(np.asarray(centroid, np.float64)[None])[0]
+    c = own.index_of(np.asarray(record["at"], np.float64)[None])[0]
     lo, hi = np.maximum(c - r, 0), np.minimum(c + r + 1, own.shape)
     if np.any(hi <= lo):
         return False
     box = tuple(slice(a, b) for a, b in zip(lo, hi, strict=True))
     occ = own.state[box] == OCCUPIED
+    names = list(own.label_set.names) if own.label_set is not None else []
+    if record["class"] in names:
+        occ &= own.labels[box] == names.index(record["class"])
     return bool(occ.any() and (other.state[box][occ] == FREE).mean() > 0.5)
 
 
@@ -124,5 +128,5 @@ def confirmed_by_space(objects: dict[str, list[dict]], a: SemanticMap, b: Semant
     ``b`` did not see free and the appeared ones whose space ``a`` did not see free: an object one recording did
     not pick out as an instance (books in a shelf seen from afar) or never saw is not a change."""
     va, vb = _common_volumes(a, b)
-    return {**objects, "disappeared": [r for r in objects["disappeared"] if _freed(r["at"], va, vb)],
-            "appeared": [r for r in objects["appeared"] if _freed(r["at"], vb, va)]}
+    return {**objects, "disappeared": [r for r in objects["disappeared"] if _freed(r, va, vb)],
+            "appeared": [r for r in objects["appeared"] if _freed(r, vb, va)]}
