@@ -126,7 +126,11 @@ def _freed(record: dict, own: OccupancyVolume, other: OccupancyVolume) -> bool:
 def confirmed_by_space(objects: dict[str, list[dict]], a: SemanticMap, b: SemanticMap) -> dict[str, list[dict]]:
     """``objects`` (of :func:`object_changes` from map ``a`` to map ``b``) less the disappeared objects whose space
     ``b`` did not see free and the appeared ones whose space ``a`` did not see free: an object one recording did
-    not pick out as an instance (books in a shelf seen from afar) or never saw is not a change."""
+    not pick out as an instance (books in a shelf seen from afar) or never saw is not a change, and a moved object
+    whose old place ``b`` did not see free nor its new place ``a`` stayed."""
     va, vb = _common_volumes(a, b)
+    moved = [r for r in objects["moved"] if _freed({**r, "at": r["from"]}, va, vb)
+             or _freed({**r, "at": r["to"]}, vb, va)]  # else its centroid shifted with what each recording saw
     return {**objects, "disappeared": [r for r in objects["disappeared"] if _freed(r, va, vb)],
-            "appeared": [r for r in objects["appeared"] if _freed(r, vb, va)]}
+            "appeared": [r for r in objects["appeared"] if _freed(r, vb, va)], "moved": moved,
+            "stayed": objects["stayed"] + [r for r in objects["moved"] if r not in moved]}
