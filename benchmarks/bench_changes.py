@@ -106,7 +106,8 @@ def main() -> None:
     ap.add_argument("--frames", type=int, default=30, help="frames per recording (one a second along the orbit)")
     ap.add_argument("--changes", type=int, default=3, help="changes per scene (move, remove, add in turn)")
     ap.add_argument("--instance-errors", default="maskrcnn-like", help="semmap run --instance-errors")
-    ap.add_argument("--match-radius", type=float, default=1.0, help="semmap diff --match-radius (m)")
+    ap.add_argument("--match-radius", type=float, default=4.0,
+                    help="semmap diff --match-radius (m; default the room: its default 1 m splits longer moves)")
     args = ap.parse_args()
     scenes = SCENES[:2] if args.quick else SCENES
     with tempfile.TemporaryDirectory() as tmp:
