@@ -126,20 +126,11 @@ def _freed(record: dict, own: OccupancyVolume, other: OccupancyVolume) -> bool:
 def confirmed_by_space(objects: dict[str, list[dict]], a: SemanticMap, b: SemanticMap) -> dict[str, list[dict]]:
     """``objects`` (of :func:`object_changes` from map ``a`` to map ``b``) less the disappeared objects whose space
     ``b`` did not see free and the appeared ones whose space ``a`` did not see free: an object one recording did
-    not pick out as an instance (books in a shelf seen from afar) or never saw is not a change; a moved pair needs
-    its old place seen free by ``b`` and its new one by ``a`` (else it is one object gone, one new, or none)."""
+    not pick out as an instance (books in a shelf seen from afar) or never saw is not a change, and a moved object
+    whose old place ``b`` did not see free nor its new place ``a`` stayed."""
     va, vb = _common_volumes(a, b)
-    out = {**objects, "disappeared": [r for r in objects["disappeared"] if _freed(r, va, vb)],
-           "appeared": [r for r in objects["appeared"] if _freed(r, vb, va)], "moved": [],
-           "stayed": list(objects["stayed"])}
-    for r in objects["moved"]:
-        left, came = _freed({**r, "at": r["from"]}, va, vb), _freed({**r, "at": r["to"]}, vb, va)
-        if (left and came) or ((left or came) and r["distance_m"] < 2 * EVIDENCE_RADIUS):
-            out["moved"].append(r)  # old place empty after, new place empty before (a short move: either)
-        elif left:  # the pair was two objects: one went, the other stood unseen
-            out["disappeared"].append({"class": r["class"], "before": r["before"], "at": r["from"]})
-        elif came:
-            out["appeared"].append({"class": r["class"], "after": r["after"], "at": r["to"]})
-        else:
-            out["stayed"].append(r)  # its centroid shifted with what each recording saw
-    return out
+    moved = [r for r in objects["moved"] if _freed({**r, "at": r["from"]}, va, vb)
+             or _freed({**r, "at": r["to"]}, vb, va)]  # else its centroid shifted with what each recording saw
+    return {**objects, "disappeared": [r for r in objects["disappeared"] if _freed(r, va, vb)],
+            "appeared": [r for r in objects["appeared"] if _freed(r, vb, va)], "moved": moved,
+            "stayed": objects["stayed"] + [r for r in objects["moved"] if r not in moved]}
