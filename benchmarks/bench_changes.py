@@ -1,7 +1,7 @@
 """`semmap diff` against the simulator's ground truth (issue 36, deliverable 3): objects moved, removed and added
 between two recordings of one simulated room are found with what precision and recall.
 
-    python benchmarks/bench_changes.py [--quick] [--frames N] [--match-radius M]
+    python benchmarks/bench_changes.py [--quick] [--frames N] [--match-radius M] [--instance-errors exact]
 
 For each scene (kind, seed) the room is recorded twice along the same loop (`semmap simulate`, 320x240, no noise,
 few frames spread over the orbit by a low frame rate): as it was, and after `--changes 3` (one move, one removal,
