@@ -4,7 +4,7 @@ between two recordings of one simulated room are found with what precision and r
     python benchmarks/bench_changes.py [--quick] [--frames N] [--match-radius M] [--instance-errors exact]
 
 For each scene (kind, seed) the room is recorded twice along the same loop (`semmap simulate`, 320x240, no noise,
-few frames spread over the orbit by a low frame rate): as it was, and after `--changes 3` (one move, one removal,
+30 frames spread over the loop by 1 fps): as it was, and after `--changes 3` (one move, one removal,
 one addition). Both recordings are mapped as `semmap run SEQ --resolution 0.05 --instances oracle` maps them
 (ground-truth poses, its objects.json) and compared as `semmap diff A B` compares them (``export_diff``). A true
 change is found when the diff reports it with the same class and kind within ``TOLERANCE`` metres (xy) of its true
