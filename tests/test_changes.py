@@ -14,7 +14,7 @@ from semmap.errors import ConfigError
 from semmap.io.map_files import save_map
 from semmap.io.ply import read_ply
 from semmap.maps.semantic_octomap import SemanticOctoMap
-from semmap.products.changes import object_changes, voxel_changes
+from semmap.products.changes import confirmed_by_space, object_changes, voxel_changes
 from semmap.types import EMPTY_LABEL, LabelSet, Observation, TopKProbs
 
 RES = 0.1
@@ -69,6 +69,20 @@ def test_objects_matched_by_class_and_position():
     assert [r["before"] for r in ch["disappeared"]] == [3] and [r["after"] for r in ch["appeared"]] == [9]
     with pytest.raises(ConfigError, match="match radius"):
         object_changes(before, after, match_radius=float("nan"))
+
+
+def test_unmatched_objects_need_free_space_in_the_other_map():
+    """A box that went (too far to match) is reported gone and new; an object only the first map picked out but whose
+    space the second still saw occupied (a patch of floor) is no change."""
+    def rec(i, cls, xyz):
+        return {"id": i, "class": cls, "centroid": list(xyz)}
+
+    before = [rec(1, LABELS.names[2], (0.5, 0.5, 0.15)), rec(2, LABELS.names[1], (1.0, 1.0, 0.05))]
+    after = [rec(3, LABELS.names[2], (1.5, 1.5, 0.15))]
+    ch = object_changes(before, after, match_radius=0.5)
+    assert len(ch["disappeared"]) == 2 and len(ch["appeared"]) == 1
+    kept = confirmed_by_space(ch, scene((0.4, 0.4)), scene((1.4, 1.4)))
+    assert [r["before"] for r in kept["disappeared"]] == [1] and [r["after"] for r in kept["appeared"]] == [3]
 
 
 def test_diff_command(tmp_path):

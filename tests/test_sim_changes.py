@@ -54,7 +54,8 @@ def test_same_seed_same_changes(before):
 
 
 def test_folder_regenerates_the_changed_scene(tmp_path):
-    root = simulate_sequence(tmp_path / "later", frames=1, image_size=(40, 30), changes=2, size="small")
+    root = simulate_sequence(tmp_path / "later", scene_seed=1, frames=1, image_size=(40, 30), changes=2,
+                             size="small")
     record = json.loads((root / "changes.json").read_text())
     scene = scene_of_folder(root)
     assert scene is not None and scene.params["changes"] == 2 and len(record) == 2

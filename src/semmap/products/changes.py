@@ -5,6 +5,9 @@ A voxel counts as changed only where both maps observed it: occupied in B and se
 occupied in A and seen free in B has disappeared; a voxel that one map never saw is unobserved, not a change
 (a second recording that skipped a corner must not erase it). Objects are matched by class, nearest centroids
 first (an optimal assignment within ``match_radius``); a matched pair farther apart than ``move_threshold`` moved.
+An unmatched object counts as appeared or disappeared only where the other map saw most of its voxels free
+(:func:`confirmed_by_space`): an object one recording did not pick out as an instance, but whose space the other
+map still saw occupied (books in a shelf seen from afar) or never saw, is not a change.
 """
 
 from __future__ import annotations
@@ -96,3 +99,38 @@ def object_changes(before: list[dict], after: list[dict], *, match_radius: float
     out["appeared"] = [{"class": o["class"], "after": int(o["id"]), "at": o["centroid"]}
                        for i, o in enumerate(after) if i not in matched_b]
     return out
+
+
+
+#: An unmatched object is a change only if the other map saw most of its voxels (those its own map holds occupied
+#: within ``EVIDENCE_RADIUS`` of its centroid) free.
+EVIDENCE_RADIUS = 0.2
+
+
+def _freed(record: dict, own: OccupancyVolume, other: OccupancyVolume) -> bool:
+    """Whether most of the voxels ``own`` holds occupied by the object's class near its centroid (any class when
+    the map has no class names) are seen free in ``other``."""
+    r = int(np.ceil(EVIDENCE_RADIUS / own.resolution))
+    c = own.index_of(np.asarray(record["at"], np.float64)[None])[0]
+    lo, hi = np.maximum(c - r, 0), np.minimum(c + r + 1, own.shape)
+    if np.any(hi <= lo):
+        return False
+    box = tuple(slice(a, b) for a, b in zip(lo, hi, strict=True))
+    occ = own.state[box] == OCCUPIED
+    names = list(own.label_set.names) if own.label_set is not None else []
+    if record["class"] in names:
+        occ &= own.labels[box] == names.index(record["class"])
+    return bool(occ.any() and (other.state[box][occ] == FREE).mean() > 0.5)
+
+
+def confirmed_by_space(objects: dict[str, list[dict]], a: SemanticMap, b: SemanticMap) -> dict[str, list[dict]]:
+    """``objects`` (of :func:`object_changes` from map ``a`` to map ``b``) less the disappeared objects whose space
+    ``b`` did not see free and the appeared ones whose space ``a`` did not see free: an object one recording did
+    not pick out as an instance (books in a shelf seen from afar) or never saw is not a change, and a moved object
+    whose old place ``b`` did not see free nor its new place ``a`` stayed."""
+    va, vb = _common_volumes(a, b)
+    moved = [r for r in objects["moved"] if _freed({**r, "at": r["from"]}, va, vb)
+             or _freed({**r, "at": r["to"]}, vb, va)]  # else its centroid shifted with what each recording saw
+    return {**objects, "disappeared": [r for r in objects["disappeared"] if _freed(r, va, vb)],
+            "appeared": [r for r in objects["appeared"] if _freed(r, vb, va)], "moved": moved,
+            "stayed": objects["stayed"] + [r for r in objects["moved"] if r not in moved]}

@@ -240,14 +240,15 @@ def export_diff(before: Path, after: Path, out: Path, *, match_radius: float = 1
                 move_threshold: float = 0.2) -> dict:
     """Write what changed from ``before`` to ``after`` (maps or run folders in one frame) into ``out``."""
     from semmap.io.ply import write_ply
-    from semmap.products.changes import CHANGE_COLORS, object_changes, voxel_changes
+    from semmap.products.changes import CHANGE_COLORS, confirmed_by_space, object_changes, voxel_changes
     from semmap.types import MapCloud
 
     a, a_path = load_product_map(before)
     b, b_path = load_product_map(after)
     changes = voxel_changes(a, b)
     objs_a, objs_b = _objects_of(Path(before)), _objects_of(Path(after))
-    objects = (object_changes(objs_a, objs_b, match_radius=match_radius, move_threshold=move_threshold)
+    objects = (confirmed_by_space(object_changes(objs_a, objs_b, match_radius=match_radius,
+                                                 move_threshold=move_threshold), a, b)
                if objs_a is not None and objs_b is not None else None)
 
     def write(stage: Path) -> dict:

@@ -19,12 +19,14 @@ from semmap.sim.scene import Scene, SceneObject
 CLEARANCE = 0.15
 #: Classes that are part of the building, never moved.
 FIXED_CLASSES = frozenset({"wall", "floor", "ceiling", "door", "window", "picture", "curtain", "whiteboard"})
+#: Classes that move by themselves: a map leaves them out (dynamic classes), so a diff cannot see them change.
+SELF_MOVING = frozenset({"person"})
 KINDS = ("move", "remove", "add")
 
 
 def _movable(scene: Scene) -> list[SceneObject]:
     carried = set(scene.supports.values()) | set(scene.supports)
-    return [o for o in scene.objects if o.class_name not in FIXED_CLASSES and o.instance_id not in carried
+    return [o for o in scene.objects if o.class_name not in FIXED_CLASSES | SELF_MOVING and o.instance_id not in carried
             and o.bbox_min[2] < 0.05 and np.all(o.bbox_max[:2] - o.bbox_min[:2] < 1.6)]
 
 

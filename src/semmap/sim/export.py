@@ -124,10 +124,11 @@ def _write_sequence(root: Path, *, scene_seed: int, kind: str, trajectory: str, 
                     people: int = 0, preset: Realism | None = None) -> None:
     """Render and write the whole sequence into the folder ``root`` (the staging folder)."""
     scene = generate_scene(scene_seed, kind, size, symmetric=symmetric)
+    walked = scene  # the camera walks the path of the scene as it was, so both recordings see the same views
     if changes[0]:
         scene, record = change_scene(scene, changes[0], changes[1])
         write_text_atomic(root / "changes.json", json.dumps(record, indent=1) + "\n")
-    poses = make_trajectory(scene, trajectory, int(frames), seed=scene_seed if trajectory_seed is None
+    poses = make_trajectory(walked, trajectory, int(frames), seed=scene_seed if trajectory_seed is None
                             else trajectory_seed, fps=fps, motion=motion)
     preset = preset or realism()
     shown, walkers = add_people(scene, people, scene_seed, poses[:, :3, 3], fps)  # (the scene stays static)

@@ -1,0 +1,123 @@
+"""`semmap diff` against the simulator's ground truth (issue 36, deliverable 3): objects moved, removed and added
+between two recordings of one simulated room are found with what precision and recall.
+
+    python benchmarks/bench_changes.py [--quick] [--frames N] [--match-radius M] [--instance-errors exact]
+
+For each scene (kind, seed) the room is recorded twice along the same loop (`semmap simulate`, 320x240, no noise,
+30 frames spread over the loop by 1 fps): as it was, and after `--changes 3` (one move, one removal,
+one addition). Both recordings are mapped as `semmap run SEQ --resolution 0.05 --instances oracle` maps them
+(ground-truth poses, its objects.json) and compared as `semmap diff A B` compares them (``export_diff``). A true
+change is found when the diff reports it with the same class and kind within ``TOLERANCE`` metres (xy) of its true
+centroid(s): a move as "moved" from near its old place to near its new one, a removal as "disappeared" near its old
+place, an addition as "appeared" near its new place. Precision is found changes over all object changes reported
+(moved + appeared + disappeared), recall found over true. The last line is JSON:
+``{"bench": "changes", "changes": N, "precision": P, "recall": R, "rows": [...]}``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+#: (kind, scene seed) of the rooms: small rooms with at least three objects that can change.
+SCENES = (("office", 1), ("office", 2), ("office", 3), ("kitchen", 0), ("kitchen", 1), ("kitchen", 2),
+          ("kitchen", 3))
+#: How far (m, in xy) a reported object centroid may lie from the true one (the map's centroid is of the seen surface).
+TOLERANCE = 0.5
+#: The camera path of both recordings.
+TRAJECTORY = "loop"  # round the room looking across it (an orbit looks inward and misses objects by the walls)
+#: What each true change kind is reported as.
+REPORTED_AS = {"move": "moved", "remove": "disappeared", "add": "appeared"}
+
+
+def near(a, b) -> bool:
+    """Whether two centroids lie within TOLERANCE of each other in xy."""
+    return bool(np.linalg.norm(np.asarray(a, float)[:2] - np.asarray(b, float)[:2]) <= TOLERANCE)
+
+
+def found(truth: dict, reported: dict) -> bool:
+    """Whether the reported object change (a record of diff.json) is the true one (a record of changes.json)."""
+    if reported["class"] != truth["class"]:
+        return False
+    if truth["change"] == "move":
+        return near(reported["from"], truth["from"]) and near(reported["to"], truth["to"])
+    return near(reported["at"], truth["from"] if truth["change"] == "remove" else truth["to"])
+
+
+def score(truths: list[dict], changes: dict[str, list[dict]]) -> dict:
+    """True changes found, reported changes that are true, and the misses and false reports by kind."""
+    used: set[tuple[str, int]] = set()
+    missed: list[str] = []
+    for t in truths:
+        kind = REPORTED_AS[t["change"]]
+        hit = next((i for i, r in enumerate(changes[kind]) if (kind, i) not in used and found(t, r)), None)
+        if hit is None:
+            missed.append(f"{t['change']} {t['class']}")
+        else:
+            used.add((kind, hit))
+    false = [f"{kind} {r['class']}" for kind in REPORTED_AS.values() for i, r in enumerate(changes[kind])
+             if (kind, i) not in used]
+    return {"true": len(truths), "found": len(truths) - len(missed), "reported": len(used) + len(false),
+            "correct": len(used), "missed": missed, "false": false}
+
+
+def map_run(sequence: Path, out: Path, errors: str) -> None:
+    """Map ``sequence`` into the run folder ``out`` as `semmap run --instances oracle` does."""
+    from typer.testing import CliRunner
+
+    from semmap.cli import app
+
+    r = CliRunner().invoke(app, ["run", str(sequence), "--out", str(out), "--resolution", "0.05",
+                                 "--instances", "oracle", "--instance-errors", errors, "--no-cloud"])
+    if r.exit_code != 0:
+        raise RuntimeError(f"semmap run {sequence} failed: {r.output[-400:]} {r.exception!r}")
+
+
+def one_scene(root: Path, kind: str, seed: int, args: argparse.Namespace) -> dict:
+    """Record, map and diff one room before and after ``changes`` changes; the scored row."""
+    from semmap.products.export import export_diff
+    from semmap.sim.export import simulate_sequence
+
+    t0 = time.perf_counter()
+    runs = []
+    for name, n in (("before", 0), ("after", args.changes)):
+        seq = root / f"{kind}{seed}-{name}"
+        simulate_sequence(seq, scene_seed=seed, kind=kind, size="small", trajectory=TRAJECTORY, frames=args.frames,
+                          fps=1.0, image_size=(320, 240), noise=False, changes=n, changes_seed=seed + 1)
+        map_run(seq, root / f"{kind}{seed}-{name}-run", args.instance_errors)
+        runs.append(root / f"{kind}{seed}-{name}-run")
+    summary = export_diff(runs[0], runs[1], root / f"{kind}{seed}-diff", match_radius=args.match_radius)
+    truths = json.loads((root / f"{kind}{seed}-after" / "changes.json").read_text())
+    row = {"scene": f"{kind} small seed {seed}", **score(truths, summary["object_changes"]),
+           "stayed": len(summary["object_changes"]["stayed"]), "s": round(time.perf_counter() - t0, 1)}
+    print(json.dumps(row), flush=True)
+    return row
+
+
+def main() -> None:
+    """Run the scenes and print the JSON summary line."""
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--quick", action="store_true", help="two scenes only (6 changes)")
+    ap.add_argument("--frames", type=int, default=30, help="frames per recording (one a second along the orbit)")
+    ap.add_argument("--changes", type=int, default=3, help="changes per scene (move, remove, add in turn)")
+    ap.add_argument("--instance-errors", default="maskrcnn-like", help="semmap run --instance-errors")
+    ap.add_argument("--match-radius", type=float, default=4.0,
+                    help="semmap diff --match-radius (m; default the room: its default 1 m splits longer moves)")
+    args = ap.parse_args()
+    scenes = SCENES[:2] if args.quick else SCENES
+    with tempfile.TemporaryDirectory() as tmp:
+        rows = [one_scene(Path(tmp), kind, seed, args)
+                for kind, seed in scenes]
+    true, found_, reported, correct = (sum(r[k] for r in rows) for k in ("true", "found", "reported", "correct"))
+    print(json.dumps({"bench": "changes", "changes": true, "precision": round(correct / max(reported, 1), 3),
+                      "recall": round(found_ / max(true, 1), 3), "match_radius": args.match_radius,
+                      "frames": args.frames, "instance_errors": args.instance_errors, "rows": rows}))
+
+
+if __name__ == "__main__":
+    main()
