@@ -29,7 +29,7 @@ from semmap.perception.espnetv2 import EESP, EESPNetEncoder, espnetv2_channels
 from semmap.perception.networks.base import SegmentationNet
 from semmap.perception.networks.cbam import CBAM
 from semmap.perception.networks.layers import ConvBNReLU, init_weights, resize, scaled
-from semmap.perception.networks.pspnet import AUX_CHANNELS, DROPOUT, HEAD_CHANNELS, PyramidPooling
+from semmap.perception.networks.pspnet import DROPOUT, pyramid_heads
 from semmap.perception.networks.registry import ESPNET_BACKBONES
 from semmap.perception.networks.rgbd_net import DEPTH_MEAN_M, DEPTH_STD_M, MultiScaleFusion
 
@@ -148,13 +148,7 @@ class ESPNetPSP(SegmentationNet):
                  attention: bool = False, full_resolution: bool = False) -> None:
         super().__init__(num_classes, full_resolution=full_resolution)
         self.backbone = ESPNetBackbone(espnet_scale(backbone), attention=attention)
-        c3, c4 = self.backbone.channels[2:]
-        self.ppm = PyramidPooling(c4)
-        head = scaled(HEAD_CHANNELS, width)
-        self.head = nn.Sequential(ConvBNReLU(self.ppm.out_channels, head, 3), nn.Dropout2d(DROPOUT),
-                                  nn.Conv2d(head, num_classes, 1))
-        aux = scaled(AUX_CHANNELS, width)
-        self.aux = nn.Sequential(ConvBNReLU(c3, aux, 3), nn.Dropout2d(DROPOUT), nn.Conv2d(aux, num_classes, 1))
+        self.ppm, self.head, self.aux = pyramid_heads(*self.backbone.channels[2:], num_classes, width)
         init_weights(self)
         if attention:  # init_weights touched the CBAM convolutions only; the gates must stay closed
             for m in self.backbone.attention:

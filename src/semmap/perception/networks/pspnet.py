@@ -40,6 +40,17 @@ class PyramidPooling(nn.Module):
                                for b, conv in zip(self.bins, self.reduce, strict=True))], dim=1)
 
 
+def pyramid_heads(c3: int, c4: int, num_classes: int, width: float) -> tuple[PyramidPooling, nn.Sequential,
+                                                                            nn.Sequential]:
+    """PSPNet's pyramid pooling over the last level (``c4`` channels), its classifier head and the auxiliary head
+    on the level before (``c3``), sized by ``width``: one recipe for every encoder it sits on."""
+    ppm = PyramidPooling(c4)
+    head = scaled(HEAD_CHANNELS, width)
+    main = nn.Sequential(ConvBNReLU(ppm.out_channels, head, 3), nn.Dropout2d(DROPOUT), nn.Conv2d(head, num_classes, 1))
+    aux = scaled(AUX_CHANNELS, width)
+    return ppm, main, nn.Sequential(ConvBNReLU(c3, aux, 3), nn.Dropout2d(DROPOUT), nn.Conv2d(aux, num_classes, 1))
+
+
 class PSPNet(SegmentationNet):
     """PSPNet over a dilated ResNet-``depth`` (18, 34 or 50) with width multiplier ``width``."""
 
@@ -47,13 +58,7 @@ class PSPNet(SegmentationNet):
                  attention: AttentionFactory = None, full_resolution: bool = False) -> None:
         super().__init__(num_classes, full_resolution=full_resolution)
         self.backbone = ResNet(depth, width=width, output_stride=output_stride, attention=attention)
-        c3, c4 = self.backbone.channels[2:]
-        self.ppm = PyramidPooling(c4)
-        head = scaled(HEAD_CHANNELS, width)
-        self.head = nn.Sequential(ConvBNReLU(self.ppm.out_channels, head, 3), nn.Dropout2d(DROPOUT),
-                                  nn.Conv2d(head, num_classes, 1))
-        aux = scaled(AUX_CHANNELS, width)
-        self.aux = nn.Sequential(ConvBNReLU(c3, aux, 3), nn.Dropout2d(DROPOUT), nn.Conv2d(aux, num_classes, 1))
+        self.ppm, self.head, self.aux = pyramid_heads(*self.backbone.channels[2:], num_classes, width)
         init_weights(self)
 
     def heads(self, image: torch.Tensor, depth: torch.Tensor | None) -> tuple[torch.Tensor, torch.Tensor | None]:
