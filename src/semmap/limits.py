@@ -370,14 +370,15 @@ def check_network_input(width: int, height: int, batch: int, *, training: bool =
     check_memory(f"{option} {width}x{height} with a batch of {batch}", width * height * batch * per_pixel)
 
 
-def check_map_extent(resolution: float, extent_m: tuple[float, float, float], where: str) -> None:
+def check_map_extent(resolution: float, extent_m: tuple[float, float, float], where: str) -> float:
     """Refuse a map whose cells over ``extent_m`` (x, y, z metres of the scene, ``where`` says how it was
-    estimated) at ``resolution`` would not fit the budget."""
+    estimated) at ``resolution`` would not fit the budget; the number of cells otherwise."""
     check("resolution", resolution)
     cells = math.prod(max(float(e), resolution) / resolution for e in extent_m)
     size = "x".join(f"{e:.1f}" for e in extent_m)
     check_memory(f"--resolution {resolution:g} over {where} of {size} m ({cells:,.0f} cells)",
                  cells * BYTES_PER_VOXEL)
+    return cells
 
 
 def check_map_growth(resolution: float, held: int, growth: int, where: str) -> None:

@@ -165,9 +165,8 @@ class Mapper:
         for m in self.maps:
             if m.kind == MapKind.OCTOMAP:
                 extent = np.ptp(np.vstack([points.min(0), points.max(0), origin]), axis=0)
-                check_map_extent(m.resolution, tuple(extent), "the first frame's view")
-                # a view's rays fill about a third of its bounding box (a pyramid in its box)
-                cells = float(np.prod(np.maximum(extent, m.resolution) / m.resolution)) / 3
+                box_cells = check_map_extent(m.resolution, tuple(extent), "the first frame's view")
+                cells = box_cells / 3  # a view's rays fill about a third of its bounding box (a pyramid in its box)
                 if cells > SLOW_VIEW_CELLS:
                     log.warning("--resolution %g: one view spans about %.0f million voxels (about %s); expect "
                                 "minutes per frame and for writing the map files (--resolution %g: 8x fewer)",
