@@ -3,7 +3,10 @@ Euclidean distance transform (time and error), the incremental ESDF update per f
 the semantic mesh (marching cubes over semmap's TSDF and per-vertex classes) against Open3D's VoxelBlockGrid mesh
 extraction over the same frames, on the 7-Scenes map at 2 cm (../shared) and a simulated house at 5 cm.
 
-    python benchmarks/bench_products.py [--quick] [--frames N]
+    python benchmarks/bench_products.py [--quick] [--frames N] [--scene 7scenes|house|all]
+
+``--frames 0`` maps every frame of the sequence (the full 7-Scenes map). A ``total`` row per scene sums the grid,
+ESDF and mesh times: what exporting all three products of one map costs.
 
 The maps are built as `semmap run --maps octomap,tsdf` builds them (ground-truth poses); the timings are of what
 `semmap export grid|esdf|mesh` runs. The mesh row's error is the share of vertices (among those whose voxel, or
@@ -142,11 +145,15 @@ def scenes(args) -> list[tuple[str, float, object, object]]:
 
     out = []
     n = 40 if args.quick else args.frames
-    if SHARED.is_dir():
+    if args.scene in ("7scenes", "all") and SHARED.is_dir():
         ds = open_dataset(SHARED)
-        out.append(("7scenes-redkitchen", 0.02, spread_then_consecutive(ds, len(ds), n, args.snapshots + 1), None))
-    else:
+        out.append(("7scenes-redkitchen", 0.02,
+                    spread_then_consecutive(ds, len(ds), n or len(ds), args.snapshots + 1), None))
+    elif args.scene in ("7scenes", "all"):
         print(f"skipping 7-Scenes: {SHARED} not found")
+    if args.scene not in ("house", "all"):
+        return out
+    n = n or 200
     camera = CameraIntrinsics(320, 240, 262.5, 262.5, 159.5, 119.5)
     scene = generate_scene(0, "living_room", "large")
     walk = make_trajectory(scene, "walk", 10 * n, seed=0)  # 30 fps
@@ -164,6 +171,7 @@ def measure_scene(name: str, resolution: float, frames, label_set, snapshots: in
     from semmap.products.navgrid import navigation_grid
     from semmap.products.occupancy import OCCUPIED, occupancy_volume
 
+    frames = list(frames)
     m, tsdf, peer, history = build_map(frames, resolution, label_set, snapshots)
     rows = [mesh_row(name, m, tsdf, peer)]
     grid_ms, grid = timed(lambda: navigation_grid(occupancy_volume(m)))
@@ -185,6 +193,10 @@ def measure_scene(name: str, resolution: float, frames, label_set, snapshots: in
                  "error": float(np.abs(e.distance - ref).max()), "peer": "scipy.ndimage.distance_transform_edt",
                  "peer_ms": round(peer_ms, 1), "voxels": int(occ.size)})
     rows.append(incremental_row(name, vol, history, squared_edt, IncrementalEsdf))
+    total = sum(r["ms"] for r in rows if r["product"] in ("mesh", "grid", "esdf"))
+    rows.append({"scene": name, "product": "total grid+esdf+mesh", "ms": round(total, 1),
+                 "bytes": sum(r["bytes"] for r in rows if r["product"] in ("mesh", "grid", "esdf")), "error": None,
+                 "peer": None, "peer_ms": None, "frames": len(frames), "voxels": int(occ.size)})
     return rows
 
 
@@ -222,7 +234,8 @@ def incremental_row(name: str, vol, history: list[np.ndarray], squared_edt, incr
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--quick", action="store_true", help="40 frames per scene")
-    ap.add_argument("--frames", type=int, default=200, help="frames per scene")
+    ap.add_argument("--frames", type=int, default=200, help="frames per scene (0: every frame of 7-Scenes)")
+    ap.add_argument("--scene", choices=("7scenes", "house", "all"), default="all", help="which scenes to map")
     ap.add_argument("--snapshots", type=int, default=10, help="frames whose incremental update is timed")
     args = ap.parse_args()
     results = []
