@@ -14,7 +14,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from semmap.errors import ConfigError
-from semmap.products._edt_kernels import INF, brushfire_update, squared_edt
+from semmap.products._edt_kernels import INF, brushfire_update, signed_distance, squared_edt
 from semmap.products.occupancy import OCCUPIED, UNKNOWN, OccupancyVolume
 
 
@@ -72,12 +72,8 @@ class Esdf:
 def esdf_of(volume: OccupancyVolume) -> Esdf:
     """The exact signed distance field of ``volume``."""
     occupied = volume.state == OCCUPIED
-    outside = squared_edt(occupied)
-    inside = squared_edt(~occupied)
-    dist = np.where(occupied, -np.sqrt(inside), np.sqrt(outside)).astype(np.float32)
-    dist[np.abs(dist) >= np.sqrt(INF) * 0.5] = np.inf
-    dist[occupied & np.isinf(dist)] = -np.inf
-    return Esdf(dist * np.float32(volume.resolution), volume.state != UNKNOWN, volume.origin, volume.resolution)
+    dist = signed_distance(occupied, squared_edt(occupied), squared_edt(~occupied), volume.resolution)
+    return Esdf(dist, volume.state != UNKNOWN, volume.origin, volume.resolution)
 
 
 class IncrementalEsdf:
