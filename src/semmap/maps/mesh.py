@@ -44,10 +44,13 @@ class SemanticMesh:
         return int(self.vertices.shape[0])
 
 
-def _sorted_keys(m: SemanticMap) -> tuple[np.ndarray, np.ndarray, object]:
-    """The packed keys of ``m``'s occupied voxels sorted, their order into :meth:`cloud`, and the cloud."""
-    cloud = m.cloud()
+def _sorted_keys(m: SemanticMap, cloud=None) -> tuple[np.ndarray, np.ndarray, object]:
+    """The packed keys of ``m``'s occupied voxels sorted, their order into :meth:`cloud` (``cloud``: that cloud,
+    when the caller has it already), and the cloud."""
+    cloud = m.cloud() if cloud is None else cloud
     packed = pack_keys(coords_to_keys(cloud.centers, m.resolution))
+    if np.all(packed[1:] > packed[:-1]):  # most maps list their voxels sorted by key already
+        return packed, np.arange(len(packed)), cloud
     order = np.argsort(packed, kind="stable")
     return packed[order], order, cloud
 
@@ -61,10 +64,11 @@ def _find(sorted_packed: np.ndarray, keys: np.ndarray) -> np.ndarray:
     return np.where(sorted_packed[i] == packed, i, -1)
 
 
-def voxel_of_vertex(vertices: np.ndarray, m: SemanticMap) -> tuple[np.ndarray, np.ndarray]:
-    """Index into ``m.cloud()`` of the occupied voxel each vertex takes its class from (-1: none), and whether it
-    is the voxel holding the vertex (else the nearest occupied one of its 26 neighbours)."""
-    sorted_packed, order, _ = _sorted_keys(m)
+def voxel_of_vertex(vertices: np.ndarray, m: SemanticMap, cloud=None) -> tuple[np.ndarray, np.ndarray]:
+    """Index into ``m.cloud()`` (``cloud``: that cloud, already made) of the occupied voxel each vertex takes its
+    class from (-1: none), and whether it is the voxel holding the vertex (else the nearest occupied one of its
+    26 neighbours)."""
+    sorted_packed, order, _ = _sorted_keys(m, cloud)
     if len(sorted_packed) == 0:
         return np.full(len(vertices), -1, np.int64), np.zeros(len(vertices), bool)
     keys = coords_to_keys(vertices, m.resolution)
@@ -90,8 +94,8 @@ def semantic_mesh(tsdf, source: SemanticMap | None = None, *, min_weight: int = 
     source = tsdf if source is None else source
     vertices, faces = tsdf.mesh(min_weight)
     v = vertices.astype(np.float64)
-    idx, own = voxel_of_vertex(v, source)
     cloud = source.cloud()
+    idx, own = voxel_of_vertex(v, source, cloud)
     has = idx >= 0
     labels = np.full(len(v), EMPTY_LABEL, np.uint16)
     conf = np.zeros(len(v), np.float32)
@@ -100,8 +104,9 @@ def semantic_mesh(tsdf, source: SemanticMap | None = None, *, min_weight: int = 
     colors[has] = cloud.colors[idx[has]]
     if source is not tsdf and not has.all():  # the rest coloured by the TSDF's own voxels
         rest = np.flatnonzero(~has)
-        j, _ = voxel_of_vertex(v[rest], tsdf)
-        colors[rest[j >= 0]] = tsdf.cloud().colors[j[j >= 0]]
+        own_cloud = tsdf.cloud()
+        j, _ = voxel_of_vertex(v[rest], tsdf, own_cloud)
+        colors[rest[j >= 0]] = own_cloud.colors[j[j >= 0]]
     probs = None
     if source.label_set is not None:
         dense = source.class_probs()

@@ -611,18 +611,20 @@ class SemanticOctoMap:
 
     def voxels(self, *, occupied_only: bool = True) -> VoxelCloud:
         """Voxels as flat arrays (occupied ones by default), sorted by key."""
-        c = self.cells()
-        sel = c.logodds >= self._thr if occupied_only else np.ones(c.packed.shape[0], bool)
-        keys = unpack_keys(c.packed[sel])
-        rows = c.attr[sel]
+        used = np.flatnonzero(self._used())
+        if occupied_only:  # select before sorting: the free cells are most of the tree
+            used = used[self._logodds[used] >= self._thr]
+        used = used[np.argsort(self._keys[used], kind="stable")]
+        keys = unpack_keys(self._keys[used])
+        rows = self._attr[used]
         colors = np.full((keys.shape[0], 3), 128, np.uint8)
         has = rows >= 0
-        cnt = c.rgb_count[rows[has]]
+        cnt = self._rgb_count[rows[has]]
         colored = np.flatnonzero(has)[cnt > 0]
-        r = rows[colored]
-        colors[colored] = c.rgb[r]
-        sets = self._entry.sets(*self._states(rows, c.sem_labels, c.sem_probs), self._num_classes, self.fusion.k)
-        return VoxelCloud(keys, keys_to_coords(keys, self.resolution), c.logodds[sel], colors, sets.labels,
+        colors[colored] = self._rgb[rows[colored]]
+        sets = self._entry.sets(*self._states(rows, self._sem_labels, self._sem_probs), self._num_classes,
+                                self.fusion.k)
+        return VoxelCloud(keys, keys_to_coords(keys, self.resolution), self._logodds[used], colors, sets.labels,
                           sets.probs)
 
     def is_occupied(self, logodds_values: np.ndarray) -> np.ndarray:
