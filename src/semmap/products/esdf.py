@@ -87,10 +87,11 @@ class IncrementalEsdf:
         n = int(np.prod(shape))
         self.resolution, self.origin = float(resolution), np.asarray(origin, np.float64)
         self.occupied = np.zeros(shape, np.bool_)
+        index = np.int32 if n < 2**31 else np.int64  # half the memory traffic of the wave's random reads
         self.dist2 = np.full(n, INF, np.float32)
-        self.site = np.full(n, -1, np.int64)
+        self.site = np.full(n, -1, index)
         self.max_d2 = np.float32((max_distance / resolution) ** 2)
-        self._scratch = (np.empty(n, np.int64), np.zeros(n, np.bool_), np.empty(n, np.int64), np.zeros(n, np.bool_))
+        self._scratch = (np.empty(n, index), np.zeros(n, np.bool_), np.empty(n, index), np.zeros(n, np.bool_))
 
     def update(self, occupied: np.ndarray) -> int:
         """Take the new occupancy (same shape, bool); returns the number of voxels the update visited."""
@@ -110,8 +111,9 @@ class IncrementalEsdf:
             occupied.ravel()[added] = True
             occupied.ravel()[removed] = False
         self.occupied = np.ascontiguousarray(occupied)
-        return int(brushfire_update(self.occupied, self.dist2, self.site, np.asarray(added, np.int64),
-                                    np.asarray(removed, np.int64), self.max_d2, *self._scratch))
+        index = self.site.dtype
+        return int(brushfire_update(self.occupied, self.dist2, self.site, np.asarray(added, index),
+                                    np.asarray(removed, index), self.max_d2, *self._scratch))
 
     def distance(self) -> np.ndarray:
         """(nx, ny, nz) float32 metres; inf beyond ``max_distance`` of every obstacle."""
