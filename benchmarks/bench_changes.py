@@ -1,7 +1,7 @@
 """`semmap diff` against the simulator's ground truth (issue 36, deliverable 3): objects moved, removed and added
 between two recordings of one simulated room are found with what precision and recall.
 
-    python benchmarks/bench_changes.py [--quick] [--frames N] [--match-radius M] [--instance-errors exact]
+    python benchmarks/bench_changes.py [--quick] [--frames N] [--match-radius M] [--instance-errors exact] [--cache DIR]
 
 For each scene (kind, seed) the room is recorded twice along the same loop (`semmap simulate`, 320x240, no noise,
 30 frames spread over the loop by 1 fps): as it was, and after `--changes 3` (one move, one removal,
@@ -87,10 +87,13 @@ def one_scene(root: Path, kind: str, seed: int, args: argparse.Namespace) -> dic
     runs = []
     for name, n in (("before", 0), ("after", args.changes)):
         seq = root / f"{kind}{seed}-{name}"
-        simulate_sequence(seq, scene_seed=seed, kind=kind, size="small", trajectory=TRAJECTORY, frames=args.frames,
-                          fps=1.0, image_size=(320, 240), noise=False, changes=n, changes_seed=seed + 1)
-        map_run(seq, root / f"{kind}{seed}-{name}-run", args.instance_errors)
-        runs.append(root / f"{kind}{seed}-{name}-run")
+        run = root / f"{kind}{seed}-{name}-run"
+        if not (run / "objects.json").is_file():  # a --cache folder keeps the recordings and maps of an earlier run
+            simulate_sequence(seq, scene_seed=seed, kind=kind, size="small", trajectory=TRAJECTORY,
+                              frames=args.frames, fps=1.0, image_size=(320, 240), noise=False, changes=n,
+                              changes_seed=seed + 1)
+            map_run(seq, run, args.instance_errors)
+        runs.append(run)
     summary = export_diff(runs[0], runs[1], root / f"{kind}{seed}-diff", match_radius=args.match_radius)
     truths = json.loads((root / f"{kind}{seed}-after" / "changes.json").read_text())
     row = {"scene": f"{kind} small seed {seed}", **score(truths, summary["object_changes"]),
@@ -108,11 +111,16 @@ def main() -> None:
     ap.add_argument("--instance-errors", default="maskrcnn-like", help="semmap run --instance-errors")
     ap.add_argument("--match-radius", type=float, default=4.0,
                     help="semmap diff --match-radius (m; default the room: its default 1 m splits longer moves)")
+    ap.add_argument("--cache", type=Path, default=None,
+                    help="keep recordings and maps in this folder and reuse them on the next run (default: none)")
     args = ap.parse_args()
     scenes = SCENES[:2] if args.quick else SCENES
     with tempfile.TemporaryDirectory() as tmp:
-        rows = [one_scene(Path(tmp), kind, seed, args)
-                for kind, seed in scenes]
+        root = Path(tmp)
+        if args.cache is not None:  # one folder per setting, so a cached map is only reused for the same setting
+            root = args.cache / f"frames{args.frames}-changes{args.changes}-{args.instance_errors}"
+            root.mkdir(parents=True, exist_ok=True)
+        rows = [one_scene(root, kind, seed, args) for kind, seed in scenes]
     true, found_, reported, correct = (sum(r[k] for r in rows) for k in ("true", "found", "reported", "correct"))
     print(json.dumps({"bench": "changes", "changes": true, "precision": round(correct / max(reported, 1), 3),
                       "recall": round(found_ / max(true, 1), 3), "match_radius": args.match_radius,

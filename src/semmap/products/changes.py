@@ -18,6 +18,7 @@ import numpy as np
 from scipy.optimize import linear_sum_assignment
 
 from semmap.errors import ConfigError
+from semmap.keys import coords_to_keys, pack_keys
 from semmap.maps.base import SemanticMap
 from semmap.products.occupancy import FREE, OCCUPIED, OccupancyVolume, map_keys, volume_of_keys
 
@@ -68,69 +69,271 @@ def voxel_changes(a: SemanticMap, b: SemanticMap) -> VoxelChanges:
     return VoxelChanges(centers, labels, int(both.sum()), int(((occ_a & ~seen_b) | (occ_b & ~seen_a)).sum()))
 
 
-def object_changes(before: list[dict], after: list[dict], *, match_radius: float = 1.0,
-                   move_threshold: float = 0.2) -> dict[str, list[dict]]:
-    """Objects (records of ``objects.json``) that appeared, disappeared, moved or stayed."""
+#: Where an object's place stands in the other map (:func:`object_status`): ``GONE`` seen mostly free there (for an
+#: object of the later map: its place was free before, it is new), ``PRESENT`` seen mostly occupied, ``UNSEEN`` the
+#: other map saw too little of it to say.
+GONE, PRESENT, UNSEEN = "gone", "present", "unseen"
+#: Share of an object's voxels the other map must have observed (free or occupied) to say anything about it.
+MIN_OBSERVED = 0.5
+#: Share of the observed ones that must be free for the object to be gone (new).
+MIN_FREE = 0.5
+#: Margin (m) round an object's box in which its map's occupied voxels of its class are its voxels.
+BOX_MARGIN = 0.05
+#: A move pairs a gone object with a new one of the same class whose box differs by at most this share per side.
+MAX_EXTENT_CHANGE = 0.75
+
+
+def _box_voxels(record: dict, own: OccupancyVolume) -> np.ndarray:
+    """(N, 3) indices of the voxels ``own`` holds occupied by the object's class (any class when the map has no
+    class names) inside its upright box grown by ``BOX_MARGIN`` (or near its centroid when it has no box)."""
+    box = record.get("box")
+    centre = np.asarray(box["center"] if box else record.get("at", record.get("centroid")), np.float64)
+    half = (np.asarray(box["extent"], np.float64) / 2 if box else np.zeros(3)) + BOX_MARGIN + own.resolution / 2
+    rot = np.asarray(box["rotation"], np.float64) if box else np.eye(3)
+    reach = np.abs(rot) @ half  # the world-axis box round the rotated one
+    lo = np.maximum(own.index_of((centre - reach)[None])[0], 0)
+    hi = np.minimum(own.index_of((centre + reach)[None])[0] + 1, own.shape)
+    if np.any(hi <= lo):
+        return np.zeros((0, 3), np.int64)
+    box_sl = tuple(slice(a, b) for a, b in zip(lo, hi, strict=True))
+    occ = own.state[box_sl] == OCCUPIED
+    names = list(own.label_set.names) if own.label_set is not None else []
+    if record["class"] in names:
+        occ &= own.labels[box_sl] == names.index(record["class"])
+    idx = np.argwhere(occ) + lo
+    local = (own.origin + idx * own.resolution - centre) @ rot  # in the box's axes
+    return idx[np.all(np.abs(local) <= half, axis=1)]
+
+
+def _point_voxels(points: np.ndarray, own: OccupancyVolume) -> np.ndarray:
+    """(N, 3) indices of the distinct voxels of the object's points that ``own`` holds occupied."""
+    idx = np.unique(own.index_of(np.asarray(points, np.float64).reshape(-1, 3)), axis=0)
+    idx = idx[np.all((idx >= 0) & (idx < np.array(own.shape)), axis=1)]
+    return idx[own.state[idx[:, 0], idx[:, 1], idx[:, 2]] == OCCUPIED]
+
+
+def object_status(record: dict, own: OccupancyVolume, other: OccupancyVolume, points: np.ndarray | None = None
+                  ) -> str:
+    """Whether the other map saw the place of the object (a record of ``objects.json`` in ``own``'s map) free
+    (``GONE``), occupied (``PRESENT``) or too little of it (``UNSEEN``); both volumes share one voxel box. Its place
+    is the voxels of its ``points`` (``objects.ply``), else of its class in its box."""
+    idx = _point_voxels(points, own) if points is not None and len(points) else _box_voxels(record, own)
+    if len(idx) == 0:
+        return UNSEEN
+    state = other.state[idx[:, 0], idx[:, 1], idx[:, 2]]
+    free, occupied = int((state == FREE).sum()), int((state == OCCUPIED).sum())
+    if free + occupied < MIN_OBSERVED * len(idx):
+        return UNSEEN
+    return GONE if free > MIN_FREE * (free + occupied) else PRESENT
+
+
+def _extent(record: dict) -> np.ndarray:
+    """Sorted horizontal sides and height of the object's box (m), for telling objects of one class apart."""
+    box = record.get("box")
+    if not box:
+        return np.full(3, np.nan)
+    e = np.asarray(box["extent"], np.float64)
+    rot = np.asarray(box["rotation"], np.float64)
+    vertical = int(np.argmax(np.abs(rot[2])))  # the box axis closest to world z (the map's up is z)
+    flat = np.sort(np.delete(e, vertical))
+    return np.array([flat[0], flat[1], e[vertical]])
+
+
+def extent_change(a: dict, b: dict) -> float:
+    """Largest relative difference of two objects' box sides (0 alike, 1 nothing alike; 0 without boxes)."""
+    ea, eb = _extent(a), _extent(b)
+    if np.any(np.isnan(ea)) or np.any(np.isnan(eb)):
+        return 0.0
+    return float(np.max(np.abs(ea - eb) / np.maximum(np.maximum(ea, eb), 0.1)))
+
+
+def _pair(cls: str, a: dict, b: dict) -> dict:
+    ca, cb = np.asarray(a["centroid"], np.float64), np.asarray(b["centroid"], np.float64)
+    return {"class": cls, "before": int(a["id"]), "after": int(b["id"]), "from": [round(float(v), 3) for v in ca],
+            "to": [round(float(v), 3) for v in cb], "distance_m": round(float(np.linalg.norm(ca - cb)), 3)}
+
+
+def _assign(cost: np.ndarray) -> list[tuple[int, int]]:
+    """Optimal pairs of a cost matrix whose infinite entries are forbidden."""
+    if cost.size == 0 or not np.isfinite(cost).any():
+        return []
+    rows, cols = linear_sum_assignment(np.where(np.isfinite(cost), cost, 1e9))
+    return [(int(r), int(c)) for r, c in zip(rows, cols, strict=True) if np.isfinite(cost[r, c])]
+
+
+#: Weight of the mean colour difference (RGB, 0..1 per channel) against the relative size change in a move's cost.
+COLOUR_WEIGHT = 2.0
+#: A move pairs objects whose mean colours (RGB, 0..1) differ by at most this much (when both are known).
+MAX_COLOUR_CHANGE = 0.2
+#: Parts of one object that the object map kept apart: same class, same fate, boxes this close (m).
+PART_GAP = 0.1
+
+
+@dataclass(frozen=True)
+class ObjectEvidence:
+    """What the maps say of each object of one map: its place in the other map (:func:`object_status`) and its
+    mean observed colour (RGB 0..1, NaN when unknown)."""
+
+    status: list[str]
+    colour: np.ndarray
+    voxels: list[np.ndarray] | None = None  # sorted packed keys of each object's voxels, when known
+
+
+def _no_evidence(n: int) -> ObjectEvidence:
+    return ObjectEvidence([GONE] * n, np.full((n, 3), np.nan))
+
+
+def _shared(ev: ObjectEvidence, i: int, j: int) -> float:
+    """Share of the smaller of objects ``i`` and ``j`` (of one map) whose voxels the other also holds."""
+    if ev.voxels is None or len(ev.voxels[i]) == 0 or len(ev.voxels[j]) == 0:
+        return 0.0
+    common = len(np.intersect1d(ev.voxels[i], ev.voxels[j], assume_unique=True))
+    return common / min(len(ev.voxels[i]), len(ev.voxels[j]))
+
+
+def _aabb(record: dict) -> tuple[np.ndarray, np.ndarray]:
+    """World-axis box round the object's upright box (a point at its centroid without one)."""
+    box = record.get("box")
+    if not box:
+        c = np.asarray(record["centroid"], np.float64)
+        return c, c
+    reach = np.abs(np.asarray(box["rotation"], np.float64)) @ (np.asarray(box["extent"], np.float64) / 2)
+    return np.asarray(box["center"], np.float64) - reach, np.asarray(box["center"], np.float64) + reach
+
+
+def _touching(a: dict, b: dict) -> bool:
+    (alo, ahi), (blo, bhi) = _aabb(a), _aabb(b)
+    return bool(np.all(alo <= bhi + PART_GAP) and np.all(blo <= ahi + PART_GAP))
+
+
+def _same_objects(cls: str, ia: list[int], ib: list[int], before: list[dict], after: list[dict],
+                  ev: tuple[ObjectEvidence, ObjectEvidence], limits: tuple[float, float], out: dict
+                  ) -> tuple[set[int], set[int]]:
+    """Pair objects of class ``cls`` that are the same object where they were: nearest centroids within the match
+    radius, but never an object whose place went with one whose place the earlier map saw occupied (nor the
+    reverse: that is another object the other recording did not pick out). A pair farther apart than the move
+    threshold whose space says one end changed moved; any other stayed."""
+    match_radius, move_threshold = limits
+    ca = np.array([before[i]["centroid"] for i in ia], np.float64).reshape(-1, 3)
+    cb = np.array([after[j]["centroid"] for j in ib], np.float64).reshape(-1, 3)
+    dist = np.linalg.norm(ca[:, None] - cb[None], axis=2)
+    sa, sb = np.array([ev[0].status[i] for i in ia], object), np.array([ev[1].status[j] for j in ib], object)
+    gone, new = sa == GONE, sb == GONE
+    other_object = (gone[:, None] & (sb == PRESENT)[None]) | ((sa == PRESENT)[:, None] & new[None])
+    allowed = (dist <= move_threshold) | ((dist <= match_radius) & ~other_object)
+    used_a, used_b = set(), set()
+    for r, c in _assign(np.where(allowed, dist, np.inf)):
+        moved = dist[r, c] > move_threshold and (gone[r] or new[c])
+        out["moved" if moved else "stayed"].append(_pair(cls, before[ia[r]], after[ib[c]]))
+        used_a.add(ia[r])
+        used_b.add(ib[c])
+    return used_a, used_b
+
+
+def _moves(cls: str, ia: list[int], ib: list[int], before: list[dict], after: list[dict],
+           ev: tuple[ObjectEvidence, ObjectEvidence], out: dict) -> tuple[set[int], set[int]]:
+    """Pair gone objects of class ``cls`` with new ones anywhere (a move is a removal and an addition of one
+    object): the most alike in size and colour first, the nearer on a tie."""
+    if not ia or not ib:
+        return set(), set()
+    size = np.array([[extent_change(before[i], after[j]) for j in ib] for i in ia])
+    colour = np.linalg.norm(ev[0].colour[ia][:, None] - ev[1].colour[ib][None], axis=2)
+    ca = np.array([before[i]["centroid"] for i in ia], np.float64)
+    cb = np.array([after[j]["centroid"] for j in ib], np.float64)
+    cost = size + COLOUR_WEIGHT * np.nan_to_num(colour, nan=0.0) + 0.01 * np.linalg.norm(ca[:, None] - cb[None], axis=2)
+    alike = (size <= MAX_EXTENT_CHANGE) & ~(colour > MAX_COLOUR_CHANGE)  # an unknown (NaN) colour does not refuse
+    pairs = _assign(np.where(alike, cost, np.inf))
+    out["moved"] += [_pair(cls, before[ia[r]], after[ib[c]]) for r, c in pairs]
+    return {ia[r] for r, _ in pairs}, {ib[c] for _, c in pairs}
+
+
+def _leftovers(records: list[dict], ev: ObjectEvidence, used: set[int], kind: str, key: str, out: dict) -> None:
+    """Report the objects of one map left unpaired: a change where the other map saw their place free (a part of
+    a changed object of its class, touching it, joins that change's ``parts``), else of unknown fate."""
+    index = {int(o["id"]): i for i, o in enumerate(records)}
+    changed = {index[int(r[key])]: r for k in ("moved", kind) for r in out[k] if key in r}
+    for i in sorted((i for i in range(len(records)) if i not in used), key=lambda i: -int(records[i]["points"])):
+        o = records[i]
+        rec = {"class": o["class"], key: int(o["id"]), "at": o["centroid"]}
+        if ev.status[i] != GONE:
+            out["unknown"].append({**rec, "reason": "occupied" if ev.status[i] == PRESENT else "unobserved"})
+            continue
+        whole = next((r for j, r in changed.items() if (r["class"] == o["class"] and _touching(records[j], o))
+                      or _shared(ev, i, j) > 0.5), None)  # a part of it, or the same voxels under another class
+        if whole is not None:
+            whole.setdefault("parts", []).append(int(o["id"]))
+            continue
+        out[kind].append(rec)
+        changed[i] = rec
+
+
+def object_changes(before: list[dict], after: list[dict], *, match_radius: float = 1.0, move_threshold: float = 0.2,
+                   evidence: tuple[ObjectEvidence, ObjectEvidence] | None = None) -> dict[str, list[dict]]:
+    """Objects (records of ``objects.json``) that appeared, disappeared, moved or stayed, and those of unknown fate.
+
+    ``evidence`` says per object of each map whether the other map saw its place free and what colour it is
+    (:func:`diff_objects`; without it every place counts as seen free). An object of one class within
+    ``match_radius`` is the same object; beyond it, an object whose place went and one of its class, size and
+    colour whose place came are one object moved, however far; an unpaired object disappeared (appeared) only
+    where its place was seen free, otherwise its fate is unknown (the other map saw its place occupied but picked
+    out no object there, or never saw it)."""
     for name, v in (("match radius", match_radius), ("move threshold", move_threshold)):
         if not (np.isfinite(v) and v > 0):
             raise ConfigError(f"the {name} must be a positive distance in metres, got {v}")
-    out: dict[str, list[dict]] = {"appeared": [], "disappeared": [], "moved": [], "stayed": []}
-    matched_a, matched_b = set(), set()
+    ev = evidence or (_no_evidence(len(before)), _no_evidence(len(after)))
+    out: dict[str, list[dict]] = {"appeared": [], "disappeared": [], "moved": [], "stayed": [], "unknown": []}
+    used_a: set[int] = set()
+    used_b: set[int] = set()
     for cls in sorted({o["class"] for o in before} | {o["class"] for o in after}):
         ia = [i for i, o in enumerate(before) if o["class"] == cls]
         ib = [i for i, o in enumerate(after) if o["class"] == cls]
-        if not ia or not ib:
-            continue
-        ca = np.array([before[i]["centroid"] for i in ia], np.float64)
-        cb = np.array([after[i]["centroid"] for i in ib], np.float64)
-        dist = np.linalg.norm(ca[:, None] - cb[None], axis=2)
-        rows, cols = linear_sum_assignment(np.where(dist <= match_radius, dist, 1e6))
-        for r, c in zip(rows, cols, strict=True):
-            if dist[r, c] > match_radius:
-                continue
-            matched_a.add(ia[r])
-            matched_b.add(ib[c])
-            rec = {"class": cls, "before": int(before[ia[r]]["id"]), "after": int(after[ib[c]]["id"]),
-                   "from": [round(float(v), 3) for v in ca[r]], "to": [round(float(v), 3) for v in cb[c]],
-                   "distance_m": round(float(dist[r, c]), 3)}
-            out["moved" if dist[r, c] > move_threshold else "stayed"].append(rec)
-    out["disappeared"] = [{"class": o["class"], "before": int(o["id"]), "at": o["centroid"]}
-                          for i, o in enumerate(before) if i not in matched_a]
-    out["appeared"] = [{"class": o["class"], "after": int(o["id"]), "at": o["centroid"]}
-                       for i, o in enumerate(after) if i not in matched_b]
+        sa, sb = _same_objects(cls, ia, ib, before, after, ev, (match_radius, move_threshold), out)
+        ma, mb = _moves(cls, [i for i in ia if i not in sa and ev[0].status[i] == GONE],
+                        [j for j in ib if j not in sb and ev[1].status[j] == GONE], before, after, ev, out)
+        used_a |= sa | ma
+        used_b |= sb | mb
+    _leftovers(before, ev[0], used_a, "disappeared", "before", out)
+    _leftovers(after, ev[1], used_b, "appeared", "after", out)
     return out
 
 
-
-#: An unmatched object is a change only if the other map saw most of its voxels (those its own map holds occupied
-#: within ``EVIDENCE_RADIUS`` of its centroid) free.
-EVIDENCE_RADIUS = 0.2
-
-
-def _freed(record: dict, own: OccupancyVolume, other: OccupancyVolume) -> bool:
-    """Whether most of the voxels ``own`` holds occupied by the object's class near its centroid (any class when
-    the map has no class names) are seen free in ``other``."""
-    r = int(np.ceil(EVIDENCE_RADIUS / own.resolution))
-    c = own.index_of(np.asarray(record["at"], np.float64)[None])[0]
-    lo, hi = np.maximum(c - r, 0), np.minimum(c + r + 1, own.shape)
-    if np.any(hi <= lo):
-        return False
-    box = tuple(slice(a, b) for a, b in zip(lo, hi, strict=True))
-    occ = own.state[box] == OCCUPIED
-    names = list(own.label_set.names) if own.label_set is not None else []
-    if record["class"] in names:
-        occ &= own.labels[box] == names.index(record["class"])
-    return bool(occ.any() and (other.state[box][occ] == FREE).mean() > 0.5)
+def _colour_table(m: SemanticMap) -> tuple[np.ndarray, np.ndarray]:
+    """Packed keys (sorted) of the map's occupied voxels and their mean observed colours (0..1)."""
+    if hasattr(m, "voxels"):
+        v = m.voxels()
+        keys, colours = v.keys, v.colors
+    else:
+        c = m.cloud()
+        keys, colours = coords_to_keys(c.centers, c.resolution), c.colors
+    packed = pack_keys(keys)
+    order = np.argsort(packed)
+    return packed[order], np.asarray(colours, np.float64)[order] / 255.0
 
 
-def confirmed_by_space(objects: dict[str, list[dict]], a: SemanticMap, b: SemanticMap) -> dict[str, list[dict]]:
-    """``objects`` (of :func:`object_changes` from map ``a`` to map ``b``) less the disappeared objects whose space
-    ``b`` did not see free and the appeared ones whose space ``a`` did not see free: an object one recording did
-    not pick out as an instance (books in a shelf seen from afar) or never saw is not a change, and a moved object
-    whose old place ``b`` did not see free nor its new place ``a`` stayed."""
+def _mean_colour(points: np.ndarray | None, table: tuple[np.ndarray, np.ndarray], res: float) -> np.ndarray:
+    """Mean colour of the map's voxels under an object's points (NaN without points or voxels)."""
+    if points is None or len(points) == 0 or len(table[0]) == 0:
+        return np.full(3, np.nan)
+    keys = np.unique(pack_keys(coords_to_keys(points, res)))
+    at = np.minimum(np.searchsorted(table[0], keys), len(table[0]) - 1)
+    hit = table[0][at] == keys
+    return table[1][at[hit]].mean(axis=0) if hit.any() else np.full(3, np.nan)
+
+
+def diff_objects(before: list[dict], after: list[dict], a: SemanticMap, b: SemanticMap, *, match_radius: float = 1.0,
+                 move_threshold: float = 0.2, points: tuple[dict, dict] | None = None) -> dict[str, list[dict]]:
+    """:func:`object_changes` of the objects of map ``a`` (``before``) and map ``b`` (``after``), each object's
+    place looked up in the other map (:func:`object_status`) and its colour in its own; ``points`` maps object ids
+    to their points (``objects.ply``) per map."""
     va, vb = _common_volumes(a, b)
-    moved = [r for r in objects["moved"] if _freed({**r, "at": r["from"]}, va, vb)
-             or _freed({**r, "at": r["to"]}, vb, va)]  # else its centroid shifted with what each recording saw
-    return {**objects, "disappeared": [r for r in objects["disappeared"] if _freed(r, va, vb)],
-            "appeared": [r for r in objects["appeared"] if _freed(r, vb, va)], "moved": moved,
-            "stayed": objects["stayed"] + [r for r in objects["moved"] if r not in moved]}
+    pa, pb = points or ({}, {})
+    ev = []
+    for recs, m, own, other, pts in ((before, a, va, vb, pa), (after, b, vb, va, pb)):
+        table = _colour_table(m)
+        ev.append(ObjectEvidence([object_status(o, own, other, pts.get(int(o["id"]))) for o in recs],
+                                 np.array([_mean_colour(pts.get(int(o["id"])), table, float(m.resolution))
+                                           for o in recs]).reshape(-1, 3),
+                                 [np.unique(pack_keys(coords_to_keys(pts[int(o["id"])], float(m.resolution))))
+                                  if int(o["id"]) in pts else np.zeros(0, np.int64) for o in recs]))
+    return object_changes(before, after, match_radius=match_radius, move_threshold=move_threshold,
+                          evidence=(ev[0], ev[1]))
