@@ -320,6 +320,36 @@ def _mean_colour(points: np.ndarray | None, table: tuple[np.ndarray, np.ndarray]
     return table[1][at[hit]].mean(axis=0) if hit.any() else np.full(3, np.nan)
 
 
+#: A cluster of appeared (disappeared) voxels of one class that no object of either map covers is an object the
+#: object map missed when it holds at least this many voxels and is at least ``MIN_CLUSTER_SIDE`` thick on every
+#: axis (thinner ones are surfaces seen at a grazing angle, not objects).
+MIN_CLUSTER_VOXELS = 30
+MIN_CLUSTER_SIDE = 0.2
+
+
+def _voxel_objects(own: OccupancyVolume, other: OccupancyVolume, records: list[dict], kind: str, out: dict) -> None:
+    """Report clusters of voxels ``own`` holds occupied and ``other`` saw free, of one class, that lie in no
+    object's box of their class (``records``: the objects of both maps) as objects that ``kind`` (``source``
+    ``voxels``): objects the object map did not pick out."""
+    from scipy import ndimage
+
+    labels, n = ndimage.label((own.state == OCCUPIED) & (other.state == FREE), structure=np.ones((3, 3, 3)))
+    names = list(own.label_set.names) if own.label_set is not None else []
+    side = int(np.ceil(MIN_CLUSTER_SIDE / own.resolution - 1e-9))
+    for k, sl in enumerate(ndimage.find_objects(labels), start=1):
+        idx = np.argwhere(labels[sl] == k) + [s.start for s in sl]
+        if len(idx) < MIN_CLUSTER_VOXELS or np.any(idx.max(axis=0) - idx.min(axis=0) + 1 < side):
+            continue
+        cls_id = int(np.bincount(own.labels[tuple(idx.T)]).argmax())
+        cls = names[cls_id] if cls_id < len(names) else str(cls_id)
+        centre = own.origin + idx.mean(axis=0) * own.resolution
+        if any(r["class"] == cls and np.all((_aabb(r)[0] - PART_GAP <= centre) & (centre <= _aabb(r)[1] + PART_GAP))
+               for r in records):
+            continue
+        out[kind].append({"class": cls, "at": [round(float(v), 3) for v in centre], "source": "voxels",
+                          "voxels": len(idx)})
+
+
 def diff_objects(before: list[dict], after: list[dict], a: SemanticMap, b: SemanticMap, *, match_radius: float = 1.0,
                  move_threshold: float = 0.2, points: tuple[dict, dict] | None = None) -> dict[str, list[dict]]:
     """:func:`object_changes` of the objects of map ``a`` (``before``) and map ``b`` (``after``), each object's
@@ -335,5 +365,8 @@ def diff_objects(before: list[dict], after: list[dict], a: SemanticMap, b: Seman
                                            for o in recs]).reshape(-1, 3),
                                  [np.unique(pack_keys(coords_to_keys(pts[int(o["id"])], float(m.resolution))))
                                   if int(o["id"]) in pts else np.zeros(0, np.int64) for o in recs]))
-    return object_changes(before, after, match_radius=match_radius, move_threshold=move_threshold,
-                          evidence=(ev[0], ev[1]))
+    out = object_changes(before, after, match_radius=match_radius, move_threshold=move_threshold,
+                         evidence=(ev[0], ev[1]))
+    _voxel_objects(va, vb, before + after, "disappeared", out)
+    _voxel_objects(vb, va, before + after, "appeared", out)
+    return out
