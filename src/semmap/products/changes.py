@@ -252,7 +252,7 @@ def _leftovers(records: list[dict], ev: ObjectEvidence, used: set[int], kind: st
     a changed object of its class, touching it, joins that change's ``parts``), else of unknown fate."""
     index = {int(o["id"]): i for i, o in enumerate(records)}
     changed = {index[int(r[key])]: r for k in ("moved", kind) for r in out[k] if key in r}
-    for i in sorted((i for i in range(len(records)) if i not in used), key=lambda i: -int(records[i]["points"])):
+    for i in sorted((i for i in range(len(records)) if i not in used), key=lambda i: -int(records[i].get("points", 0))):
         o = records[i]
         rec = {"class": o["class"], key: int(o["id"]), "at": o["centroid"]}
         if ev.status[i] != GONE:
@@ -333,7 +333,7 @@ def _voxel_objects(own: OccupancyVolume, other: OccupancyVolume, records: list[d
     ``voxels``): objects the object map did not pick out."""
     from scipy import ndimage
 
-    labels, n = ndimage.label((own.state == OCCUPIED) & (other.state == FREE), structure=np.ones((3, 3, 3)))
+    labels, _ = ndimage.label((own.state == OCCUPIED) & (other.state == FREE), structure=np.ones((3, 3, 3)))
     names = list(own.label_set.names) if own.label_set is not None else []
     side = int(np.ceil(MIN_CLUSTER_SIDE / own.resolution - 1e-9))
     for k, sl in enumerate(ndimage.find_objects(labels), start=1):
