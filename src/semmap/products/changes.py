@@ -105,11 +105,23 @@ def _box_voxels(record: dict, own: OccupancyVolume) -> np.ndarray:
     return idx[np.all(np.abs(local) <= half, axis=1)]
 
 
-def _point_voxels(points: np.ndarray, own: OccupancyVolume) -> np.ndarray:
-    """(N, 3) indices of the distinct voxels of the object's points that ``own`` holds occupied."""
+#: Fewest voxels of its own class an object's points must fall in for those alone to be its place (else all of them).
+MIN_CLASS_VOXELS = 5
+
+
+def _point_voxels(points: np.ndarray, own: OccupancyVolume, cls: str | None = None) -> np.ndarray:
+    """(N, 3) indices of the distinct voxels of the object's points that ``own`` holds occupied: those of its class
+    ``cls`` when at least ``MIN_CLASS_VOXELS`` are (an instance mask that spilt onto the table under a cup must not
+    make the table the cup's place), else all."""
     idx = np.unique(own.index_of(np.asarray(points, np.float64).reshape(-1, 3)), axis=0)
     idx = idx[np.all((idx >= 0) & (idx < np.array(own.shape)), axis=1)]
-    return idx[own.state[idx[:, 0], idx[:, 1], idx[:, 2]] == OCCUPIED]
+    idx = idx[own.state[idx[:, 0], idx[:, 1], idx[:, 2]] == OCCUPIED]
+    names = list(own.label_set.names) if own.label_set is not None else []
+    if cls in names:
+        mine = own.labels[idx[:, 0], idx[:, 1], idx[:, 2]] == names.index(cls)
+        if mine.sum() >= MIN_CLASS_VOXELS:
+            return idx[mine]
+    return idx
 
 
 def object_status(record: dict, own: OccupancyVolume, other: OccupancyVolume, points: np.ndarray | None = None
@@ -117,7 +129,7 @@ def object_status(record: dict, own: OccupancyVolume, other: OccupancyVolume, po
     """Whether the other map saw the place of the object (a record of ``objects.json`` in ``own``'s map) free
     (``GONE``), occupied (``PRESENT``) or too little of it (``UNSEEN``); both volumes share one voxel box. Its place
     is the voxels of its ``points`` (``objects.ply``), else of its class in its box."""
-    idx = _point_voxels(points, own) if points is not None and len(points) else _box_voxels(record, own)
+    idx = _point_voxels(points, own, record["class"]) if points is not None and len(points) else _box_voxels(record, own)
     if len(idx) == 0:
         return UNSEEN
     state = other.state[idx[:, 0], idx[:, 1], idx[:, 2]]
@@ -241,7 +253,9 @@ def _moves(cls: str, ia: list[int], ib: list[int], before: list[dict], after: li
     ca = np.array([before[i]["centroid"] for i in ia], np.float64)
     cb = np.array([after[j]["centroid"] for j in ib], np.float64)
     cost = size + COLOUR_WEIGHT * np.nan_to_num(colour, nan=0.0) + 0.01 * np.linalg.norm(ca[:, None] - cb[None], axis=2)
-    alike = (size <= MAX_EXTENT_CHANGE) & ~(colour > MAX_COLOUR_CHANGE)  # an unknown (NaN) colour does not refuse
+    # alike in colour where both colours are known (a box's sides are view-dependent: a part seen, parts merged),
+    # else in size
+    alike = np.where(np.isnan(colour), size <= MAX_EXTENT_CHANGE, colour <= MAX_COLOUR_CHANGE)
     pairs = _assign(np.where(alike, cost, np.inf))
     out["moved"] += [_pair(cls, before[ia[r]], after[ib[c]]) for r, c in pairs]
     return {ia[r] for r, _ in pairs}, {ib[c] for _, c in pairs}
