@@ -177,7 +177,7 @@ def _assign(cost: np.ndarray) -> list[tuple[int, int]]:
 COLOUR_WEIGHT = 2.0
 #: A move pairs objects whose mean colours (RGB, 0..1) differ by at most this much (when both are known).
 MAX_COLOUR_CHANGE = 0.2
-#: Parts of one object that the object map kept apart: same class, same fate, boxes this close (m).
+#: Parts of one object that the object map kept apart: same class, same fate, alike in colour, boxes this close (m).
 PART_GAP = 0.1
 
 
@@ -193,6 +193,11 @@ class ObjectEvidence:
 
 def _no_evidence(n: int) -> ObjectEvidence:
     return ObjectEvidence([GONE] * n, np.full((n, 3), np.nan))
+
+
+def _colour_change(ev: ObjectEvidence, i: int, j: int) -> float:
+    """Distance of the mean colours of objects ``i`` and ``j`` of one map (NaN when either is unknown)."""
+    return float(np.linalg.norm(ev.colour[i] - ev.colour[j]))
 
 
 def _shared(ev: ObjectEvidence, i: int, j: int) -> float:
@@ -272,7 +277,8 @@ def _leftovers(records: list[dict], ev: ObjectEvidence, used: set[int], kind: st
         if ev.status[i] != GONE:
             out["unknown"].append({**rec, "reason": "occupied" if ev.status[i] == PRESENT else "unobserved"})
             continue
-        whole = next((r for j, r in changed.items() if (r["class"] == o["class"] and _touching(records[j], o))
+        whole = next((r for j, r in changed.items() if (r["class"] == o["class"] and _touching(records[j], o)
+                                                         and not _colour_change(ev, i, j) > MAX_COLOUR_CHANGE)
                       or _shared(ev, i, j) > 0.5), None)  # a part of it, or the same voxels under another class
         if whole is not None:
             whole.setdefault("parts", []).append(int(o["id"]))
