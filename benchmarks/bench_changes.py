@@ -2,6 +2,7 @@
 between two recordings of one simulated room are found with what precision and recall.
 
     python benchmarks/bench_changes.py [--quick] [--frames N] [--match-radius M] [--instance-errors exact] [--cache DIR]
+        [--scenes office:4,kitchen:5,...]
 
 For each scene (kind, seed) the room is recorded twice along the same loop (`semmap simulate`, 320x240, no noise,
 30 frames spread over the loop by 1 fps): as it was, and after `--changes 3` (one move, one removal,
@@ -178,10 +179,15 @@ def main() -> None:
     ap.add_argument("--changes", type=int, default=3, help="changes per scene (move, remove, add in turn)")
     ap.add_argument("--instance-errors", default="maskrcnn-like", help="semmap run --instance-errors")
     ap.add_argument("--match-radius", type=float, default=1.0, help="semmap diff --match-radius (m; its default)")
+    ap.add_argument("--scenes", default=None,
+                    help="rooms as kind:seed,... (default the 7 of SCENES; others measure rooms the method was not "
+                         "tuned on)")
     ap.add_argument("--cache", type=Path, default=None,
                     help="keep recordings and maps in this folder and reuse them on the next run (default: none)")
     args = ap.parse_args()
     scenes = SCENES[:2] if args.quick else SCENES
+    if args.scenes:
+        scenes = tuple((k, int(v)) for k, v in (p.split(":") for p in args.scenes.split(",")))
     with tempfile.TemporaryDirectory() as tmp:
         root = Path(tmp)
         if args.cache is not None:  # one folder per setting, so a cached map is only reused for the same setting

@@ -3,11 +3,18 @@ and objects that appeared, disappeared or moved.
 
 A voxel counts as changed only where both maps observed it: occupied in B and seen free in A has appeared,
 occupied in A and seen free in B has disappeared; a voxel that one map never saw is unobserved, not a change
-(a second recording that skipped a corner must not erase it). Objects are matched by class, nearest centroids
-first (an optimal assignment within ``match_radius``); a matched pair farther apart than ``move_threshold`` moved.
-An unmatched object counts as appeared or disappeared only where the other map saw most of its voxels free
-(:func:`confirmed_by_space`): an object one recording did not pick out as an instance, but whose space the other
-map still saw occupied (books in a shelf seen from afar) or never saw, is not a change.
+(a second recording that skipped a corner must not erase it).
+
+Objects (``objects.json``, their points from ``objects.ply``) are compared by evidence, not by position alone.
+Each object's place (the voxels of its points of its class) is looked up in the other map: seen mostly free
+(gone; for an object of the later map: new), seen mostly occupied (present: the other recording did not pick it
+out as an instance, books in a shelf seen from afar) or seen too little (unseen). Then, per class: objects within
+``match_radius`` are the same object (never a gone one with one whose place the other map saw occupied: that is
+another object), moved when farther apart than ``move_threshold`` and one end changed; gone and new objects left
+over pair as moves however far apart, the most alike in colour first (in size where colour is unknown); parts of
+one object the object map kept apart fold into its change; an object left alone disappeared (appeared) only when
+gone (new), else its fate is unknown. Clusters of changed voxels that no object covers are objects the object map
+missed (``source: voxels``).
 """
 
 from __future__ import annotations
