@@ -110,7 +110,7 @@ def test_a_removed_object_the_object_map_missed_is_found_in_the_voxels():
     rec = {**box_record(1, (0.4, 0.4)), "centroid": [0.6, 0.6, 0.3],
            "box": {"center": [0.6, 0.6, 0.3], "rotation": np.eye(3).tolist(), "extent": [0.4, 0.4, 0.4]}}
     ch = diff_objects([rec], [], big, empty)
-    assert [r.get("source") for r in ch["disappeared"]] == [None]
+    assert [(r.get("source"), r["before"]) for r in ch["disappeared"]] == [(None, 1)]
 
 
 def test_a_move_pairs_like_objects_not_the_nearest():

@@ -27,6 +27,7 @@ from scipy.optimize import linear_sum_assignment
 from semmap.errors import ConfigError
 from semmap.keys import coords_to_keys, pack_keys
 from semmap.maps.base import SemanticMap
+from semmap.perception.instances.base import thing_classes
 from semmap.products.occupancy import FREE, OCCUPIED, OccupancyVolume, map_keys, volume_of_keys
 
 #: Colours of diff.ply: appeared, disappeared, changed class.
@@ -131,19 +132,25 @@ def _point_voxels(points: np.ndarray, own: OccupancyVolume, cls: str | None = No
     return idx
 
 
+def _place(record: dict, own: OccupancyVolume, other: OccupancyVolume, points: np.ndarray | None
+           ) -> tuple[str, np.ndarray]:
+    """:func:`object_status` and the centre (world, m) of the object's voxels the other map saw free (NaN if none)."""
+    has_points = points is not None and len(points) > 0
+    idx = _point_voxels(points, own, record["class"]) if has_points else _box_voxels(record, own)
+    state = other.state[idx[:, 0], idx[:, 1], idx[:, 2]]
+    free, occupied = int((state == FREE).sum()), int((state == OCCUPIED).sum())
+    at = own.origin + idx[state == FREE].mean(axis=0) * own.resolution if free else np.full(3, np.nan)
+    if len(idx) == 0 or free + occupied < MIN_OBSERVED * len(idx):
+        return UNSEEN, at
+    return (GONE if free > MIN_FREE * (free + occupied) else PRESENT), at
+
+
 def object_status(record: dict, own: OccupancyVolume, other: OccupancyVolume, points: np.ndarray | None = None
                   ) -> str:
     """Whether the other map saw the place of the object (a record of ``objects.json`` in ``own``'s map) free
     (``GONE``), occupied (``PRESENT``) or too little of it (``UNSEEN``); both volumes share one voxel box. Its place
     is the voxels of its ``points`` (``objects.ply``), else of its class in its box."""
-    idx = _point_voxels(points, own, record["class"]) if points is not None and len(points) else _box_voxels(record, own)
-    if len(idx) == 0:
-        return UNSEEN
-    state = other.state[idx[:, 0], idx[:, 1], idx[:, 2]]
-    free, occupied = int((state == FREE).sum()), int((state == OCCUPIED).sum())
-    if free + occupied < MIN_OBSERVED * len(idx):
-        return UNSEEN
-    return GONE if free > MIN_FREE * (free + occupied) else PRESENT
+    return _place(record, own, other, points)[0]
 
 
 def _extent(record: dict) -> np.ndarray:
@@ -166,12 +173,6 @@ def extent_change(a: dict, b: dict) -> float:
     return float(np.max(np.abs(ea - eb) / np.maximum(np.maximum(ea, eb), 0.1)))
 
 
-def _pair(cls: str, a: dict, b: dict) -> dict:
-    ca, cb = np.asarray(a["centroid"], np.float64), np.asarray(b["centroid"], np.float64)
-    return {"class": cls, "before": int(a["id"]), "after": int(b["id"]), "from": [round(float(v), 3) for v in ca],
-            "to": [round(float(v), 3) for v in cb], "distance_m": round(float(np.linalg.norm(ca - cb)), 3)}
-
-
 def _assign(cost: np.ndarray) -> list[tuple[int, int]]:
     """Optimal pairs of a cost matrix whose infinite entries are forbidden."""
     if cost.size == 0 or not np.isfinite(cost).any():
@@ -180,31 +181,47 @@ def _assign(cost: np.ndarray) -> list[tuple[int, int]]:
     return [(int(r), int(c)) for r, c in zip(rows, cols, strict=True) if np.isfinite(cost[r, c])]
 
 
-#: Weight of the mean colour difference (RGB, 0..1 per channel) against the relative size change in a move's cost.
-COLOUR_WEIGHT = 2.0
-#: A move pairs objects whose mean colours (RGB, 0..1) differ by at most this much (when both are known).
-MAX_COLOUR_CHANGE = 0.2
+#: Two objects are alike in colour when their chromaticities (r, g, b over r + g + b) differ by at most
+#: ``MAX_CHROMA_CHANGE`` and their brightnesses by at most a factor ``MAX_BRIGHTNESS_RATIO`` (the same object reads
+#: brighter or darker in another spot of the room: measured 0.76-1.24 for simulated moves).
+MAX_CHROMA_CHANGE = 0.08
+MAX_BRIGHTNESS_RATIO = 1.5
+#: Weight of the colour change (1: the limit) against the relative size change in a move's cost.
+COLOUR_WEIGHT = 1.0
 #: Parts of one object that the object map kept apart: same class, same fate, alike in colour, boxes this close (m).
 PART_GAP = 0.1
 
 
+def colour_change(a: np.ndarray, b: np.ndarray) -> float:
+    """How unlike two mean colours (RGB 0..1) are: 1 at the limit of :data:`MAX_CHROMA_CHANGE` or
+    :data:`MAX_BRIGHTNESS_RATIO`, whichever is nearer; NaN when either is unknown."""
+    a, b = np.asarray(a, np.float64), np.asarray(b, np.float64)
+    sa, sb = a.sum(), b.sum()
+    if not (np.isfinite(sa) and np.isfinite(sb)) or sa <= 0 or sb <= 0:
+        return float("nan")
+    chroma = float(np.linalg.norm(a / sa - b / sb)) / MAX_CHROMA_CHANGE
+    return max(chroma, abs(float(np.log(sa / sb))) / float(np.log(MAX_BRIGHTNESS_RATIO)))
+
+
 @dataclass(frozen=True)
 class ObjectEvidence:
-    """What the maps say of each object of one map: its place in the other map (:func:`object_status`) and its
-    mean observed colour (RGB 0..1, NaN when unknown)."""
+    """What the maps say of each object of one map: its place in the other map (:func:`object_status`), its mean
+    observed colour (RGB 0..1, NaN when unknown), its voxels (sorted packed keys, when known) and the centre of
+    those the other map saw free (where it changed; NaN when none)."""
 
     status: list[str]
     colour: np.ndarray
-    voxels: list[np.ndarray] | None = None  # sorted packed keys of each object's voxels, when known
+    voxels: list[np.ndarray] | None = None
+    changed_at: np.ndarray | None = None
+
+    def where(self, i: int, record: dict) -> list[float]:
+        """Where object ``i`` changed: the centre of its voxels seen free in the other map, else its centroid."""
+        at = self.changed_at[i] if self.changed_at is not None else np.full(3, np.nan)
+        return [round(float(v), 3) for v in (at if np.all(np.isfinite(at)) else record["centroid"])]
 
 
 def _no_evidence(n: int) -> ObjectEvidence:
     return ObjectEvidence([GONE] * n, np.full((n, 3), np.nan))
-
-
-def _colour_change(ev: ObjectEvidence, i: int, j: int) -> float:
-    """Distance of the mean colours of objects ``i`` and ``j`` of one map (NaN when either is unknown)."""
-    return float(np.linalg.norm(ev.colour[i] - ev.colour[j]))
 
 
 def _shared(ev: ObjectEvidence, i: int, j: int) -> float:
@@ -230,13 +247,26 @@ def _touching(a: dict, b: dict) -> bool:
     return bool(np.all(alo <= bhi + PART_GAP) and np.all(blo <= ahi + PART_GAP))
 
 
-def _same_objects(cls: str, ia: list[int], ib: list[int], before: list[dict], after: list[dict],
-                  ev: tuple[ObjectEvidence, ObjectEvidence], limits: tuple[float, float], out: dict
-                  ) -> tuple[set[int], set[int]]:
+def _ids(record: dict, key: str) -> dict:
+    """The id of an object under ``key`` (``before`` / ``after``), and ``source: voxels`` for one found only in the
+    changed voxels (no id)."""
+    return {key: None, "source": "voxels"} if record.get("source") == "voxels" else {key: int(record["id"])}
+
+
+def _pair(cls: str, a: dict, b: dict, at: tuple[list[float], list[float]] | None = None) -> dict:
+    """The record of a matched pair: ``from`` / ``to`` at ``at`` (where each end changed), else the centroids."""
+    ca, cb = (np.asarray(v, np.float64) for v in (at or (a["centroid"], b["centroid"])))
+    return {"class": cls, **_ids(a, "before"), **_ids(b, "after"), "from": [round(float(v), 3) for v in ca],
+            "to": [round(float(v), 3) for v in cb], "distance_m": round(float(np.linalg.norm(ca - cb)), 3)}
+
+
+def _same_objects(ia: list[int], ib: list[int], before: list[dict], after: list[dict],
+                  ev: tuple[ObjectEvidence, ObjectEvidence], limits: tuple[float, float]
+                  ) -> list[tuple[int, int, bool]]:
     """Pair objects of class ``cls`` that are the same object where they were: nearest centroids within the match
     radius, but never an object whose place went with one whose place the earlier map saw occupied (nor the
     reverse: that is another object the other recording did not pick out). A pair farther apart than the move
-    threshold whose space says one end changed moved; any other stayed."""
+    threshold whose space says one end changed moved (``True``); any other stayed."""
     match_radius, move_threshold = limits
     ca = np.array([before[i]["centroid"] for i in ia], np.float64).reshape(-1, 3)
     cb = np.array([after[j]["centroid"] for j in ib], np.float64).reshape(-1, 3)
@@ -245,50 +275,44 @@ def _same_objects(cls: str, ia: list[int], ib: list[int], before: list[dict], af
     gone, new = sa == GONE, sb == GONE
     other_object = (gone[:, None] & (sb == PRESENT)[None]) | ((sa == PRESENT)[:, None] & new[None])
     allowed = (dist <= move_threshold) | ((dist <= match_radius) & ~other_object)
-    used_a, used_b = set(), set()
-    for r, c in _assign(np.where(allowed, dist, np.inf)):
-        moved = dist[r, c] > move_threshold and (gone[r] or new[c])
-        out["moved" if moved else "stayed"].append(_pair(cls, before[ia[r]], after[ib[c]]))
-        used_a.add(ia[r])
-        used_b.add(ib[c])
-    return used_a, used_b
+    return [(ia[r], ib[c], bool(dist[r, c] > move_threshold and (gone[r] or new[c])))
+            for r, c in _assign(np.where(allowed, dist, np.inf))]
 
 
-def _moves(cls: str, ia: list[int], ib: list[int], before: list[dict], after: list[dict],
-           ev: tuple[ObjectEvidence, ObjectEvidence], out: dict) -> tuple[set[int], set[int]]:
+def _moves(ia: list[int], ib: list[int], before: list[dict], after: list[dict],
+           ev: tuple[ObjectEvidence, ObjectEvidence]) -> list[tuple[int, int]]:
     """Pair gone objects of class ``cls`` with new ones anywhere (a move is a removal and an addition of one
-    object): the most alike in size and colour first, the nearer on a tie."""
+    object): the most alike in colour and size first, the nearer on a tie; objects unlike in colour (in size where
+    a colour is unknown) never pair."""
     if not ia or not ib:
-        return set(), set()
+        return []
     size = np.array([[extent_change(before[i], after[j]) for j in ib] for i in ia])
-    colour = np.linalg.norm(ev[0].colour[ia][:, None] - ev[1].colour[ib][None], axis=2)
+    colour = np.array([[colour_change(ev[0].colour[i], ev[1].colour[j]) for j in ib] for i in ia])
     ca = np.array([before[i]["centroid"] for i in ia], np.float64)
     cb = np.array([after[j]["centroid"] for j in ib], np.float64)
     cost = size + COLOUR_WEIGHT * np.nan_to_num(colour, nan=0.0) + 0.01 * np.linalg.norm(ca[:, None] - cb[None], axis=2)
-    # alike in colour where both colours are known (a box's sides are view-dependent: a part seen, parts merged),
-    # else in size
-    alike = np.where(np.isnan(colour), size <= MAX_EXTENT_CHANGE, colour <= MAX_COLOUR_CHANGE)
-    pairs = _assign(np.where(alike, cost, np.inf))
-    out["moved"] += [_pair(cls, before[ia[r]], after[ib[c]]) for r, c in pairs]
-    return {ia[r] for r, _ in pairs}, {ib[c] for _, c in pairs}
+    alike = np.where(np.isnan(colour), size <= MAX_EXTENT_CHANGE, colour <= 1.0)
+    return [(ia[r], ib[c]) for r, c in _assign(np.where(alike, cost, np.inf))]
 
 
-def _leftovers(records: list[dict], ev: ObjectEvidence, used: set[int], kind: str, key: str, out: dict) -> None:
+def _leftovers(records: list[dict], ev: ObjectEvidence, changed: dict[int, dict], used: set[int], kind: str,
+               key: str, out: dict) -> None:
     """Report the objects of one map left unpaired: a change where the other map saw their place free (a part of
-    a changed object of its class, touching it, joins that change's ``parts``), else of unknown fate."""
-    index = {int(o["id"]): i for i, o in enumerate(records)}
-    changed = {index[int(r[key])]: r for k in ("moved", kind) for r in out[k] if key in r}
+    a changed object (``changed``: index to its record) of its class and colour, touching it, joins that change's
+    ``parts``), else of unknown fate."""
     for i in sorted((i for i in range(len(records)) if i not in used), key=lambda i: -int(records[i].get("points", 0))):
         o = records[i]
-        rec = {"class": o["class"], key: int(o["id"]), "at": o["centroid"]}
+        rec = {"class": o["class"], **_ids(o, key), "at": ev.where(i, o)}
         if ev.status[i] != GONE:
-            out["unknown"].append({**rec, "reason": "occupied" if ev.status[i] == PRESENT else "unobserved"})
+            if o.get("source") != "voxels":
+                out["unknown"].append({**rec, "at": o["centroid"],
+                                       "reason": "occupied" if ev.status[i] == PRESENT else "unobserved"})
             continue
         whole = next((r for j, r in changed.items() if (r["class"] == o["class"] and _touching(records[j], o)
-                                                         and not _colour_change(ev, i, j) > MAX_COLOUR_CHANGE)
+                                                         and not colour_change(ev.colour[i], ev.colour[j]) > 1.0)
                       or _shared(ev, i, j) > 0.5), None)  # a part of it, or the same voxels under another class
         if whole is not None:
-            whole.setdefault("parts", []).append(int(o["id"]))
+            whole.setdefault("parts", []).append(rec.get(key))
             continue
         out[kind].append(rec)
         changed[i] = rec
@@ -300,27 +324,41 @@ def object_changes(before: list[dict], after: list[dict], *, match_radius: float
 
     ``evidence`` says per object of each map whether the other map saw its place free and what colour it is
     (:func:`diff_objects`; without it every place counts as seen free). An object of one class within
-    ``match_radius`` is the same object; beyond it, an object whose place went and one of its class, size and
-    colour whose place came are one object moved, however far; an unpaired object disappeared (appeared) only
-    where its place was seen free, otherwise its fate is unknown (the other map saw its place occupied but picked
-    out no object there, or never saw it)."""
+    ``match_radius`` is the same object; beyond it, an object whose place went and one of its class and colour
+    whose place came are one object moved, however far; an unpaired object disappeared (appeared) only where its
+    place was seen free, otherwise its fate is unknown (the other map saw its place occupied but picked out no
+    object there, or never saw it). Records with ``source: voxels`` are objects found only in the changed voxels."""
     for name, v in (("match radius", match_radius), ("move threshold", move_threshold)):
         if not (np.isfinite(v) and v > 0):
             raise ConfigError(f"the {name} must be a positive distance in metres, got {v}")
     ev = evidence or (_no_evidence(len(before)), _no_evidence(len(after)))
     out: dict[str, list[dict]] = {"appeared": [], "disappeared": [], "moved": [], "stayed": [], "unknown": []}
+    moved_a: dict[int, dict] = {}
+    moved_b: dict[int, dict] = {}
     used_a: set[int] = set()
     used_b: set[int] = set()
     for cls in sorted({o["class"] for o in before} | {o["class"] for o in after}):
         ia = [i for i, o in enumerate(before) if o["class"] == cls]
         ib = [i for i, o in enumerate(after) if o["class"] == cls]
-        sa, sb = _same_objects(cls, ia, ib, before, after, ev, (match_radius, move_threshold), out)
-        ma, mb = _moves(cls, [i for i in ia if i not in sa and ev[0].status[i] == GONE],
-                        [j for j in ib if j not in sb and ev[1].status[j] == GONE], before, after, ev, out)
-        used_a |= sa | ma
-        used_b |= sb | mb
-    _leftovers(before, ev[0], used_a, "disappeared", "before", out)
-    _leftovers(after, ev[1], used_b, "appeared", "after", out)
+        same = _same_objects(ia, ib, before, after, ev, (match_radius, move_threshold))
+        paired_a, paired_b = {i for i, _, _ in same}, {j for _, j, _ in same}
+        far = _moves([i for i in ia if i not in paired_a and ev[0].status[i] == GONE],
+                     [j for j in ib if j not in paired_b and ev[1].status[j] == GONE], before, after, ev)
+        for i, j, moved in same:
+            rec = _pair(cls, before[i], after[j])
+            out["moved" if moved else "stayed"].append(rec)
+            if moved:
+                moved_a[i], moved_b[j] = rec, rec
+        for i, j in far:
+            rec = _pair(cls, before[i], after[j], (ev[0].where(i, before[i]), ev[1].where(j, after[j])))
+            out["moved"].append(rec)
+            moved_a[i], moved_b[j] = rec, rec
+        paired_a |= {i for i, _ in far}
+        paired_b |= {j for _, j in far}
+        used_a |= paired_a
+        used_b |= paired_b
+    _leftovers(before, ev[0], moved_a, used_a, "disappeared", "before", out)
+    _leftovers(after, ev[1], moved_b, used_b, "appeared", "after", out)
     return out
 
 
@@ -337,63 +375,78 @@ def _colour_table(m: SemanticMap) -> tuple[np.ndarray, np.ndarray]:
     return packed[order], np.asarray(colours, np.float64)[order] / 255.0
 
 
-def _mean_colour(points: np.ndarray | None, table: tuple[np.ndarray, np.ndarray], res: float) -> np.ndarray:
-    """Mean colour of the map's voxels under an object's points (NaN without points or voxels)."""
-    if points is None or len(points) == 0 or len(table[0]) == 0:
+def _mean_colour(keys: np.ndarray, table: tuple[np.ndarray, np.ndarray]) -> np.ndarray:
+    """Mean colour of the map's voxels of the packed ``keys`` (NaN without any)."""
+    if len(keys) == 0 or len(table[0]) == 0:
         return np.full(3, np.nan)
-    keys = np.unique(pack_keys(coords_to_keys(points, res)))
     at = np.minimum(np.searchsorted(table[0], keys), len(table[0]) - 1)
     hit = table[0][at] == keys
     return table[1][at[hit]].mean(axis=0) if hit.any() else np.full(3, np.nan)
 
 
-#: A cluster of appeared (disappeared) voxels of one class that no object of either map covers is an object the
-#: object map missed when it holds at least this many voxels and is at least ``MIN_CLUSTER_SIDE`` thick on every
-#: axis (thinner ones are surfaces seen at a grazing angle, not objects).
+#: A cluster of appeared (disappeared) voxels of an object class (not wall, floor, ceiling: ``thing_classes``) that
+#: no object of its class covers is an object the object map missed when it holds at least this many voxels and
+#: spans at least ``MIN_CLUSTER_SIDE`` on two axes (a box's top seen from above counts; a sliver of a surface does
+#: not).
 MIN_CLUSTER_VOXELS = 30
 MIN_CLUSTER_SIDE = 0.2
 
 
-def _voxel_objects(own: OccupancyVolume, other: OccupancyVolume, records: list[dict], kind: str, out: dict) -> None:
-    """Report clusters of voxels ``own`` holds occupied and ``other`` saw free, of one class, that lie in no
-    object's box of their class (``records``: the objects of both maps) as objects that ``kind`` (``source``
-    ``voxels``): objects the object map did not pick out."""
+def _voxel_objects(own: OccupancyVolume, other: OccupancyVolume, records: list[dict]) -> list[tuple[dict, np.ndarray]]:
+    """Records (``source: voxels``, no id) and voxel indices of the clusters of voxels ``own`` holds occupied and
+    ``other`` saw free that are objects no object record covers (``records``: the objects of both maps)."""
     from scipy import ndimage
 
     labels, _ = ndimage.label((own.state == OCCUPIED) & (other.state == FREE), structure=np.ones((3, 3, 3)))
-    names = list(own.label_set.names) if own.label_set is not None else []
+    if own.label_set is None:
+        return []
+    names = list(own.label_set.names)
+    things = thing_classes(own.label_set)
     side = int(np.ceil(MIN_CLUSTER_SIDE / own.resolution - 1e-9))
+    found = []
     for k, sl in enumerate(ndimage.find_objects(labels), start=1):
         idx = np.argwhere(labels[sl] == k) + [s.start for s in sl]
-        if len(idx) < MIN_CLUSTER_VOXELS or np.any(idx.max(axis=0) - idx.min(axis=0) + 1 < side):
+        if len(idx) < MIN_CLUSTER_VOXELS or np.sum(idx.max(axis=0) - idx.min(axis=0) + 1 >= side) < 2:
             continue
         cls_id = int(np.bincount(own.labels[tuple(idx.T)]).argmax())
-        cls = names[cls_id] if cls_id < len(names) else str(cls_id)
+        if cls_id >= len(names) or not things[cls_id]:
+            continue
+        cls = names[cls_id]
+        lo, hi = own.origin + idx.min(axis=0) * own.resolution, own.origin + idx.max(axis=0) * own.resolution
         centre = own.origin + idx.mean(axis=0) * own.resolution
         if any(r["class"] == cls and np.all((_aabb(r)[0] - PART_GAP <= centre) & (centre <= _aabb(r)[1] + PART_GAP))
                for r in records):
             continue
-        out[kind].append({"class": cls, "at": [round(float(v), 3) for v in centre], "source": "voxels",
-                          "voxels": len(idx)})
+        box = {"center": ((lo + hi) / 2).tolist(), "rotation": np.eye(3).tolist(),
+               "extent": (hi - lo + own.resolution).tolist()}
+        found.append(({"id": None, "class": cls, "centroid": centre.tolist(), "box": box, "points": len(idx),
+                       "source": "voxels"}, idx))
+    return found
+
+
+def _evidence(recs: list[dict], m: SemanticMap, own: OccupancyVolume, other: OccupancyVolume, pts: dict,
+              extra: list[tuple[dict, np.ndarray]]) -> ObjectEvidence:
+    """:class:`ObjectEvidence` of the objects ``recs`` of map ``m`` (points by id in ``pts``) and of the objects
+    found in its changed voxels (``extra``: gone by construction)."""
+    table = _colour_table(m)
+    res = float(m.resolution)
+    keys = [np.unique(pack_keys(coords_to_keys(pts[int(o["id"])], res))) if int(o["id"]) in pts
+            else np.zeros(0, np.int64) for o in recs]
+    places = [_place(o, own, other, pts.get(int(o["id"]))) for o in recs]
+    keys += [np.unique(pack_keys(coords_to_keys(own.origin + idx * own.resolution, res))) for _, idx in extra]
+    return ObjectEvidence([p[0] for p in places] + [GONE] * len(extra),
+                          np.array([_mean_colour(k, table) for k in keys]).reshape(-1, 3), keys,
+                          np.array([p[1] for p in places] + [r["centroid"] for r, _ in extra]).reshape(-1, 3))
 
 
 def diff_objects(before: list[dict], after: list[dict], a: SemanticMap, b: SemanticMap, *, match_radius: float = 1.0,
                  move_threshold: float = 0.2, points: tuple[dict, dict] | None = None) -> dict[str, list[dict]]:
-    """:func:`object_changes` of the objects of map ``a`` (``before``) and map ``b`` (``after``), each object's
-    place looked up in the other map (:func:`object_status`) and its colour in its own; ``points`` maps object ids
-    to their points (``objects.ply``) per map."""
+    """:func:`object_changes` of the objects of map ``a`` (``before``) and map ``b`` (``after``) and of the objects
+    found only in their changed voxels, each object's place looked up in the other map (:func:`object_status`) and
+    its colour in its own; ``points`` maps object ids to their points (``objects.ply``) per map."""
     va, vb = _common_volumes(a, b)
     pa, pb = points or ({}, {})
-    ev = []
-    for recs, m, own, other, pts in ((before, a, va, vb, pa), (after, b, vb, va, pb)):
-        table = _colour_table(m)
-        ev.append(ObjectEvidence([object_status(o, own, other, pts.get(int(o["id"]))) for o in recs],
-                                 np.array([_mean_colour(pts.get(int(o["id"])), table, float(m.resolution))
-                                           for o in recs]).reshape(-1, 3),
-                                 [np.unique(pack_keys(coords_to_keys(pts[int(o["id"])], float(m.resolution))))
-                                  if int(o["id"]) in pts else np.zeros(0, np.int64) for o in recs]))
-    out = object_changes(before, after, match_radius=match_radius, move_threshold=move_threshold,
-                         evidence=(ev[0], ev[1]))
-    _voxel_objects(va, vb, before + after, "disappeared", out)
-    _voxel_objects(vb, va, before + after, "appeared", out)
-    return out
+    extra_a, extra_b = _voxel_objects(va, vb, before + after), _voxel_objects(vb, va, before + after)
+    ev = (_evidence(before, a, va, vb, pa, extra_a), _evidence(after, b, vb, va, pb, extra_b))
+    return object_changes(before + [r for r, _ in extra_a], after + [r for r, _ in extra_b],
+                          match_radius=match_radius, move_threshold=move_threshold, evidence=ev)
