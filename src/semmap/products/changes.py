@@ -312,7 +312,9 @@ def _leftovers(records: list[dict], ev: ObjectEvidence, changed: dict[int, dict]
                                                          and not colour_change(ev.colour[i], ev.colour[j]) > 1.0)
                       or _shared(ev, i, j) > 0.5), None)  # a part of it, or the same voxels under another class
         if whole is not None:
-            whole.setdefault("parts", []).append(rec.get(key))
+            whole.setdefault("parts", [])
+            if rec.get(key) is not None:
+                whole["parts"].append(rec[key])
             continue
         out[kind].append(rec)
         changed[i] = rec
