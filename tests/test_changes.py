@@ -139,6 +139,13 @@ def test_diff_command(tmp_path):
     cloud = read_ply(out / "diff.ply")
     assert len(cloud) == sum(summary["voxels"][k] for k in ("appeared", "disappeared", "relabelled"))
     assert (out / "diff.png").stat().st_size > 1000 and summary["objects"] is None
+    for folder, rec in ((a, box_record(1, (0.4, 0.4))), (b, box_record(2, (1.4, 1.4)))):  # a 1.4 m move
+        doc = {"format": "semmap-objects", "version": 1, "up": [0, 0, 1], "objects": [{**rec, "sightings": 3}]}
+        (folder / "objects.json").write_text(json.dumps(doc))
+    r = CliRunner().invoke(app, ["diff", str(a), str(b), "--out", str(tmp_path / "diff2")])
+    assert r.exit_code == 0, r.output
+    objects = json.loads((tmp_path / "diff2" / "diff.json").read_text())["object_changes"]
+    assert [(m["before"], m["after"]) for m in objects["moved"]] == [(1, 2)] and "1 moved" in r.output
     coarse = tmp_path / "coarse.semmap"
     save_map(coarse, SemanticOctoMap(0.2, label_set=LABELS))
     r = CliRunner().invoke(app, ["diff", str(a / "map.semmap"), str(coarse), "--out", str(tmp_path / "x")])
