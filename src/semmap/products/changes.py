@@ -81,8 +81,10 @@ def voxel_changes(a: SemanticMap, b: SemanticMap) -> VoxelChanges:
 #: object of the later map: its place was free before, it is new), ``PRESENT`` seen mostly occupied, ``UNSEEN`` the
 #: other map saw too little of it to say.
 GONE, PRESENT, UNSEEN = "gone", "present", "unseen"
-#: Share of an object's voxels the other map must have observed (free or occupied) to say anything about it.
-MIN_OBSERVED = 0.5
+#: Share and number of an object's voxels the other map must have observed (free or occupied) to say anything
+#: about it.
+MIN_OBSERVED = 0.3
+MIN_OBSERVED_VOXELS = 10
 #: Share of the observed ones that must be free for the object to be gone (new).
 MIN_FREE = 0.5
 #: Margin (m) round an object's box in which its map's occupied voxels of its class are its voxels.
@@ -140,7 +142,7 @@ def _place(record: dict, own: OccupancyVolume, other: OccupancyVolume, points: n
     state = other.state[idx[:, 0], idx[:, 1], idx[:, 2]]
     free, occupied = int((state == FREE).sum()), int((state == OCCUPIED).sum())
     at = own.origin + idx[state == FREE].mean(axis=0) * own.resolution if free else np.full(3, np.nan)
-    if len(idx) == 0 or free + occupied < MIN_OBSERVED * len(idx):
+    if len(idx) == 0 or free + occupied < max(MIN_OBSERVED * len(idx), MIN_OBSERVED_VOXELS):
         return UNSEEN, at
     return (GONE if free > MIN_FREE * (free + occupied) else PRESENT), at
 
@@ -265,7 +267,8 @@ def _same_objects(ia: list[int], ib: list[int], before: list[dict], after: list[
                   ) -> list[tuple[int, int, bool]]:
     """Pair objects of class ``cls`` that are the same object where they were: nearest centroids within the match
     radius, but never an object whose place went with one whose place the earlier map saw occupied (nor the
-    reverse: that is another object the other recording did not pick out). A pair farther apart than the move
+    reverse: that is another object the other recording did not pick out), nor one that went with one that came
+    unlike it in colour. A pair farther apart than the move
     threshold whose space says one end changed moved (``True``); any other stayed."""
     match_radius, move_threshold = limits
     ca = np.array([before[i]["centroid"] for i in ia], np.float64).reshape(-1, 3)
@@ -274,6 +277,8 @@ def _same_objects(ia: list[int], ib: list[int], before: list[dict], after: list[
     sa, sb = np.array([ev[0].status[i] for i in ia], object), np.array([ev[1].status[j] for j in ib], object)
     gone, new = sa == GONE, sb == GONE
     other_object = (gone[:, None] & (sb == PRESENT)[None]) | ((sa == PRESENT)[:, None] & new[None])
+    colour = np.array([[colour_change(ev[0].colour[i], ev[1].colour[j]) for j in ib] for i in ia]).reshape(dist.shape)
+    other_object |= gone[:, None] & new[None] & (colour > 1.0)  # one went, one came, unlike: two objects
     allowed = (dist <= move_threshold) | ((dist <= match_radius) & ~other_object)
     return [(ia[r], ib[c], bool(dist[r, c] > move_threshold and (gone[r] or new[c])))
             for r, c in _assign(np.where(allowed, dist, np.inf))]
