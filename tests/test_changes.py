@@ -71,18 +71,18 @@ def test_objects_matched_by_class_and_position():
         object_changes(before, after, match_radius=float("nan"))
 
 
-def box_record(i: int, xy: tuple[float, float], cls: str = LABELS.names[2]) -> dict:
-    """An objects.json record of the 0.2 m box of :func:`scene` standing with its corner at ``xy``."""
-    c = [xy[0] + 0.1, xy[1] + 0.1, 0.2]
-    return {"id": i, "class": cls, "centroid": c, "points": 8,
-            "box": {"center": c, "rotation": np.eye(3).tolist(), "extent": [0.2, 0.2, 0.2]}}
+def box_record(i: int, xy: tuple[float, float], cls: str = LABELS.names[2], side: float = 0.3) -> dict:
+    """An objects.json record of the ``side`` m box of :func:`scene` standing with its corner at ``xy``."""
+    c = [xy[0] + side / 2, xy[1] + side / 2, 0.1 + side / 2]
+    return {"id": i, "class": cls, "centroid": c, "points": 27,
+            "box": {"center": c, "rotation": np.eye(3).tolist(), "extent": [side] * 3}}
 
 
 def test_a_long_move_is_one_move():
     """A box carried farther than the match radius: its old place seen free after, its new place free before, so
     it moved (not one object gone and another come)."""
-    ch = diff_objects([box_record(1, (0.4, 0.4))], [box_record(2, (1.4, 1.4))], scene((0.4, 0.4)), scene((1.4, 1.4)),
-                      match_radius=0.5)
+    ch = diff_objects([box_record(1, (0.4, 0.4))], [box_record(2, (1.4, 1.4))], scene((0.4, 0.4), side=0.3),
+                      scene((1.4, 1.4), side=0.3), match_radius=0.5)
     assert [(r["before"], r["after"]) for r in ch["moved"]] == [(1, 2)]
     assert ch["appeared"] == [] and ch["disappeared"] == [] and ch["unknown"] == []
     assert ch["moved"][0]["distance_m"] > 1.0
@@ -91,12 +91,12 @@ def test_a_long_move_is_one_move():
 def test_an_object_missing_in_one_recording_is_no_change_without_evidence():
     """An object the second walk never looked at is of unknown fate, not gone; one whose place the second map saw
     occupied (it picked out no object there) is not gone either; one whose place it saw free is gone."""
-    unseen = diff_objects([box_record(1, (1.4, 1.4))], [], scene((1.4, 1.4)), scene(None, floor_to=1.0))
+    unseen = diff_objects([box_record(1, (1.4, 1.4))], [], scene((1.4, 1.4), side=0.3), scene(None, floor_to=1.0))
     assert unseen["disappeared"] == []
     assert [(r["before"], r["reason"]) for r in unseen["unknown"]] == [(1, "unobserved")]
-    kept = diff_objects([box_record(1, (0.4, 0.4))], [], scene((0.4, 0.4)), scene((0.4, 0.4)))
+    kept = diff_objects([box_record(1, (0.4, 0.4))], [], scene((0.4, 0.4), side=0.3), scene((0.4, 0.4), side=0.3))
     assert kept["disappeared"] == [] and [r["reason"] for r in kept["unknown"]] == ["occupied"]
-    gone = diff_objects([box_record(1, (0.4, 0.4))], [], scene((0.4, 0.4)), scene(None))
+    gone = diff_objects([box_record(1, (0.4, 0.4))], [], scene((0.4, 0.4), side=0.3), scene(None))
     assert [r["before"] for r in gone["disappeared"]] == [1] and gone["unknown"] == []
 
 
@@ -129,7 +129,7 @@ def test_a_move_pairs_like_objects_not_the_nearest():
 
 def test_diff_command(tmp_path):
     a, b = tmp_path / "a", tmp_path / "b"
-    for folder, m in ((a, scene((0.4, 0.4))), (b, scene((1.4, 1.4)))):
+    for folder, m in ((a, scene((0.4, 0.4), side=0.3)), (b, scene((1.4, 1.4), side=0.3))):
         folder.mkdir()
         save_map(folder / "map.semmap", m)
     out = tmp_path / "diff"
