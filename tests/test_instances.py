@@ -44,6 +44,15 @@ def test_exact_oracle_reports_every_instance_with_its_class():
         assert len(np.unique(gt[found.ids == k])) == 1
 
 
+def test_oracle_with_no_object_in_view_finds_none():
+    """A frame of bare wall (no instance of an object class) gives no detection under any preset, not an error."""
+    bare = _scene_frame()
+    bare = Frame(0, 0.0, bare.rgb, bare.depth, CAM, np.eye(4), labels=np.full((120, 160), WALL, np.uint16),
+                 instances=np.zeros((120, 160), np.int32), name="0")
+    for preset in ("exact", "maskrcnn-like"):
+        assert len(OracleInstances(INDOOR_LABELS, preset=preset).detect(bare)) == 0
+
+
 def test_oracle_is_deterministic_per_seed_and_frame():
     a = OracleInstances(INDOOR_LABELS, preset="noisy", seed=3).detect(_scene_frame(5))
     b = OracleInstances(INDOOR_LABELS, preset="noisy", seed=3).detect(_scene_frame(5))

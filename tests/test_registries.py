@@ -62,6 +62,8 @@ ALLOWED: dict[tuple[str, str], str] = {
     ("object_stage.py", "points"): "the 'points' count of an object in the report",
     ("maps/point_map.py", "points"): "the 'points' count of the point map's description",
     ("products/scene_graph.py", "points"): "the 'points' field of objects.json, copied into the graph's metadata",
+    ("products/changes.py", "points"): "the 'points' count of an objects.json record (which part of an object leads)",
+    ("products/export.py", "points"): "the 'points' array of objects.ply (each object's place for semmap diff)",
     **{("sim/export.py", layout): "a layout semmap simulate writes (sim lies below datasets and its registry; "
        "tests/test_benchmark_readers.py reads each back with its reader)" for layout in ("tum", "scannet", "replica")},
 }

@@ -1000,7 +1000,8 @@ def diff(
     before: Annotated[Path, typer.Argument(help="the earlier map: .semmap or a run folder")],
     after: Annotated[Path, typer.Argument(help="the later map of the same place, in the same frame")],
     out: Annotated[Path, typer.Option("--out", "-o", help="output folder: diff.json, diff.ply, diff.png")],
-    match_radius: Annotated[float, typer.Option(help="objects of one class closer than this are the same (m)")] = 1.0,
+    match_radius: Annotated[float, typer.Option(help="objects of one class closer than this are the same object "
+                                                "(m); farther ones pair as moved by space, size and colour")] = 1.0,
     move_threshold: Annotated[float, typer.Option(help="a matched object farther than this moved (m)")] = 0.2,
 ) -> None:
     """What changed between two maps of one place: voxels that appeared, disappeared or changed class (only where
@@ -1011,7 +1012,7 @@ def diff(
     s = export_diff(before, after, out, match_radius=match_radius, move_threshold=move_threshold)
     v, o = s["voxels"], s["objects"]
     objects = "" if o is None else (f"; objects: {o['appeared']} appeared, {o['disappeared']} disappeared, "
-                                    f"{o['moved']} moved")
+                                    f"{o['moved']} moved, {o.get('unknown', 0)} unknown")
     typer.echo(f"{out}: voxels {v['appeared']:,} appeared, {v['disappeared']:,} disappeared, {v['relabelled']:,} "
                f"changed class ({v['observed_by_both']:,} seen by both){objects}")
 

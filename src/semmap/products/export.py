@@ -209,6 +209,19 @@ def _objects_of(path: Path) -> list[dict] | None:
     return read_objects_json(folder / "objects.json") if (folder / "objects.json").is_file() else None
 
 
+def _object_points_of(path: Path) -> dict[int, np.ndarray]:
+    """Each object's points (id -> (N, 3)) from the ``objects.ply`` beside a map; empty without one."""
+    from semmap.io.objects import read_objects_ply
+
+    folder = path if path.is_dir() else path.parent
+    if not (folder / "objects.ply").is_file():
+        return {}
+    ply = read_objects_ply(folder / "objects.ply")
+    order = np.argsort(ply["object"], kind="stable")
+    ids, starts = np.unique(ply["object"][order], return_index=True)
+    return {int(i): p for i, p in zip(ids, np.split(ply["points"][order], starts[1:]), strict=True)}
+
+
 def diff_picture(changes, objects: dict | None) -> bytes:
     """Top-down picture of the changed voxels (and the moved objects' paths)."""
     import matplotlib
@@ -240,15 +253,15 @@ def export_diff(before: Path, after: Path, out: Path, *, match_radius: float = 1
                 move_threshold: float = 0.2) -> dict:
     """Write what changed from ``before`` to ``after`` (maps or run folders in one frame) into ``out``."""
     from semmap.io.ply import write_ply
-    from semmap.products.changes import CHANGE_COLORS, confirmed_by_space, object_changes, voxel_changes
+    from semmap.products.changes import CHANGE_COLORS, diff_objects, voxel_changes
     from semmap.types import MapCloud
 
     a, a_path = load_product_map(before)
     b, b_path = load_product_map(after)
     changes = voxel_changes(a, b)
     objs_a, objs_b = _objects_of(Path(before)), _objects_of(Path(after))
-    objects = (confirmed_by_space(object_changes(objs_a, objs_b, match_radius=match_radius,
-                                                 move_threshold=move_threshold), a, b)
+    objects = (diff_objects(objs_a, objs_b, a, b, match_radius=match_radius, move_threshold=move_threshold,
+                            points=(_object_points_of(Path(before)), _object_points_of(Path(after))))
                if objs_a is not None and objs_b is not None else None)
 
     def write(stage: Path) -> dict:

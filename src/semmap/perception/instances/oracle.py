@@ -102,7 +102,7 @@ class OracleInstances:
         keep = np.ones(n, bool)
         keep &= rng.random(n) >= e.miss_p
         ids, classes, keep = self._merge(ids, classes, keep, rng)
-        ids = np.where(keep[np.maximum(ids, 1) - 1] & (ids > 0), ids, 0)
+        ids = np.where(keep[np.maximum(ids, 1) - 1] & (ids > 0), ids, 0) if n else np.zeros_like(ids)  # none in view
         ids = self._move_outlines(ids, n, rng)
         ids, classes, gt = self._split(ids, classes, gt, rng)
         scores = rng.uniform(0.7, 1.0, len(classes)).astype(np.float32) if e.wrong_class_p or e.miss_p else \
