@@ -132,8 +132,8 @@ def _push(queue, head_tail, inq, c):
 def brushfire_update(occupied, dist2, site, added, removed, max_d2, queue, inq, lower, seeded):
     """Update ``dist2`` (squared voxel distance to the nearest occupied voxel, flat) and ``site`` (its flat index,
     -1 = none within ``max_d2``) in place after ``added`` voxels became occupied and ``removed`` ones stopped being
-    occupied (``occupied``, (nx, ny, nz) bool, already holds the new state). ``queue``/``lower`` (n, the dtype of ``site``) and
-    ``inq``/``seeded`` (n bool, all False) are scratch, left all False. Returns the number of voxels visited."""
+    occupied (``occupied``, (nx, ny, nz) bool, already holds the new state). ``queue``/``lower`` (n, ``site``'s
+    dtype) and ``inq``/``seeded`` (n bool, all False) are scratch, left all False. Returns the voxels visited."""
     nx, ny, nz = occupied.shape
     occ = occupied.ravel()
     n = occ.shape[0]
