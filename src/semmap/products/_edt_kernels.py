@@ -120,6 +120,29 @@ def signed_distance(occupied, outside, inside, resolution):
     return out
 
 
+@nb.njit(cache=True, inline="always")
+def _ijk(c, syz, nz, inv_syz, inv_nz):
+    """Voxel coordinates of flat index ``c`` by multiplying with float reciprocals and correcting by one step
+    (an integer division per coordinate costs more than the rest of a wave step)."""
+    i = np.int64(c * inv_syz)
+    r = np.int64(c) - i * syz
+    if r < 0:
+        i -= 1
+        r += syz
+    elif r >= syz:
+        i += 1
+        r -= syz
+    j = np.int64(r * inv_nz)
+    k = r - j * nz
+    if k < 0:
+        j -= 1
+        k += nz
+    elif k >= nz:
+        j += 1
+        k -= nz
+    return i, j, k
+
+
 @nb.njit(cache=True)
 def _push(queue, head_tail, inq, c):
     if not inq[c]:
@@ -135,6 +158,8 @@ def brushfire_update(occupied, dist2, site, added, removed, max_d2, queue, inq, 
     occupied (``occupied``, (nx, ny, nz) bool, already holds the new state). ``queue``/``lower`` (n, ``site``'s
     dtype) and ``inq``/``seeded`` (n bool, all False) are scratch, left all False. Returns the voxels visited."""
     nx, ny, nz = occupied.shape
+    syz = ny * nz
+    inv_syz, inv_nz = 1.0 / syz, 1.0 / nz
     occ = occupied.ravel()
     n = occ.shape[0]
     ht = np.zeros(2, np.int64)
@@ -151,7 +176,7 @@ def brushfire_update(occupied, dist2, site, added, removed, max_d2, queue, inq, 
         ht[0] += 1
         inq[c] = False
         visited += 1
-        ci, cj, ck = c // (ny * nz), (c // nz) % ny, c % nz
+        ci, cj, ck = _ijk(c, syz, nz, inv_syz, inv_nz)
         for di in range(-1, 2):
             for dj in range(-1, 2):
                 for dk in range(-1, 2):
@@ -186,8 +211,8 @@ def brushfire_update(occupied, dist2, site, added, removed, max_d2, queue, inq, 
         s = site[c]
         if s < 0:
             continue
-        si, sj, sk = s // (ny * nz), (s // nz) % ny, s % nz
-        ci, cj, ck = c // (ny * nz), (c // nz) % ny, c % nz
+        si, sj, sk = _ijk(s, syz, nz, inv_syz, inv_nz)
+        ci, cj, ck = _ijk(c, syz, nz, inv_syz, inv_nz)
         for di in range(-1, 2):
             for dj in range(-1, 2):
                 for dk in range(-1, 2):
