@@ -407,6 +407,7 @@ def run_sweeps(args, rendered: list[Frames], label_set: LabelSet, point_resoluti
 
 
 def main() -> None:
+    global RESOLUTION  # every function reads the run's voxel size from here (--resolution)
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--quick", action="store_true", help="small scenes, fewer frames, 3 cm points (< 10 min)")
     parser.add_argument("--scenes", type=int, default=None, help="only the first N scenes")
@@ -422,7 +423,6 @@ def main() -> None:
     parser.add_argument("--network", default=demo_network(), help="shipped network of the sweeps (default: the "
                         "demo's)")
     args = parser.parse_args()
-    global RESOLUTION  # every function reads the run's voxel size from here
     if not 0.005 <= args.resolution <= 0.5:
         parser.error(f"--resolution must be from 0.005 to 0.5 m, got {args.resolution:g}")
     RESOLUTION = args.resolution
