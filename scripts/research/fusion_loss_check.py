@@ -3,18 +3,21 @@
 Renders one of ``bench_fusion.py``'s quick scenes (24 frames, 320x240), segments it with the shipped network and
 the ``cnn-like`` oracle, and prints three things:
 
-1. ``--maps``: the OctoMap (topk) and the voxel grid (bayes) at ``--resolution``, scored at the pixels of every 10th
+1. ``maps``: the OctoMap (topk) and the voxel grid (bayes) at ``--resolution``, scored at the pixels of every 10th
    frame like ``eval.pixels``; the pixels the map loses (network right, map wrong) and wins, split by where they
    lie (within 2 px of a label boundary or a depth edge, in a voxel whose pixels have two true classes, in a voxel
    whose network plurality over all views is wrong), the gain if the map took the network's label on each such
    set (counterfactual), and each class's IoU, network against map.
-2. ``--weights``: per-voxel fusion of all views outside the maps (sum of probabilities, sum of log-probabilities)
+2. ``weights``: per-voxel fusion of all views outside the maps (sum of probabilities, sum of log-probabilities)
    with each observation weighted by its viewing angle and distance: does trusting frontal / close views help?
-3. ``--max``: per voxel, which selector of its views' labels is right (plurality = the ceiling, the most
+3. ``rules``: the OctoMap and the voxel grid with every fusion rule (``bayes-prior``'s prior: the class frequencies
+   of the other two scenes' frames), their pixel MIoU gain over the network.
+4. ``max``: per voxel, which selector of its views' labels is right (plurality = the ceiling, the most
    confident view = what ``max`` keeps, the summed rules), how well the top-class confidence separates right from
    wrong pixels (AUROC, reliability bins), and the same with the probabilities shuffled among each frame's pixels.
 
     python scripts/research/fusion_loss_check.py --scene office [--resolution 0.02] [--realism clean]
+                                                 [--only maps,weights,rules,max]
 """
 
 from __future__ import annotations
@@ -183,6 +186,25 @@ def maps_report(sc: Scene, resolution: float) -> None:
             for c in sorted(present, key=lambda c: iou[1][c] - iou[0][c])))
 
 
+def rules_report(sc: Scene, resolution: float, prior: np.ndarray) -> None:
+    """Section 3: both maps with every fusion rule, fed the same frames."""
+    label_set = bench.padded_labels(K)
+    maps = {}
+    for rule in FusionRule:
+        fusion = FusionParams(rule, prior=prior if rule == FusionRule.BAYES_PRIOR else None)
+        maps[f"OctoMap {rule.value}"] = SemanticOctoMap(resolution, label_set=label_set, fusion=fusion)
+        maps[f"grid {rule.value}"] = SemanticVoxelGrid(resolution, label_set=label_set, fusion=fusion)
+    for obs, sem in zip(sc.fr.obs, sc.sems, strict=True):
+        o = Observation(obs.points_world, obs.origin, obs.colors, sem, normals=obs.normals,
+                        frame_index=obs.frame_index, keyframe=obs.keyframe)
+        for m in maps.values():
+            m.integrate(o)
+    for name, m in maps.items():
+        px = bench.pixel_scores(m, sc.fr, sc.sems, K)
+        print(f"   {name:19s}: pixel MIoU network {px['pixel_miou_network']:.4f} map {px['pixel_miou_map']:.4f} "
+              f"(gain {px['gain']:+.4f}), coverage {px['pixel_coverage']:.4f}")
+
+
 def weights_report(sc: Scene) -> None:
     """Section 2: per-voxel sums with each observation weighted by viewing angle / distance."""
     fr = sc.fr
@@ -238,7 +260,8 @@ def main() -> None:
     ap.add_argument("--scene", default="office", choices=[s[0] for s in bench.QUICK_SCENES])
     ap.add_argument("--resolution", type=float, default=0.05)
     ap.add_argument("--realism", default="clean", choices=bench.REALISMS)
-    ap.add_argument("--only", default="maps,weights,max", help="sections: maps, weights, max (comma-separated)")
+    ap.add_argument("--only", default="maps,weights,rules,max", help="sections: maps, weights, rules, max "
+                    "(comma-separated)")
     args = ap.parse_args()
     index = [s[0] for s in bench.QUICK_SCENES].index(args.scene)
     kind, seed, size = bench.QUICK_SCENES[index]
@@ -252,6 +275,10 @@ def main() -> None:
         maps_report(Scene(fr, sems[network], args.resolution), args.resolution)
     if "weights" in only:
         weights_report(Scene(fr, sems[network], args.resolution))
+    if "rules" in only:
+        others = [bench.render(k, sd, z, 24, 12, bench.SMALL, args.realism)
+                  for k, sd, z in bench.QUICK_SCENES if k != kind]
+        rules_report(Scene(fr, sems[network], args.resolution), args.resolution, bench.class_prior(others, K))
     if "max" in only:
         for name, s in sems.items():
             max_report(Scene(fr, s, args.resolution), name)
