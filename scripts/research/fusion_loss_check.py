@@ -10,14 +10,15 @@ the ``cnn-like`` oracle, and prints three things:
    set (counterfactual), and each class's IoU, network against map.
 2. ``weights``: per-voxel fusion of all views outside the maps (sum of probabilities, sum of log-probabilities)
    with each observation weighted by its viewing angle and distance: does trusting frontal / close views help?
-3. ``rules``: the OctoMap and the voxel grid with every fusion rule (``bayes-prior``'s prior: the class frequencies
-   of the other two scenes' frames), their pixel MIoU gain over the network.
+3. ``rules``: the OctoMap and the voxel grid (``--points``: the 3 cm point map too) with every fusion rule, for
+   the network and the oracle, their pixel MIoU gain over each; ``bayes-prior``'s prior is the class frequencies
+   of the other two scenes' frames, ``--clamp`` the log-odds floor of ``bayes`` / ``bayes-prior``.
 4. ``max``: per voxel, which selector of its views' labels is right (plurality = the ceiling, the most
    confident view = what ``max`` keeps, the summed rules), how well the top-class confidence separates right from
    wrong pixels (AUROC, reliability bins), and the same with the probabilities shuffled among each frame's pixels.
 
     python scripts/research/fusion_loss_check.py --scene office [--resolution 0.02] [--realism clean]
-                                                 [--only maps,weights,rules,max]
+                                                 [--only maps,weights,rules,max] [--clamp NATS] [--points]
 """
 
 from __future__ import annotations
@@ -32,10 +33,11 @@ from scipy import ndimage
 
 from semmap.eval.pixels import EVERY, map_labels_at
 from semmap.eval.semantic import confusion, scores
-from semmap.fusion.rules import FusionParams, FusionRule
+from semmap.fusion.rules import DEFAULT_LOGODDS_CLAMP, FusionParams, FusionRule
 from semmap.geometry import pixel_normals
 from semmap.keys import coords_to_keys, pack_keys
 from semmap.labels import INDOOR_LABELS
+from semmap.maps.point_map import SemanticPointMap
 from semmap.maps.semantic_octomap import SemanticOctoMap
 from semmap.maps.voxel_grid import SemanticVoxelGrid
 from semmap.perception.registry import demo_network
@@ -186,14 +188,17 @@ def maps_report(sc: Scene, resolution: float) -> None:
             for c in sorted(present, key=lambda c: iou[1][c] - iou[0][c])))
 
 
-def rules_report(sc: Scene, resolution: float, prior: np.ndarray) -> None:
-    """Section 3: both maps with every fusion rule, fed the same frames."""
+def rules_report(sc: Scene, resolution: float, prior: np.ndarray, clamp: float, points: bool) -> None:
+    """Section 3: both maps (and with ``points`` the 3 cm point map) with every fusion rule, fed the same frames;
+    ``clamp`` is the log-odds floor of ``bayes`` / ``bayes-prior``."""
     label_set = bench.padded_labels(K)
     maps = {}
     for rule in FusionRule:
-        fusion = FusionParams(rule, prior=prior if rule == FusionRule.BAYES_PRIOR else None)
+        fusion = FusionParams(rule, prior=prior if rule == FusionRule.BAYES_PRIOR else None, logodds_clamp=clamp)
         maps[f"OctoMap {rule.value}"] = SemanticOctoMap(resolution, label_set=label_set, fusion=fusion)
         maps[f"grid {rule.value}"] = SemanticVoxelGrid(resolution, label_set=label_set, fusion=fusion)
+        if points:
+            maps[f"points {rule.value}"] = SemanticPointMap(0.03, label_set=label_set, fusion=fusion)
     for obs, sem in zip(sc.fr.obs, sc.sems, strict=True):
         o = Observation(obs.points_world, obs.origin, obs.colors, sem, normals=obs.normals,
                         frame_index=obs.frame_index, keyframe=obs.keyframe)
@@ -260,6 +265,9 @@ def main() -> None:
     ap.add_argument("--scene", default="office", choices=[s[0] for s in bench.QUICK_SCENES])
     ap.add_argument("--resolution", type=float, default=0.05)
     ap.add_argument("--realism", default="clean", choices=bench.REALISMS)
+    ap.add_argument("--clamp", type=float, default=DEFAULT_LOGODDS_CLAMP, help="log-odds floor of bayes and "
+                    "bayes-prior in the rules section")
+    ap.add_argument("--points", action="store_true", help="the rules section with the 3 cm point map too")
     ap.add_argument("--only", default="maps,weights,rules,max", help="sections: maps, weights, rules, max "
                     "(comma-separated)")
     args = ap.parse_args()
@@ -278,7 +286,10 @@ def main() -> None:
     if "rules" in only:
         others = [bench.render(k, sd, z, 24, 12, bench.SMALL, args.realism)
                   for k, sd, z in bench.QUICK_SCENES if k != kind]
-        rules_report(Scene(fr, sems[network], args.resolution), args.resolution, bench.class_prior(others, K))
+        prior = bench.class_prior(others, K)
+        for name, s in sems.items():
+            print(f"-- {name}, log-odds floor {args.clamp:g}")
+            rules_report(Scene(fr, s, args.resolution), args.resolution, prior, args.clamp, args.points)
     if "max" in only:
         for name, s in sems.items():
             max_report(Scene(fr, s, args.resolution), name)
