@@ -183,9 +183,16 @@ def maps_report(sc: Scene, resolution: float) -> None:
         cm, cn = confusion(mp, g, K), confusion(n, g, K)
         iou = [np.diag(c) / np.maximum(c.sum(0) + c.sum(1) - np.diag(c), 1) for c in (cn, cm)]
         present = np.flatnonzero(cm.sum(1) > 0)
+        order = sorted(present, key=lambda c: iou[1][c] - iou[0][c])
         print("   class IoU network -> map: " + ", ".join(
-            f"{INDOOR_LABELS.names[c]} {iou[0][c]:.2f}->{iou[1][c]:.2f}"
-            for c in sorted(present, key=lambda c: iou[1][c] - iou[0][c])))
+            f"{INDOOR_LABELS.names[c]} {iou[0][c]:.2f}->{iou[1][c]:.2f}" for c in order))
+        worst = order[:3]
+        print(f"   map := network on the 3 classes losing most ({', '.join(INDOOR_LABELS.names[c] for c in worst)}) "
+              f"-> gain {counterfactual_gain(g, n, mp, np.isin(g, worst)):+.4f}")
+        for c in worst:
+            said = np.bincount(sc.labels[sc.gt == c, 0], minlength=K) / max(int((sc.gt == c).sum()), 1)
+            print(f"      {INDOOR_LABELS.names[c]}: the network's labels over all views: " + ", ".join(
+                f"{INDOOR_LABELS.names[i]} {said[i]:.2f}" for i in np.argsort(-said)[:4] if said[i] >= 0.03))
 
 
 def rules_report(sc: Scene, resolution: float, prior: np.ndarray, clamp: float, points: bool) -> None:
