@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import argparse
 import importlib.util
+import itertools
 import sys
 from pathlib import Path
 
@@ -230,6 +231,12 @@ def weights_report(sc: Scene) -> None:
         cos.append(np.where(np.isfinite(c), c, 0.5)[keep])
         dist.append(d[keep])
     cos, dist = np.concatenate(cos), np.concatenate(dist)
+    ok = sc.labels[:, 0] == sc.gt
+    for tag, v, edges in (("|cos| of the viewing angle", cos, (0, 0.3, 0.5, 0.7, 0.85, 1.01)),
+                          ("distance (m)", dist, (0, 1, 1.5, 2, 2.5, 3, 9))):
+        print(f"   network accuracy by {tag}: " + ", ".join(
+            f"{lo:g}-{hi:g} {ok[s].mean():.2f} ({s.mean():.2f} of px)"
+            for lo, hi in itertools.pairwise(edges) if (s := (v >= lo) & (v < hi)).any()))
     ev = sc.eval_pixels()
     net = scores(confusion(sc.labels[ev, 0], sc.gt[ev], K)).miou
     for log in (False, True):
