@@ -54,3 +54,12 @@ def test_object_scenes_subset_and_frames():
     assert objects._chosen_scenes(ap, args) == {"living-walk": (2, "living_room", "walk", 40)}
     with pytest.raises(SystemExit):
         objects._chosen_scenes(ap, argparse.Namespace(quick=False, scenes="nowhere", frames=None))
+
+
+def test_fusion_resolution_outside_its_range_is_refused(monkeypatch, capsys):
+    fusion = bench("bench_fusion")
+    monkeypatch.setattr(sys, "argv", ["bench_fusion.py", "--resolution", "0.9"])
+    with pytest.raises(SystemExit):
+        fusion.main()
+    assert "--resolution must be from 0.005 to 0.5 m, got 0.9" in capsys.readouterr().err
+    assert fusion.RESOLUTION == 0.05  # (the refused value never became the run's voxel size)

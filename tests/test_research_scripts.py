@@ -1,7 +1,8 @@
 """The math behind the diagnostic scripts whose findings docs/EXPERIMENTS.md quotes: the camera-offset fit and
 pose averaging of ``scripts/research/tracker_agreement.py``, the RPE of ``scripts/research/slam_check.py``, and the
 pose-list reading, colour-camera move and rotation comparison of
-``scripts/research/seven_scenes_sfm_reference.py``."""
+``scripts/research/seven_scenes_sfm_reference.py``; the per-voxel selectors and edge masks of
+``scripts/research/fusion_loss_check.py``."""
 
 from __future__ import annotations
 
@@ -178,3 +179,48 @@ def test_sfm_reference_says_when_the_sequence_is_not_in_the_file(sfm_reference, 
 def test_sfm_reference_says_when_the_file_cannot_be_read(sfm_reference, tmp_path) -> None:
     with pytest.raises(FormatError, match=r"missing\.txt: cannot read the pose list"):
         sfm_reference.read_pose_list(tmp_path / "missing.txt", "seq-01")
+
+
+@pytest.fixture(scope="module")
+def loss_check():
+    return _script("fusion_loss_check")
+
+
+def test_max_keeps_the_most_confident_view_where_the_plurality_is_wrong(loss_check) -> None:
+    # one voxel seen 3 times: twice class 2 (confidence 0.6), once class 5 (0.9); another voxel: class 7 once
+    inv = np.array([0, 0, 0, 1])
+    labels = np.array([[2, 5, 0], [2, 5, 0], [5, 2, 0], [7, 0, 0]])
+    probs = np.array([[0.6, 0.3, 0.0], [0.6, 0.3, 0.0], [0.9, 0.05, 0.0], [0.8, 0.0, 0.0]])
+    assert list(loss_check.plurality(inv, labels[:, 0], 2)) == [2, 7]
+    assert list(loss_check.most_confident(inv, labels[:, 0], probs[:, 0], 2)) == [5, 7]
+    # the summed probabilities: class 2 has 0.6 + 0.6 + 0.05, class 5 has 0.3 + 0.3 + 0.9
+    assert list(loss_check.summed(inv, labels, probs, 2, log=False)) == [5, 7]
+    # weights can silence the confident view
+    w = np.array([1.0, 1.0, 0.01, 1.0])
+    assert list(loss_check.summed(inv, labels, probs, 2, log=True, weights=w)) == [2, 7]
+
+
+def test_auroc_of_a_perfect_and_a_useless_score(loss_check) -> None:
+    right = np.array([False, False, True, True])
+    assert loss_check.auroc(np.array([0.1, 0.2, 0.8, 0.9]), right) == 1.0
+    assert loss_check.auroc(np.array([0.9, 0.8, 0.2, 0.1]), right) == 0.0
+
+
+def test_edges_mark_pixels_near_a_class_border_or_a_depth_jump(loss_check) -> None:
+    labels = np.zeros((8, 8), np.int32)
+    labels[:, 4:] = 3
+    near = loss_check.near_label_boundary(labels, r=1)
+    assert near[:, 3:5].all() and not near[:, :2].any() and not near[:, 6:].any()
+    depth = np.full((8, 8), 2.0)
+    depth[:, 4:] = 2.5  # a 0.5 m step; a slope of 1 cm per pixel is not an edge
+    depth += 0.01 * np.arange(8)[:, None]
+    edge = loss_check.near_depth_edge(depth, r=1)
+    assert edge[:, 3:5].all() and not edge[:, :2].any() and not edge[:, 6:].any()
+
+
+def test_counterfactual_gain_is_zero_when_the_map_takes_every_network_label(loss_check) -> None:
+    gt = np.array([1, 1, 2, 2])
+    net = np.array([1, 2, 2, 2])
+    mapped = np.array([1, 1, 2, 2])  # right everywhere
+    assert loss_check.counterfactual_gain(gt, net, mapped, np.ones(4, bool)) == 0.0
+    assert loss_check.counterfactual_gain(gt, net, mapped, np.zeros(4, bool)) > 0.4
