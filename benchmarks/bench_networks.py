@@ -11,6 +11,10 @@ pixels left out) of the top class at 640x480, parameters, and ms per 640x480 fra
 equals PyTorch's.  PyTorch rows also give the calibration of the probabilities on the test pixels: expected
 calibration error (15 bins) and NLL with the temperature stored with the weights (``ece``, ``nll``) and without
 (``ece_uncalibrated``, ``nll_uncalibrated``); ``init`` says how the network started (``scratch`` or --init).
+Spread: ``miou_ci95`` is a 95 % bootstrap interval of the MIoU over the test frames (1,000 resamples of whole
+frames, the confusion summed over each resample); ``comparisons`` gives the papers' two claims (CBAM-PSPNet
+against PSPNet, the RGB-D net against its colour-only twin) as the MIoU difference with a paired interval (the
+same resampled frames for both networks), so a reader can tell a difference from noise.
 
 Timings depend on the machine's load: the development machine is shared (2 cores, other jobs running).
 The last line is JSON: {"bench": "networks", "results": [{"model", "input", "params", "mpa", "miou",
@@ -49,6 +53,39 @@ VOC_TO_INDOOR = {"chair": "chair", "diningtable": "table", "sofa": "sofa", "tvmo
 VOID = 0
 #: Test pixels the calibration scores use: every n-th row and column.
 CALIBRATION_STEP = 4
+#: The papers' claims, as (network, the network it should beat by the points given).
+CLAIMS = (("cbam-pspnet", "pspnet", 1.0), ("rgbd-net", "rgb-only", 3.0))
+BOOTSTRAP_RESAMPLES = 1000
+
+
+def bootstrap_mious(frame_confusions: np.ndarray, picks: np.ndarray) -> np.ndarray:
+    """MIoU of each resample: ``picks`` (R, F) frame indices, ``frame_confusions`` (F, K, K)."""
+    out = np.empty(len(picks))
+    for r, idx in enumerate(picks):
+        out[r] = scores(frame_confusions[idx].sum(axis=0), ignore=VOID).miou
+    return out
+
+
+def spread(per_frame: dict[str, np.ndarray], seed: int = 0) -> tuple[dict[str, list[float]], list[dict]]:
+    """95 % bootstrap interval of each network's MIoU and the paired intervals of the papers' claims."""
+    if not per_frame:
+        return {}, []
+    n = len(next(iter(per_frame.values())))
+    picks = np.random.default_rng(seed).integers(0, n, size=(BOOTSTRAP_RESAMPLES, n))
+    boot = {name: bootstrap_mious(c, picks) for name, c in per_frame.items()}
+    intervals = {name: [round(float(v), 4) for v in np.percentile(b, [2.5, 97.5])] for name, b in boot.items()}
+    claims = []
+    for better, base, points in CLAIMS:
+        if better in boot and base in boot:
+            diff = 100 * (boot[better] - boot[base])
+            point = 100 * (scores(per_frame[better].sum(axis=0), ignore=VOID).miou
+                           - scores(per_frame[base].sum(axis=0), ignore=VOID).miou)
+            lo, hi = np.percentile(diff, [2.5, 97.5])
+            claims.append({"network": better, "against": base, "claimed_points": points,
+                           "miou_points": round(float(point), 2),
+                           "ci95_points": [round(float(lo), 2), round(float(hi), 2)],
+                           "claim_met": bool(point >= points), "above_noise": bool(lo > 0)})
+    return intervals, claims
 
 
 def test_frames(step: int) -> list[Frame]:
@@ -69,8 +106,9 @@ def shared_ids(to_indoor: np.ndarray) -> np.ndarray:
     return keep[to_indoor]
 
 
-def evaluate(seg, frames: list[Frame], voc: bool = False) -> tuple[dict, list[np.ndarray]]:
-    """Scores, ms per frame (after one warm-up frame) and the top-class images of a segmenter."""
+def evaluate(seg, frames: list[Frame], voc: bool = False) -> tuple[dict, list[np.ndarray], np.ndarray]:
+    """Scores, ms per frame (after one warm-up frame), the top-class images of a segmenter and its confusion per
+    frame (F, K, K; empty for the VOC peer)."""
     k = len(INDOOR_LABELS)
     conf = np.zeros((k, k), np.int64)
     conf_shared = np.zeros((k, k), np.int64)
@@ -80,7 +118,7 @@ def evaluate(seg, frames: list[Frame], voc: bool = False) -> tuple[dict, list[np
         for voc_name, name in VOC_TO_INDOOR.items():
             lut[seg.label_set.id_of(voc_name)] = INDOOR_LABELS.id_of(name)
     seg.segment(frames[0])
-    preds, elapsed = [], 0.0
+    preds, elapsed, per_frame = [], 0.0, []
     for f in frames:
         t0 = time.perf_counter()
         top = seg.segment(f).labels[..., 0]
@@ -90,7 +128,8 @@ def evaluate(seg, frames: list[Frame], voc: bool = False) -> tuple[dict, list[np
             pred = lut[pred]
         preds.append(pred)
         if not voc:
-            conf += confusion(pred, f.labels, k, ignore=VOID)
+            per_frame.append(confusion(pred, f.labels, k, ignore=VOID))
+            conf += per_frame[-1]
         gt = f.labels.astype(np.int64)
         conf_shared += confusion(shared_ids(pred), np.where(gt == VOID, -1, shared_ids(gt)), k, ignore=-1)
     shared = scores(conf_shared, ignore=None)
@@ -100,7 +139,7 @@ def evaluate(seg, frames: list[Frame], voc: bool = False) -> tuple[dict, list[np
     if not voc:
         s = scores(conf, ignore=VOID)
         out |= {"mpa": round(s.mpa, 4), "miou": round(s.miou, 4), "pixel_accuracy": round(s.accuracy, 4)}
-    return out, preds
+    return out, preds, np.array(per_frame)
 
 
 def calibration(seg, frames: list[Frame], step: int = CALIBRATION_STEP) -> dict:
@@ -136,7 +175,7 @@ def main() -> None:
     frames = test_frames(60 if args.quick else 10)
     print(f"{len(frames)} test frames (scene seeds {[s for s, _ in TEST_SCENES]}) rendered in "
           f"{time.perf_counter() - t0:.1f} s; machine shared: timings are indicative")
-    results = []
+    results, per_frame = [], {}
     wanted = TRAINED_NETWORKS if args.networks is None else tuple(n.strip() for n in args.networks.split(","))
     for name in (n for n in TRAINED_NETWORKS if n in wanted):
         path = wdir / f"{name}.pt"
@@ -150,10 +189,11 @@ def main() -> None:
         torch_preds = None
         for runtime in ("torch", "onnx"):
             seg = make_segmenter(name, weights=path, backend=runtime, threads=args.threads)
-            row, preds = evaluate(seg, frames)
+            row, preds, confusions = evaluate(seg, frames)
             row = base | row | {"runtime": runtime}
             if torch_preds is None:
                 torch_preds = preds
+                per_frame[name] = confusions
                 row |= calibration(seg, frames)  # the same probabilities in both runtimes: scored once
             else:
                 same = np.mean([np.mean(a == b) for a, b in zip(preds, torch_preds, strict=True)])
@@ -170,7 +210,7 @@ def main() -> None:
     elif ESPNETV2.is_file():
         for runtime in ("torch", "onnx"):
             seg = make_segmenter("espnetv2", weights=ESPNETV2, backend=runtime, threads=args.threads)
-            row, _ = evaluate(seg, frames, voc=True)
+            row, _, _ = evaluate(seg, frames, voc=True)
             row = {"model": "espnetv2-s2.0-voc", "network": "espnetv2", "input": "432x320",
                    "params": count_parameters(seg._model), "mpa": None, "miou": None, "runtime": runtime} | row
             results.append(row)
@@ -182,8 +222,17 @@ def main() -> None:
                 r["speed_vs_espnetv2"] = round(peer[r["runtime"]] / r["ms_per_frame"], 2)
     else:
         print(f"skipping the ESPNetv2 peer: {ESPNETV2} not found")
+    intervals, claims = spread(per_frame)
+    for r in results:
+        if r["runtime"] == "torch" and r["network"] in intervals:
+            r["miou_ci95"] = intervals[r["network"]]
+    for c in claims:
+        print(f"{c['network']} - {c['against']}: {c['miou_points']:+.2f} MIoU points, 95 % interval "
+              f"[{c['ci95_points'][0]:+.2f}, {c['ci95_points'][1]:+.2f}] (claimed {c['claimed_points']:+.1f}: "
+              f"{'met' if c['claim_met'] else 'not met'}; {'above' if c['above_noise'] else 'within'} the noise)")
     print(json.dumps({"bench": "networks", "frames": len(frames), "frame": "640x480", "threads": args.threads,
-                      "test_scenes": [f"{k}-medium-seed{s}-loop" for s, k in TEST_SCENES], "results": results}))
+                      "test_scenes": [f"{k}-medium-seed{s}-loop" for s, k in TEST_SCENES], "results": results,
+                      "comparisons": claims}))
 
 
 if __name__ == "__main__":
