@@ -13,7 +13,7 @@ label that lies on the floor, a table label on table-height surfaces, two networ
 
     .venv/bin/python scripts/segmentation_grid.py [--dataset ../shared/data/7scenes-redkitchen] [--frames 0 100 ...]
         [--segmenter espnetv2 --weights ../shared/weights/espnetv2/espnetv2_s_2.0_pascal_384x384.pth]
-        [--compare pspnet ...] [--out docs/images/segmenters_7scenes.png]
+        [--compare pspnet ...] [--out docs/images/networks_7scenes.png]
 """
 
 from __future__ import annotations
@@ -200,7 +200,7 @@ def parse_args() -> argparse.Namespace:
                              "(default: the demo's network; --compare alone: none)")
     parser.add_argument("--input-size", type=parse_input_size, default=None,
                         help="network input of --segmenter: short side N or WxH (default: the segmenter's)")
-    parser.add_argument("--out", type=Path, default=ROOT / "docs" / "images" / "segmenters_7scenes.png")
+    parser.add_argument("--out", type=Path, default=ROOT / "docs" / "images" / "networks_7scenes.png")
     return parser.parse_args()
 
 
