@@ -198,3 +198,28 @@ def test_object_files_round_trip(arc_frames, tmp_path):
     (tmp_path / "cut.ply").write_bytes((tmp_path / "objects.ply").read_bytes()[:-5])
     with pytest.raises(FormatError, match="truncated"):
         read_objects_ply(tmp_path / "cut.ply")
+
+
+def test_the_keyframes_masks_keep_a_book_from_joining_its_missed_neighbour():
+    """Two books 5 mm apart; the first keyframe's detector finds only the left one, the second only the right one
+    (the left missed): the clouds alone (close centroids, shared 3 cm cells) glue the right book onto the left
+    one's object; the second keyframe's image sees the left book's points outside the right one's mask."""
+    from object_helpers import box_frames
+    from semmap.types import CameraIntrinsics
+
+    book = INDOOR_LABELS.id_of("book")
+    boxes = [(np.array([0.0, 0.0, 0.8]), np.array([0.2, 0.04, 1.05])),
+             (np.array([0.0, 0.045, 0.8]), np.array([0.2, 0.085, 1.05]))]  # spines towards the camera
+    cam = CameraIntrinsics(320, 240, 260.0, 260.0, 159.5, 119.5)
+    frames = box_frames(boxes, [book, book], 2, radius=1.0, height=1.0, arc_deg=10, start_deg=-5, cam=cam)
+    counts = {}
+    for check in (False, True):
+        omap = ObjectMap(INDOOR_LABELS, ObjectMapParams(pixel_stride=1, mask_check=check))
+        for f, shown in zip(frames, (1, 2), strict=True):
+            inst = Instances.from_id_image((f.instances == shown).astype(np.int32), [book], [1.0])
+            omap.integrate(inst, f.depth, f.rgb, f.intrinsics, f.T_world_cam, f.index)
+        counts[check] = len(omap.objects)
+        if check:  # each object's points lie on one book
+            for o in omap.objects.values():
+                assert max(_inside(o.points, b, 0.01).mean() for b in boxes) > 0.95
+    assert counts == {False: 1, True: 2}
