@@ -438,12 +438,14 @@ class ObjectMap:
         return found is not None and found[0][detection_id] < self.params.mask_share * found[1]
 
     def _masks_tell_apart(self, a: MapObject, b: MapObject) -> bool:
-        """Whether the keyframe sees both objects and most of their visible points in different masks (one of
-        them possibly in none): the image shows two things."""
+        """Whether the keyframe sees both objects with most of each one's visible points in one mask (or in none),
+        and the two masks differ: the image shows two things."""
         found_a, found_b = self._visible_hits(a), self._visible_hits(b)
         if found_a is None or found_b is None:
             return False
-        return int(np.argmax(found_a[0])) != int(np.argmax(found_b[0]))
+        (hits_a, seen_a), (hits_b, seen_b) = found_a, found_b
+        in_a, in_b = int(np.argmax(hits_a)), int(np.argmax(hits_b))
+        return in_a != in_b and 2 * hits_a[in_a] > seen_a and 2 * hits_b[in_b] > seen_b
 
     def _spans_several(self, s: Sighting, candidates: list[MapObject]) -> bool:
         """Whether the sighting covers most of two or more objects of its class: a mask that merged neighbours
