@@ -95,7 +95,10 @@ class ObjectMapParams:
     #: check association and merging against the keyframe's masks (:class:`MaskView`; step 7 of the module)
     mask_check: bool = True
     #: an object is a detection's only when at least this share of its visible points falls inside the mask ...
-    mask_share: float = 0.25
+    mask_share: float = 0.5
+    #: ... or within this many pixels of it (a detector's outline is that far off: the oracle's maskrcnn-like
+    #: moves outlines by up to 2 px; objects narrower than this in the image are not told apart) ...
+    mask_outline_px: int = 2
     #: ... judged when the camera sees at least this many of its points (fewer: out of view, eq. 22 decides)
     min_visible_points: int = 10
 
@@ -106,9 +109,9 @@ class ObjectMapParams:
             raise ConfigError("object map: pixel_stride, min_points and min_sightings must be >= 1")
         if not 0 <= self.min_depth < self.max_depth:
             raise ConfigError(f"object map: depth range [{self.min_depth}, {self.max_depth}] is empty")
-        if not 0 <= self.mask_share <= 1 or self.min_visible_points < 1:
+        if not 0 <= self.mask_share <= 1 or self.min_visible_points < 1 or self.mask_outline_px < 0:
             raise ConfigError(f"object map: mask_share {self.mask_share} must lie in [0, 1] and "
-                              f"min_visible_points {self.min_visible_points} be >= 1")
+                              f"min_visible_points {self.min_visible_points} >= 1, mask_outline_px >= 0")
         if len(self.weights) != 3 or min(self.weights) < 0:
             raise ConfigError(f"object map: eq. 22 needs three non-negative weights, got {self.weights}")
 
@@ -202,9 +205,10 @@ class MaskView:
     T_world_cam: np.ndarray  # (4, 4)
     n: int  # detections
 
-    def masks_hit(self, points: np.ndarray) -> tuple[np.ndarray, int]:
-        """Per detection id (0: none) how many of ``points`` (world) the camera sees there -- inside the image,
-        in front, the depth image agreeing with their depth (not hidden, not a hole) -- and how many it sees."""
+    def masks_hit(self, points: np.ndarray, outline_px: int = 0) -> tuple[np.ndarray, int]:
+        """Where the camera sees ``points`` (world) -- inside the image, in front, the depth image agreeing with
+        their depth (not hidden, not a hole): per detection id how many fall on its mask or within ``outline_px``
+        pixels of it (a point near two masks counts for both; id 0: points near no mask), and how many it sees."""
         pts = np.asarray(points, np.float64)[::max(1, -(-len(points) // MAX_PROJECTED))]
         R, t = self.T_world_cam[:3, :3], self.T_world_cam[:3, 3]
         cam = (pts - t) @ R
@@ -218,7 +222,16 @@ class MaskView:
         u, v, z = u[inside], v[inside], z[inside]
         d = self.depth[v, u]
         seen = (d > 0) & (np.abs(d - z) <= VISIBLE_ABS + VISIBLE_REL * z)
-        return np.bincount(self.ids[v[seen], u[seen]], minlength=self.n + 1), int(seen.sum())
+        u, v = u[seen], v[seen]
+        r = int(outline_px)
+        near = np.stack([self.ids[np.clip(v + dv, 0, K.height - 1), np.clip(u + du, 0, K.width - 1)]
+                         for du, dv in ((0, 0), (-r, 0), (r, 0), (0, -r), (0, r))], axis=1)
+        near.sort(axis=1)
+        first = np.ones(near.shape, bool)
+        first[:, 1:] = near[:, 1:] != near[:, :-1]  # each id once per point
+        hits = np.bincount(near[first & (near > 0)], minlength=self.n + 1)
+        hits[0] = int(np.sum(near[:, -1] == 0))  # sorted: the largest id of the five is 0, no mask near
+        return hits, len(u)
 
 
 class ObjectMap:
@@ -423,29 +436,35 @@ class ObjectMap:
         return {int(r): self.objects[obj_ids[c]] for r, c in zip(rows, cols, strict=True) if gain[r, c] > 0}
 
     def _visible_hits(self, obj: MapObject) -> tuple[np.ndarray, int] | None:
-        """Where the keyframe's camera sees ``obj``'s points (per detection id, 0: none) and how many it sees;
-        None without a view or when it sees fewer than ``min_visible_points`` (cached per keyframe and stage)."""
+        """:meth:`MaskView.masks_hit` of ``obj``'s points in the keyframe being integrated; None without a view or
+        when the camera sees fewer than ``min_visible_points`` of them (cached per keyframe and stage)."""
         if self._view is None:
             return None
         if obj.id not in self._hits:
-            hits, seen = self._view.masks_hit(obj.points)
+            hits, seen = self._view.masks_hit(obj.points, self.params.mask_outline_px)
             self._hits[obj.id] = (hits, seen) if seen >= self.params.min_visible_points else None
         return self._hits[obj.id]
 
     def _mask_says_apart(self, obj: MapObject, detection_id: int) -> bool:
-        """Whether the camera sees ``obj`` mostly outside the mask ``detection_id``: that detection is not it."""
+        """Whether the camera sees most of ``obj`` away from the mask ``detection_id`` (beyond its outline's
+        error): that detection is not it."""
         found = self._visible_hits(obj)
         return found is not None and found[0][detection_id] < self.params.mask_share * found[1]
 
+    def _seen_in(self, obj: MapObject) -> int | None:
+        """The one mask (detection id) most of ``obj``'s visible points fall on or near; 0 when most fall near no
+        mask; None when it is not seen, or not clearly in one place."""
+        found = self._visible_hits(obj)
+        if found is None:
+            return None
+        hits, seen = found
+        places = np.flatnonzero(hits >= self.params.mask_share * seen)
+        return int(places[0]) if len(places) == 1 else None
+
     def _masks_tell_apart(self, a: MapObject, b: MapObject) -> bool:
-        """Whether the keyframe sees both objects with most of each one's visible points in one mask (or in none),
-        and the two masks differ: the image shows two things."""
-        found_a, found_b = self._visible_hits(a), self._visible_hits(b)
-        if found_a is None or found_b is None:
-            return False
-        (hits_a, seen_a), (hits_b, seen_b) = found_a, found_b
-        in_a, in_b = int(np.argmax(hits_a)), int(np.argmax(hits_b))
-        return in_a != in_b and 2 * hits_a[in_a] > seen_a and 2 * hits_b[in_b] > seen_b
+        """Whether the keyframe sees the two objects in different masks (one possibly in none): two things."""
+        in_a, in_b = self._seen_in(a), self._seen_in(b)
+        return in_a is not None and in_b is not None and in_a != in_b
 
     def _spans_several(self, s: Sighting, candidates: list[MapObject]) -> bool:
         """Whether the sighting covers most of two or more objects of its class: a mask that merged neighbours
