@@ -30,10 +30,12 @@ keyframe and tracked detection (:class:`~semmap.types.Instances` with track ids)
    larger; two
    objects the segmenter told apart in the same keyframes (books side by side) are never merged;
 7. the keyframe's own masks (:class:`MaskView`, when :meth:`ObjectMap.integrate` has the image) veto what the
-   clouds alone would glue: an object whose points the camera sees (in the image, depth agreeing) mostly outside a
-   detection's mask is not that detection's object, and two objects whose visible points fall in different masks
-   (or one in a mask, the other in none) are not merged. A book beside a missed or re-tracked neighbour shares
-   its 3 cm cells and lies within 10 cm of it, which eq. 22 alone takes for one object; the image tells them apart.
+   clouds alone would glue: an object whose points the camera sees (in the image, depth agreeing) mostly away
+   from a detection's mask (farther than the detector's outline error, ``mask_outline_px``) is not that
+   detection's object, and two objects whose visible points lie in different masks (or one in a mask, the other
+   in none) are not merged. A book beside a missed or re-tracked neighbour shares its 3 cm cells and lies within
+   10 cm of it, which eq. 22 alone takes for one object; the image tells them apart (objects narrower in the
+   image than the outline error are left to eq. 22).
 
 Every object keeps score-weighted class votes, its cells, points and colours, track ids, sightings and the first
 and last frame it was seen in; its centroid is the mean of its points (eq. 16).
