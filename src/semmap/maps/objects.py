@@ -34,8 +34,8 @@ keyframe and tracked detection (:class:`~semmap.types.Instances` with track ids)
    from a detection's mask (farther than the detector's outline error, ``mask_outline_px``) is not that
    detection's object, and two objects whose visible points lie in different masks (or one in a mask, the other
    in none) are not merged. A book beside a missed or re-tracked neighbour shares its 3 cm cells and lies within
-   10 cm of it, which eq. 22 alone takes for one object; the image tells them apart (objects narrower in the
-   image than the outline error are left to eq. 22).
+   10 cm of it, which eq. 22 alone takes for one object; the image tells them apart (objects a few outline
+   errors wide in the image, ``min_width_outlines``, are left to eq. 22).
 
 Every object keeps score-weighted class votes, its cells, points and colours, track ids, sightings and the first
 and last frame it was seen in; its centroid is the mean of its points (eq. 16).
@@ -99,10 +99,13 @@ class ObjectMapParams:
     #: an object is a detection's only when at least this share of its visible points falls inside the mask ...
     mask_share: float = 0.5
     #: ... or within this many pixels of it (a detector's outline is that far off: the oracle's maskrcnn-like
-    #: moves outlines by up to 2 px; objects narrower than this in the image are not told apart) ...
+    #: moves outlines by up to 2 px) ...
     mask_outline_px: int = 2
-    #: ... judged when the camera sees at least this many of its points (fewer: out of view, eq. 22 decides)
+    #: ... judged when the camera sees at least this many of its points (fewer: out of view, eq. 22 decides) and
+    #: they span at least this many outline errors across, both ways (narrower: a far book's 4 px spine, which an
+    #: outline 2 px off cannot tell from its neighbour's; eq. 22 decides)
     min_visible_points: int = 10
+    min_width_outlines: float = 4.0
 
     def __post_init__(self) -> None:
         if min(self.voxel, self.overlap_voxel, self.centroid_distance, self.overlap_threshold) <= 0:
@@ -111,9 +114,11 @@ class ObjectMapParams:
             raise ConfigError("object map: pixel_stride, min_points and min_sightings must be >= 1")
         if not 0 <= self.min_depth < self.max_depth:
             raise ConfigError(f"object map: depth range [{self.min_depth}, {self.max_depth}] is empty")
-        if not 0 <= self.mask_share <= 1 or self.min_visible_points < 1 or self.mask_outline_px < 0:
+        if not 0 <= self.mask_share <= 1 or self.min_visible_points < 1 or self.mask_outline_px < 0 or \
+                self.min_width_outlines < 0:
             raise ConfigError(f"object map: mask_share {self.mask_share} must lie in [0, 1] and "
-                              f"min_visible_points {self.min_visible_points} >= 1, mask_outline_px >= 0")
+                              f"min_visible_points {self.min_visible_points} >= 1, mask_outline_px and "
+                              "min_width_outlines >= 0")
         if len(self.weights) != 3 or min(self.weights) < 0:
             raise ConfigError(f"object map: eq. 22 needs three non-negative weights, got {self.weights}")
 
@@ -207,10 +212,11 @@ class MaskView:
     T_world_cam: np.ndarray  # (4, 4)
     n: int  # detections
 
-    def masks_hit(self, points: np.ndarray, outline_px: int = 0) -> tuple[np.ndarray, int]:
+    def masks_hit(self, points: np.ndarray, outline_px: int = 0) -> tuple[np.ndarray, int, float]:
         """Where the camera sees ``points`` (world) -- inside the image, in front, the depth image agreeing with
         their depth (not hidden, not a hole): per detection id how many fall on its mask or within ``outline_px``
-        pixels of it (a point near two masks counts for both; id 0: points near no mask), and how many it sees."""
+        pixels of it (a point near two masks counts for both; id 0: points near no mask), how many it sees, and
+        how wide they lie in the image (pixels, the smaller of the 5-95 % spans across and down)."""
         pts = np.asarray(points, np.float64)[::max(1, -(-len(points) // MAX_PROJECTED))]
         R, t = self.T_world_cam[:3, :3], self.T_world_cam[:3, 3]
         cam = (pts - t) @ R
@@ -233,7 +239,9 @@ class MaskView:
         first[:, 1:] = near[:, 1:] != near[:, :-1]  # each id once per point
         hits = np.bincount(near[first & (near > 0)], minlength=self.n + 1)
         hits[0] = int(np.sum(near[:, -1] == 0))  # sorted: the largest id of the five is 0, no mask near
-        return hits, len(u)
+        width = 0.0 if len(u) == 0 else float(min(np.subtract(*np.percentile(u, [95, 5])),
+                                                  np.subtract(*np.percentile(v, [95, 5])))) + 1.0
+        return hits, len(u), width
 
 
 class ObjectMap:
@@ -439,12 +447,15 @@ class ObjectMap:
 
     def _visible_hits(self, obj: MapObject) -> tuple[np.ndarray, int] | None:
         """:meth:`MaskView.masks_hit` of ``obj``'s points in the keyframe being integrated; None without a view or
-        when the camera sees fewer than ``min_visible_points`` of them (cached per keyframe and stage)."""
+        when the camera sees fewer than ``min_visible_points`` of them or sees them narrower than
+        ``min_width_outlines`` outline errors (cached per keyframe and stage)."""
         if self._view is None:
             return None
         if obj.id not in self._hits:
-            hits, seen = self._view.masks_hit(obj.points, self.params.mask_outline_px)
-            self._hits[obj.id] = (hits, seen) if seen >= self.params.min_visible_points else None
+            p = self.params
+            hits, seen, width = self._view.masks_hit(obj.points, p.mask_outline_px)
+            judged = seen >= p.min_visible_points and width >= p.min_width_outlines * max(p.mask_outline_px, 1)
+            self._hits[obj.id] = (hits, seen) if judged else None
         return self._hits[obj.id]
 
     def _mask_says_apart(self, obj: MapObject, detection_id: int) -> bool:
