@@ -106,6 +106,10 @@ class ObjectMapParams:
     #: outline 2 px off cannot tell from its neighbour's; eq. 22 decides)
     min_visible_points: int = 10
     min_width_outlines: float = 4.0
+    #: ... for objects at most this large (m, the longest side of their bounds): only neighbours within a few
+    #: centroid distances of each other can be glued by eq. 22, and a large object's few visible points (its far
+    #: side hidden) are too easily its mask's bleed onto the floor behind
+    mask_check_max_size: float = 0.4
 
     def __post_init__(self) -> None:
         if min(self.voxel, self.overlap_voxel, self.centroid_distance, self.overlap_threshold) <= 0:
@@ -449,7 +453,7 @@ class ObjectMap:
         """:meth:`MaskView.masks_hit` of ``obj``'s points in the keyframe being integrated; None without a view or
         when the camera sees fewer than ``min_visible_points`` of them or sees them narrower than
         ``min_width_outlines`` outline errors (cached per keyframe and stage)."""
-        if self._view is None:
+        if self._view is None or float(np.max(obj.hi - obj.lo)) > self.params.mask_check_max_size:
             return None
         if obj.id not in self._hits:
             p = self.params
