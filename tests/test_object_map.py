@@ -223,3 +223,26 @@ def test_the_keyframes_masks_keep_a_book_from_joining_its_missed_neighbour():
             for o in omap.objects.values():
                 assert max(_inside(o.points, b, 0.01).mean() for b in boxes) > 0.95
     assert counts == {False: 1, True: 2}
+
+
+def test_mask_view_counts_only_points_the_camera_sees_and_allows_the_outline_error():
+    from semmap.maps.objects import MaskView
+    from semmap.types import CameraIntrinsics
+
+    cam = CameraIntrinsics(40, 30, 40.0, 40.0, 19.5, 14.5)
+    depth = np.full((30, 40), 2.0, np.float32)
+    depth[:, 30:] = 0.0  # a hole
+    ids = np.zeros((30, 40), np.int32)
+    ids[10:20, 10:20] = 1
+    view = MaskView(ids, depth, cam, np.eye(4), 1)
+
+    def at(u, v, z):  # the world point that projects to pixel (u, v) at depth z (camera = world)
+        return np.array([(u - cam.cx) / cam.fx * z, (v - cam.cy) / cam.fy * z, z])
+
+    pts = np.array([at(15, 15, 2.0), at(21, 15, 2.0), at(25, 15, 2.0),  # in the mask, 2 px beside it, 6 px away
+                    at(15, 15, 3.0),  # behind the surface the depth image shows: hidden
+                    at(35, 15, 2.0)])  # on a hole: not seen
+    hits, seen, _ = view.masks_hit(pts, outline_px=0)
+    assert seen == 3 and hits.tolist() == [2, 1]
+    hits, seen, _ = view.masks_hit(pts, outline_px=2)
+    assert seen == 3 and hits.tolist() == [1, 2]  # the point 2 px off the mask counts for it
