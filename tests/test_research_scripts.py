@@ -6,6 +6,7 @@ pose-list reading, colour-camera move and rotation comparison of
 from __future__ import annotations
 
 import importlib.util
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -178,3 +179,18 @@ def test_sfm_reference_says_when_the_sequence_is_not_in_the_file(sfm_reference, 
 def test_sfm_reference_says_when_the_file_cannot_be_read(sfm_reference, tmp_path) -> None:
     with pytest.raises(FormatError, match=r"missing\.txt: cannot read the pose list"):
         sfm_reference.read_pose_list(tmp_path / "missing.txt", "seq-01")
+
+
+def test_segmentation_grid_agreement_pairs_the_same_things_of_two_label_sets():
+    """``scripts/segmentation_grid.py``: PASCAL's chair / diningtable against semmap's chair / table+desk."""
+    spec = importlib.util.spec_from_file_location("_script_segmentation_grid", SCRIPTS.parent / "segmentation_grid.py")
+    grid = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = grid  # its dataclass looks its module up
+    spec.loader.exec_module(grid)
+    voc = ("background", "chair", "diningtable")
+    ours = ("unknown", "wall", "table", "chair", "desk")
+    a = np.array([[1, 1, 2, 2, 0]])  # chair chair diningtable diningtable background
+    b = np.array([[3, 1, 2, 4, 3]])  # chair wall table desk chair
+    assert grid.pairs(voc, ours) == ["chair ~ chair", "diningtable ~ table/desk"]
+    rows = grid.agreement(a, b, voc, ours)  # intersection, pixels of a, pixels of b
+    assert rows.tolist() == [[1, 2, 2], [2, 2, 2]]
