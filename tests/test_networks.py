@@ -234,6 +234,10 @@ def test_shipped_weights_match_their_manifest() -> None:
         assert not set(manifest["data"]["train"]["scene_seeds"]) & set(range(10))  # test scenes are seeds 0-9
     assert total <= 60 * 1024 * 1024
     assert demo_network() == manifest["demo"]["network"]
+    # the demo's network is the rule's choice (scripts/ship_weights.py): the best test MIoU per ms on ONNX Runtime
+    onnx = {n: e["test"]["onnx"] for n, e in manifest["networks"].items() if "onnx" in e.get("test", {})}
+    assert manifest["demo"]["network"] == max(onnx, key=lambda n: onnx[n]["miou"] / onnx[n]["ms_per_frame"])
+    assert manifest["demo"]["miou"] == onnx[manifest["demo"]["network"]]["miou"]
 
 
 def test_demo_segments_with_the_shipped_network(tmp_path) -> None:

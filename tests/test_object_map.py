@@ -198,3 +198,51 @@ def test_object_files_round_trip(arc_frames, tmp_path):
     (tmp_path / "cut.ply").write_bytes((tmp_path / "objects.ply").read_bytes()[:-5])
     with pytest.raises(FormatError, match="truncated"):
         read_objects_ply(tmp_path / "cut.ply")
+
+
+def test_the_keyframes_masks_keep_a_book_from_joining_its_missed_neighbour():
+    """Two books 5 mm apart; the first keyframe's detector finds only the left one, the second only the right one
+    (the left missed): the clouds alone (close centroids, shared 3 cm cells) glue the right book onto the left
+    one's object; the second keyframe's image sees the left book's points outside the right one's mask."""
+    from object_helpers import box_frames
+    from semmap.types import CameraIntrinsics
+
+    book = INDOOR_LABELS.id_of("book")
+    boxes = [(np.array([0.0, 0.0, 0.8]), np.array([0.2, 0.04, 1.05])),
+             (np.array([0.0, 0.045, 0.8]), np.array([0.2, 0.085, 1.05]))]  # spines towards the camera
+    cam = CameraIntrinsics(320, 240, 260.0, 260.0, 159.5, 119.5)
+    frames = box_frames(boxes, [book, book], 2, radius=1.0, height=1.0, arc_deg=10, start_deg=-5, cam=cam)
+    counts = {}
+    for check in (False, True):
+        omap = ObjectMap(INDOOR_LABELS, ObjectMapParams(pixel_stride=1, mask_check=check))
+        for f, shown in zip(frames, (1, 2), strict=True):
+            inst = Instances.from_id_image((f.instances == shown).astype(np.int32), [book], [1.0])
+            omap.integrate(inst, f.depth, f.rgb, f.intrinsics, f.T_world_cam, f.index)
+        counts[check] = len(omap.objects)
+        if check:  # each object's points lie on one book
+            for o in omap.objects.values():
+                assert max(_inside(o.points, b, 0.01).mean() for b in boxes) > 0.95
+    assert counts == {False: 1, True: 2}
+
+
+def test_mask_view_counts_only_points_the_camera_sees_and_allows_the_outline_error():
+    from semmap.maps.objects import MaskView
+    from semmap.types import CameraIntrinsics
+
+    cam = CameraIntrinsics(40, 30, 40.0, 40.0, 19.5, 14.5)
+    depth = np.full((30, 40), 2.0, np.float32)
+    depth[:, 30:] = 0.0  # a hole
+    ids = np.zeros((30, 40), np.int32)
+    ids[10:20, 10:20] = 1
+    view = MaskView(ids, depth, cam, np.eye(4), 1)
+
+    def at(u, v, z):  # the world point that projects to pixel (u, v) at depth z (camera = world)
+        return np.array([(u - cam.cx) / cam.fx * z, (v - cam.cy) / cam.fy * z, z])
+
+    pts = np.array([at(15, 15, 2.0), at(21, 15, 2.0), at(25, 15, 2.0),  # in the mask, 2 px beside it, 6 px away
+                    at(15, 15, 3.0),  # behind the surface the depth image shows: hidden
+                    at(35, 15, 2.0)])  # on a hole: not seen
+    hits, seen, _ = view.masks_hit(pts, outline_px=0)
+    assert seen == 3 and hits.tolist() == [2, 1]
+    hits, seen, _ = view.masks_hit(pts, outline_px=2)
+    assert seen == 3 and hits.tolist() == [1, 2]  # the point 2 px off the mask counts for it

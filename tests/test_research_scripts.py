@@ -7,6 +7,7 @@ pose-list reading, colour-camera move and rotation comparison of
 from __future__ import annotations
 
 import importlib.util
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -224,3 +225,18 @@ def test_counterfactual_gain_is_zero_when_the_map_takes_every_network_label(loss
     mapped = np.array([1, 1, 2, 2])  # right everywhere
     assert loss_check.counterfactual_gain(gt, net, mapped, np.ones(4, bool)) == 0.0
     assert loss_check.counterfactual_gain(gt, net, mapped, np.zeros(4, bool)) > 0.4
+
+
+def test_segmentation_grid_agreement_pairs_the_same_things_of_two_label_sets():
+    """``scripts/segmentation_grid.py``: PASCAL's chair / diningtable against semmap's chair / table+desk."""
+    spec = importlib.util.spec_from_file_location("_script_segmentation_grid", SCRIPTS.parent / "segmentation_grid.py")
+    grid = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = grid  # its dataclass looks its module up
+    spec.loader.exec_module(grid)
+    voc = ("background", "chair", "diningtable")
+    ours = ("unknown", "wall", "table", "chair", "desk")
+    a = np.array([[1, 1, 2, 2, 0]])  # chair chair diningtable diningtable background
+    b = np.array([[3, 1, 2, 4, 3]])  # chair wall table desk chair
+    assert grid.pairs(voc, ours) == ["chair ~ chair", "diningtable ~ table/desk"]
+    rows = grid.agreement(a, b, voc, ours)  # intersection, pixels of a, pixels of b
+    assert rows.tolist() == [[1, 2, 2], [2, 2, 2]]

@@ -28,7 +28,14 @@ keyframe and tracked detection (:class:`~semmap.types.Instances` with track ids)
    hold another side of the object, ``M`` is the share of the smaller cloud's cells the larger one has, at the
    overlap cell or at the coarser ``merge_voxel`` (the paper's octree of eq. 21, one level up), whichever is
    larger; two
-   objects the segmenter told apart in the same keyframes (books side by side) are never merged.
+   objects the segmenter told apart in the same keyframes (books side by side) are never merged;
+7. the keyframe's own masks (:class:`MaskView`, when :meth:`ObjectMap.integrate` has the image) veto what the
+   clouds alone would glue: an object whose points the camera sees (in the image, depth agreeing) mostly away
+   from a detection's mask (farther than the detector's outline error, ``mask_outline_px``) is not that
+   detection's object, and two objects whose visible points lie in different masks (or one in a mask, the other
+   in none) are not merged. A book beside a missed or re-tracked neighbour shares its 3 cm cells and lies within
+   10 cm of it, which eq. 22 alone takes for one object; the image tells them apart (objects a few outline
+   errors wide in the image, ``min_width_outlines``, are left to eq. 22).
 
 Every object keeps score-weighted class votes, its cells, points and colours, track ids, sightings and the first
 and last frame it was seen in; its centroid is the mean of its points (eq. 16).
@@ -87,6 +94,22 @@ class ObjectMapParams:
     #: ... and keyframes it must have been mapped from: a piece of a large object seen in one keyframe only
     #: (a table's corner at the image border, tracked for a few frames) is not another table
     min_keyframes: int = 2
+    #: check association and merging against the keyframe's masks (:class:`MaskView`; step 7 of the module)
+    mask_check: bool = True
+    #: an object is a detection's only when at least this share of its visible points falls inside the mask ...
+    mask_share: float = 0.5
+    #: ... or within this many pixels of it (a detector's outline is that far off: the oracle's maskrcnn-like
+    #: moves outlines by up to 2 px) ...
+    mask_outline_px: int = 2
+    #: ... judged when the camera sees at least this many of its points (fewer: out of view, eq. 22 decides) and
+    #: they span at least this many outline errors across, both ways (narrower: a far book's 4 px spine, which an
+    #: outline 2 px off cannot tell from its neighbour's; eq. 22 decides)
+    min_visible_points: int = 10
+    min_width_outlines: float = 4.0
+    #: ... for objects at most this large (m, the longest side of their bounds): only neighbours within a few
+    #: centroid distances of each other can be glued by eq. 22, and a large object's few visible points (its far
+    #: side hidden) are too easily its mask's bleed onto the floor behind
+    mask_check_max_size: float = 0.4
 
     def __post_init__(self) -> None:
         if min(self.voxel, self.overlap_voxel, self.centroid_distance, self.overlap_threshold) <= 0:
@@ -95,6 +118,11 @@ class ObjectMapParams:
             raise ConfigError("object map: pixel_stride, min_points and min_sightings must be >= 1")
         if not 0 <= self.min_depth < self.max_depth:
             raise ConfigError(f"object map: depth range [{self.min_depth}, {self.max_depth}] is empty")
+        if not 0 <= self.mask_share <= 1 or self.min_visible_points < 1 or self.mask_outline_px < 0 or \
+                self.min_width_outlines < 0:
+            raise ConfigError(f"object map: mask_share {self.mask_share} must lie in [0, 1] and "
+                              f"min_visible_points {self.min_visible_points} >= 1, mask_outline_px and "
+                              "min_width_outlines >= 0")
         if len(self.weights) != 3 or min(self.weights) < 0:
             raise ConfigError(f"object map: eq. 22 needs three non-negative weights, got {self.weights}")
 
@@ -172,6 +200,54 @@ class CameraClouds:
         return len(self.class_ids)
 
 
+#: a projected point is seen when the depth image holds it within this much (m) plus VISIBLE_REL of its depth
+VISIBLE_ABS, VISIBLE_REL = 0.03, 0.02
+#: points of an object projected per check at most (every k-th beyond)
+MAX_PROJECTED = 4000
+
+
+@dataclass(frozen=True)
+class MaskView:
+    """One keyframe's detection masks and depth image from its pose: where a map object's points fall in it."""
+
+    ids: np.ndarray  # (H, W) detection index + 1 per pixel (0: no detection)
+    depth: np.ndarray  # (H, W) metres, 0 = none
+    intrinsics: CameraIntrinsics
+    T_world_cam: np.ndarray  # (4, 4)
+    n: int  # detections
+
+    def masks_hit(self, points: np.ndarray, outline_px: int = 0) -> tuple[np.ndarray, int, float]:
+        """Where the camera sees ``points`` (world) -- inside the image, in front, the depth image agreeing with
+        their depth (not hidden, not a hole): per detection id how many fall on its mask or within ``outline_px``
+        pixels of it (a point near two masks counts for both; id 0: points near no mask), how many it sees, and
+        how wide they lie in the image (pixels, the smaller of the 5-95 % spans across and down)."""
+        pts = np.asarray(points, np.float64)[::max(1, -(-len(points) // MAX_PROJECTED))]
+        R, t = self.T_world_cam[:3, :3], self.T_world_cam[:3, 3]
+        cam = (pts - t) @ R
+        K = self.intrinsics
+        z = cam[:, 2]
+        front = z > 1e-3
+        u = np.round(K.fx * cam[front, 0] / z[front] + K.cx).astype(np.int64)
+        v = np.round(K.fy * cam[front, 1] / z[front] + K.cy).astype(np.int64)
+        z = z[front]
+        inside = (u >= 0) & (u < K.width) & (v >= 0) & (v < K.height)
+        u, v, z = u[inside], v[inside], z[inside]
+        d = self.depth[v, u]
+        seen = (d > 0) & (np.abs(d - z) <= VISIBLE_ABS + VISIBLE_REL * z)
+        u, v = u[seen], v[seen]
+        r = int(outline_px)
+        near = np.stack([self.ids[np.clip(v + dv, 0, K.height - 1), np.clip(u + du, 0, K.width - 1)]
+                         for du, dv in ((0, 0), (-r, 0), (r, 0), (0, -r), (0, r))], axis=1)
+        near.sort(axis=1)
+        first = np.ones(near.shape, bool)
+        first[:, 1:] = near[:, 1:] != near[:, :-1]  # each id once per point
+        hits = np.bincount(near[first & (near > 0)], minlength=self.n + 1)
+        hits[0] = int(np.sum(near[:, -1] == 0))  # sorted: the largest id of the five is 0, no mask near
+        width = 0.0 if len(u) == 0 else float(min(np.subtract(*np.percentile(u, [95, 5])),
+                                                  np.subtract(*np.percentile(v, [95, 5])))) + 1.0
+        return hits, len(u), width
+
+
 class ObjectMap:
     """Objects accumulated over keyframes (see the module docstring); ``integrate`` once per keyframe."""
 
@@ -186,6 +262,8 @@ class ObjectMap:
         self.points_after_sor = 0
         self.merged_masks = 0  # sightings left out because they covered several objects
         self.track_frames: dict[int, int] = {}  # track id -> tracked frames it appeared in
+        self._view: MaskView | None = None  # the keyframe being integrated, when its masks are known
+        self._hits: dict[int, tuple[np.ndarray, int] | None] = {}
 
     # ------------------------------------------------------------------ queries
     def count_track_frames(self, track_ids: np.ndarray) -> None:
@@ -233,12 +311,18 @@ class ObjectMap:
     def integrate(self, instances: Instances, depth: np.ndarray, rgb: np.ndarray, intrinsics: CameraIntrinsics,
                   T_world_cam: np.ndarray, frame_index: int) -> np.ndarray:
         """Add one keyframe's tracked detections; returns the object id each joined (0: too few points)."""
-        return self.integrate_clouds(self.extract(instances, depth, rgb, intrinsics), T_world_cam, frame_index)
+        view = MaskView(np.asarray(instances.ids), np.asarray(depth), intrinsics,
+                        np.asarray(T_world_cam, np.float64), len(instances)) if self.params.mask_check else None
+        return self.integrate_clouds(self.extract(instances, depth, rgb, intrinsics), T_world_cam, frame_index,
+                                     view=view)
 
-    def integrate_clouds(self, clouds: CameraClouds, T_world_cam: np.ndarray, frame_index: int) -> np.ndarray:
-        """Add one keyframe's filtered detection clouds seen from ``T_world_cam`` (see :meth:`integrate`)."""
+    def integrate_clouds(self, clouds: CameraClouds, T_world_cam: np.ndarray, frame_index: int, *,
+                         view: MaskView | None = None) -> np.ndarray:
+        """Add one keyframe's filtered detection clouds seen from ``T_world_cam`` (see :meth:`integrate`); ``view``
+        (its masks and depth) lets the image veto associations and merges (module step 7)."""
         sightings = self.place(clouds, T_world_cam)
         self.keyframes += 1
+        self._view, self._hits = view, {}
         assigned = np.zeros(clouds.n, np.int64)
         touched: list[int] = []
         matches = self._associate(sightings)
@@ -251,8 +335,10 @@ class ObjectMap:
             assigned[s.detection] = obj.id
             touched.append(obj.id)
         self._index()
+        self._hits = {}  # the touched objects now hold this keyframe's points
         for obj_id in dict.fromkeys(touched):
             self._merge_around(obj_id)
+        self._view, self._hits = None, {}
         return np.array([self.resolve(int(i)) if i else 0 for i in assigned], np.int64)
 
     def extract(self, instances: Instances, depth: np.ndarray, rgb: np.ndarray,
@@ -345,6 +431,8 @@ class ObjectMap:
                 self.merged_masks += 1
                 continue
             for obj in candidates:
+                if self._mask_says_apart(obj, s.detection + 1):
+                    continue
                 same = s.track_id > 0 and s.track_id in obj.track_ids
                 dist = float(np.linalg.norm(obj.centroid - s.centroid))
                 overlap = max(overlap_iou(s.cells, obj.last_cells), overlap_share(s.cells, obj.cells))
@@ -360,6 +448,40 @@ class ObjectMap:
             gain[i, col[o]] = score
         rows, cols = linear_sum_assignment(-gain)
         return {int(r): self.objects[obj_ids[c]] for r, c in zip(rows, cols, strict=True) if gain[r, c] > 0}
+
+    def _visible_hits(self, obj: MapObject) -> tuple[np.ndarray, int] | None:
+        """:meth:`MaskView.masks_hit` of ``obj``'s points in the keyframe being integrated; None without a view or
+        when the camera sees fewer than ``min_visible_points`` of them or sees them narrower than
+        ``min_width_outlines`` outline errors (cached per keyframe and stage)."""
+        if self._view is None or float(np.max(obj.hi - obj.lo)) > self.params.mask_check_max_size:
+            return None
+        if obj.id not in self._hits:
+            p = self.params
+            hits, seen, width = self._view.masks_hit(obj.points, p.mask_outline_px)
+            judged = seen >= p.min_visible_points and width >= p.min_width_outlines * max(p.mask_outline_px, 1)
+            self._hits[obj.id] = (hits, seen) if judged else None
+        return self._hits[obj.id]
+
+    def _mask_says_apart(self, obj: MapObject, detection_id: int) -> bool:
+        """Whether the camera sees most of ``obj`` away from the mask ``detection_id`` (beyond its outline's
+        error): that detection is not it."""
+        found = self._visible_hits(obj)
+        return found is not None and found[0][detection_id] < self.params.mask_share * found[1]
+
+    def _seen_in(self, obj: MapObject) -> int | None:
+        """The one mask (detection id) most of ``obj``'s visible points fall on or near; 0 when most fall near no
+        mask; None when it is not seen, or not clearly in one place."""
+        found = self._visible_hits(obj)
+        if found is None:
+            return None
+        hits, seen = found
+        places = np.flatnonzero(hits >= self.params.mask_share * seen)
+        return int(places[0]) if len(places) == 1 else None
+
+    def _masks_tell_apart(self, a: MapObject, b: MapObject) -> bool:
+        """Whether the keyframe sees the two objects in different masks (one possibly in none): two things."""
+        in_a, in_b = self._seen_in(a), self._seen_in(b)
+        return in_a is not None and in_b is not None and in_a != in_b
 
     def _spans_several(self, s: Sighting, candidates: list[MapObject]) -> bool:
         """Whether the sighting covers most of two or more objects of its class: a mask that merged neighbours
@@ -437,6 +559,8 @@ class ObjectMap:
                 continue
             if len(obj.keyframes & other.keyframes) >= MIN_SEEN_APART:
                 continue  # the segmenter told them apart in the same images: two objects side by side
+            if self._masks_tell_apart(obj, other):
+                continue
             same = bool(obj.track_ids & other.track_ids)
             dist = float(np.linalg.norm(obj.centroid - other.centroid))
             overlap = overlap_containment(obj.cells, other.cells)
@@ -465,6 +589,7 @@ class ObjectMap:
         keep.coarse = sorted_union(keep.coarse, gone.coarse)
         del self.objects[gone.id]
         self.merged_into[gone.id] = keep.id
+        self._hits.pop(keep.id, None)  # it holds more points now
 
 
 def outlier_mask(mean_distance: np.ndarray, groups: np.ndarray, n_groups: int, k: float) -> np.ndarray:
