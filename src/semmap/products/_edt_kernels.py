@@ -152,11 +152,11 @@ def _push(queue, head_tail, inq, c):
 
 
 @nb.njit(cache=True)
-def brushfire_update(occupied, dist2, site, added, removed, max_d2, queue, inq, lower, seeded):
+def brushfire_update(occupied, dist2, site, added, removed, max_d2, queue, inq, lower):
     """Update ``dist2`` (squared voxel distance to the nearest occupied voxel, flat) and ``site`` (its flat index,
     -1 = none within ``max_d2``) in place after ``added`` voxels became occupied and ``removed`` ones stopped being
     occupied (``occupied``, (nx, ny, nz) bool, already holds the new state). ``queue``/``lower`` (n, ``site``'s
-    dtype) and ``inq``/``seeded`` (n bool, all False) are scratch, left all False. Returns the voxels visited."""
+    dtype) and ``inq`` (n bool, all False) are scratch, ``inq`` left all False. Returns the voxels visited."""
     nx, ny, nz = occupied.shape
     syz = ny * nz
     inv_syz, inv_nz = 1.0 / syz, 1.0 / nz
@@ -164,7 +164,8 @@ def brushfire_update(occupied, dist2, site, added, removed, max_d2, queue, inq, 
     n = occ.shape[0]
     ht = np.zeros(2, np.int64)
     visited = 0
-    # raise: every voxel whose nearest site was removed forgets it; its neighbours with live sites re-seed
+    # raise: every voxel whose nearest site was removed forgets it and takes the nearest live site among its
+    # neighbours' (a candidate the lower wave improves), instead of re-seeding every live neighbour
     n_lower = 0
     for c in removed:
         if not occ[c]:
@@ -177,6 +178,8 @@ def brushfire_update(occupied, dist2, site, added, removed, max_d2, queue, inq, 
         inq[c] = False
         visited += 1
         ci, cj, ck = _ijk(c, syz, nz, inv_syz, inv_nz)
+        best = INF
+        best_site = -1
         for di in range(-1, 2):
             for dj in range(-1, 2):
                 for dk in range(-1, 2):
@@ -191,17 +194,23 @@ def brushfire_update(occupied, dist2, site, added, removed, max_d2, queue, inq, 
                         dist2[q] = INF
                         site[q] = -1
                         _push(queue, ht, inq, q)
-                    elif not seeded[q]:
-                        seeded[q] = True
-                        lower[n_lower] = q
-                        n_lower += 1
-    # lower: new sites and the raise front's live neighbours spread their site outwards
+                    else:
+                        si, sj, sk = _ijk(s, syz, nz, inv_syz, inv_nz)
+                        dd = np.float32((ci - si) ** 2 + (cj - sj) ** 2 + (ck - sk) ** 2)
+                        if dd < best:
+                            best = dd
+                            best_site = s
+        if best_site >= 0 and best <= max_d2:
+            dist2[c] = best
+            site[c] = best_site
+            lower[n_lower] = c
+            n_lower += 1
+    # lower: new sites and the raised voxels that found a candidate spread their site outwards
     for c in added:
         dist2[c] = 0.0
         site[c] = c
         _push(queue, ht, inq, c)
     for t in range(n_lower):
-        seeded[lower[t]] = False
         _push(queue, ht, inq, lower[t])
     while ht[0] < ht[1]:
         c = queue[ht[0] % n]
