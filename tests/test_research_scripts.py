@@ -240,3 +240,33 @@ def test_segmentation_grid_agreement_pairs_the_same_things_of_two_label_sets():
     assert grid.pairs(voc, ours) == ["chair ~ chair", "diningtable ~ table/desk"]
     rows = grid.agreement(a, b, voc, ours)  # intersection, pixels of a, pixels of b
     assert rows.tolist() == [[1, 2, 2], [2, 2, 2]]
+
+
+def test_temperature_check_recovers_the_temperature_that_made_the_probabilities() -> None:
+    """``temperature_check.py`` fits T from a segmenter's probabilities at T = 1: labels drawn from
+    softmax(logits / 2) while the segmenter reports softmax(logits) give T near 2."""
+    check = _script("temperature_check")
+    rng = np.random.default_rng(0)
+    logits = rng.normal(0.0, 3.0, (64, 64, 6))
+    logits[..., 0] = -50.0  # class 0 is void: never predicted, never a label
+    true = np.exp(logits / 2.0)
+    true /= true.sum(axis=2, keepdims=True)
+    labels = (true.cumsum(axis=2) > rng.random((64, 64, 1))).argmax(axis=2)
+
+    class Segmenter:
+        uses_depth = False
+        temperature = 0.5
+
+        def probabilities(self, rgb, depth):
+            p = np.exp(logits / self.temperature)
+            return p / p.sum(axis=2, keepdims=True)
+
+    class Frame:
+        rgb, depth = None, None
+
+    frame = Frame()
+    frame.labels = labels
+    seg = Segmenter()
+    t = check.fitted_temperature(seg, [frame], void=0, step=1)
+    assert seg.temperature == 1.0  # it reads the probabilities uncalibrated
+    assert 1.8 < t < 2.2
