@@ -35,3 +35,12 @@ def unpack_keys(packed: np.ndarray) -> np.ndarray:
     """(N, 3) int64 keys of packed keys."""
     p = np.asarray(packed, np.int64)
     return np.stack([p & 0xFFFF, (p >> 16) & 0xFFFF, (p >> 32) & 0xFFFF], axis=-1)
+
+
+def index_in(sorted_packed: np.ndarray, packed: np.ndarray) -> np.ndarray:
+    """Position of each of the packed keys ``packed`` in ``sorted_packed`` (ascending), -1 where absent."""
+    packed = np.asarray(packed, np.int64)
+    if len(sorted_packed) == 0:
+        return np.full(len(packed), -1, np.int64)
+    pos = np.clip(np.searchsorted(sorted_packed, packed), 0, len(sorted_packed) - 1)
+    return np.where(sorted_packed[pos] == packed, pos, -1)

@@ -14,7 +14,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from semmap.keys import coords_to_keys, keys_to_coords, pack_keys
+from semmap.keys import coords_to_keys, index_in, keys_to_coords, pack_keys
 from semmap.maps.base import SemanticMap
 from semmap.types import EMPTY_LABEL, LabelSet
 
@@ -55,15 +55,6 @@ def _sorted_keys(m: SemanticMap, cloud=None) -> tuple[np.ndarray, np.ndarray, ob
     return packed[order], order, cloud
 
 
-def _find(sorted_packed: np.ndarray, keys: np.ndarray) -> np.ndarray:
-    """Index into the sorted keys of each (N, 3) key, -1 where absent."""
-    packed = pack_keys(keys)
-    if len(sorted_packed) == 0:
-        return np.full(len(packed), -1, np.int64)
-    i = np.minimum(np.searchsorted(sorted_packed, packed), len(sorted_packed) - 1)
-    return np.where(sorted_packed[i] == packed, i, -1)
-
-
 def voxel_of_vertex(vertices: np.ndarray, m: SemanticMap, cloud=None) -> tuple[np.ndarray, np.ndarray]:
     """Index into ``m.cloud()`` (``cloud``: that cloud, already made) of the occupied voxel each vertex takes its
     class from (-1: none), and whether it is the voxel holding the vertex (else the nearest occupied one of its
@@ -72,14 +63,14 @@ def voxel_of_vertex(vertices: np.ndarray, m: SemanticMap, cloud=None) -> tuple[n
     if len(sorted_packed) == 0:
         return np.full(len(vertices), -1, np.int64), np.zeros(len(vertices), bool)
     keys = coords_to_keys(vertices, m.resolution)
-    idx = _find(sorted_packed, keys)
+    idx = index_in(sorted_packed, pack_keys(keys))
     own = idx >= 0
     todo = np.flatnonzero(~own)
     best = np.full(len(todo), -1, np.int64)
     best_d = np.full(len(todo), np.inf)
     for off in NEIGHBOURS:
         nk = keys[todo] + off
-        j = _find(sorted_packed, nk)
+        j = index_in(sorted_packed, pack_keys(nk))
         d = np.linalg.norm(keys_to_coords(nk, m.resolution) - vertices[todo], axis=1)
         better = (j >= 0) & (d < best_d)
         best[better], best_d[better] = j[better], d[better]

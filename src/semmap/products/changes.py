@@ -25,7 +25,7 @@ import numpy as np
 from scipy.optimize import linear_sum_assignment
 
 from semmap.errors import ConfigError
-from semmap.keys import coords_to_keys, pack_keys
+from semmap.keys import coords_to_keys, index_in, pack_keys
 from semmap.maps.base import SemanticMap
 from semmap.perception.instances.base import thing_classes
 from semmap.products.occupancy import FREE, OCCUPIED, OccupancyVolume, map_keys, volume_of_keys
@@ -384,11 +384,8 @@ def _colour_table(m: SemanticMap) -> tuple[np.ndarray, np.ndarray]:
 
 def _mean_colour(keys: np.ndarray, table: tuple[np.ndarray, np.ndarray]) -> np.ndarray:
     """Mean colour of the map's voxels of the packed ``keys`` (NaN without any)."""
-    if len(keys) == 0 or len(table[0]) == 0:
-        return np.full(3, np.nan)
-    at = np.minimum(np.searchsorted(table[0], keys), len(table[0]) - 1)
-    hit = table[0][at] == keys
-    return table[1][at[hit]].mean(axis=0) if hit.any() else np.full(3, np.nan)
+    at = index_in(table[0], keys)
+    return table[1][at[at >= 0]].mean(axis=0) if (at >= 0).any() else np.full(3, np.nan)
 
 
 #: A cluster of appeared (disappeared) voxels of an object class (not wall, floor, ceiling: ``thing_classes``) that
@@ -404,9 +401,9 @@ def _voxel_objects(own: OccupancyVolume, other: OccupancyVolume, records: list[d
     ``other`` saw free that are objects no object record covers (``records``: the objects of both maps)."""
     from scipy import ndimage
 
-    labels, _ = ndimage.label((own.state == OCCUPIED) & (other.state == FREE), structure=np.ones((3, 3, 3)))
     if own.label_set is None:
         return []
+    labels, _ = ndimage.label((own.state == OCCUPIED) & (other.state == FREE), structure=np.ones((3, 3, 3)))
     names = list(own.label_set.names)
     things = thing_classes(own.label_set)
     side = int(np.ceil(MIN_CLUSTER_SIDE / own.resolution - 1e-9))

@@ -28,7 +28,7 @@ from semmap.errors import ConfigError, FormatError, OutputError
 from semmap.files.atomic import write_text_atomic
 from semmap.files.outputs import OutputKind, check_outputs
 from semmap.fusion.half import from_half_bits, to_half_bits
-from semmap.keys import KEY_LIMIT, coords_to_keys, keys_to_coords, pack_keys, unpack_keys
+from semmap.keys import KEY_LIMIT, coords_to_keys, index_in, keys_to_coords, pack_keys, unpack_keys
 from semmap.maps.base import SemanticMap
 from semmap.maps.registry import MapKind
 from semmap.maps.semantic_grid import CLAMP_MAX_LOGODDS, GridArrays
@@ -295,14 +295,6 @@ def resample(packed: np.ndarray, T: np.ndarray, resolution: float) -> tuple[np.n
     found = index_in(src, np.where(inside, pack_keys(keys), -1))
     ok = found >= 0
     return cand[ok], order[found[ok]]
-
-
-def index_in(sorted_keys: np.ndarray, keys: np.ndarray) -> np.ndarray:
-    """Position of each of ``keys`` in ``sorted_keys`` (ascending), -1 where absent."""
-    if len(sorted_keys) == 0:
-        return np.full(len(keys), -1, np.int64)
-    pos = np.clip(np.searchsorted(sorted_keys, keys), 0, len(sorted_keys) - 1)
-    return np.where(sorted_keys[pos] == keys, pos, -1)
 
 
 # ---------------------------------------------------------------------------------------------- evidence
