@@ -121,25 +121,25 @@ def signed_distance(occupied, outside, inside, resolution):
 
 
 @nb.njit(cache=True, inline="always")
-def _ijk(c, syz, nz, inv_syz, inv_nz):
-    """Voxel coordinates of flat index ``c`` by multiplying with float reciprocals and correcting by one step
-    (an integer division per coordinate costs more than the rest of a wave step)."""
-    i = np.int64(c * inv_syz)
-    r = np.int64(c) - i * syz
+def _divmod(a, d, inv_d):
+    """``divmod(a, d)`` for 0 <= a by multiplying with the float reciprocal ``inv_d`` and correcting by one step
+    (an integer division costs more than the rest of a wave step)."""
+    q = np.int64(a * inv_d)
+    r = np.int64(a) - q * d
     if r < 0:
-        i -= 1
-        r += syz
-    elif r >= syz:
-        i += 1
-        r -= syz
-    j = np.int64(r * inv_nz)
-    k = r - j * nz
-    if k < 0:
-        j -= 1
-        k += nz
-    elif k >= nz:
-        j += 1
-        k -= nz
+        q -= 1
+        r += d
+    elif r >= d:
+        q += 1
+        r -= d
+    return q, r
+
+
+@nb.njit(cache=True, inline="always")
+def _ijk(c, syz, nz, inv_syz, inv_nz):
+    """Voxel coordinates of flat index ``c`` of a C-ordered (nx, ny, nz) volume (``syz`` = ny * nz)."""
+    i, r = _divmod(c, syz, inv_syz)
+    j, k = _divmod(r, nz, inv_nz)
     return i, j, k
 
 
