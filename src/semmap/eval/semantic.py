@@ -12,7 +12,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from semmap.keys import coords_to_keys, pack_keys, unpack_keys
+from semmap.keys import coords_to_keys, index_in, pack_keys, unpack_keys
 from semmap.types import EMPTY_LABEL, LabelSet
 
 
@@ -108,10 +108,7 @@ def match_voxels(map_keys: np.ndarray, map_labels: np.ndarray, gt_keys: np.ndarr
     gt_sorted, gt_lab_sorted = gt_packed[order], np.asarray(gt_labels)[order]
 
     def lookup(keys: np.ndarray) -> np.ndarray:
-        packed = pack_keys(np.clip(keys, 0, 65535))
-        pos = np.clip(np.searchsorted(gt_sorted, packed), 0, max(len(gt_sorted) - 1, 0))
-        found = (gt_sorted[pos] == packed) if len(gt_sorted) else np.zeros(len(packed), bool)
-        return np.where(found, pos, -1)
+        return index_in(gt_sorted, pack_keys(np.clip(keys, 0, 65535)))
 
     idx = lookup(map_keys)
     if tolerance >= 1:
@@ -129,9 +126,7 @@ def match_voxels(map_keys: np.ndarray, map_labels: np.ndarray, gt_keys: np.ndarr
     if tolerance >= 1 and len(gt_sorted):
         map_set = np.sort(pack_keys(map_keys))
         for off in _NEIGHBOURS:  # ground truth next to a map voxel is covered too
-            probe = pack_keys(np.clip(gt_keys[order] + off, 0, 65535))
-            pos = np.clip(np.searchsorted(map_set, probe), 0, max(len(map_set) - 1, 0))
-            covered |= (map_set[pos] == probe) if len(map_set) else False
+            covered |= index_in(map_set, pack_keys(np.clip(gt_keys[order] + off, 0, 65535))) >= 0
     return VoxelMatch(pred, gt_lab_sorted[idx[matched]].astype(np.int64),
                       float(matched.mean()) if len(matched) else float("nan"),
                       float(covered.mean()) if len(covered) else float("nan"),

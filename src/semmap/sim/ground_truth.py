@@ -18,7 +18,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from semmap.errors import SimulationError
-from semmap.keys import coords_to_keys, pack_keys, unpack_keys
+from semmap.keys import coords_to_keys, index_in, pack_keys, unpack_keys
 from semmap.limits import BYTES_PER_GROUND_TRUTH_VOXEL, check_memory
 from semmap.sim.scene import Scene, SceneObject
 
@@ -51,12 +51,11 @@ class GroundTruthVoxels:
 
     def lookup(self, keys: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(class ids, instance ids) of (N, 3) keys; 0 / 0 where the voxel is not a surface voxel."""
-        q = pack_keys(np.asarray(keys))
-        table = self.packed
-        pos = np.clip(np.searchsorted(table, q), 0, max(len(table) - 1, 0))
-        hit = (table[pos] == q) if len(table) else np.zeros(len(q), bool)
-        cls = np.where(hit, self.class_ids[pos] if len(table) else 0, 0).astype(np.uint16)
-        inst = np.where(hit, self.instance_ids[pos] if len(table) else 0, 0).astype(np.int32)
+        pos = index_in(self.packed, pack_keys(np.asarray(keys)))
+        hit = pos >= 0
+        cls = np.zeros(len(pos), np.uint16)
+        inst = np.zeros(len(pos), np.int32)
+        cls[hit], inst[hit] = self.class_ids[pos[hit]], self.instance_ids[pos[hit]]
         return cls, inst
 
 
