@@ -202,7 +202,7 @@ def measure_scene(name: str, resolution: float, frames, label_set, snapshots: in
 
 def incremental_row(name: str, vol, history: list[np.ndarray], squared_edt, incremental_cls) -> dict:
     """Per-frame update from the voxels that flipped against the full unsigned transform of the same frame (mean
-    over the frames of each one's best of 3 passes), on the default threads and on one."""
+    over the frames of each one's best of 3 passes)."""
     lo = np.rint((vol.origin / vol.resolution) - 0.5).astype(np.int64) + 32768
     masks = []
     for keys in history:
@@ -214,20 +214,14 @@ def incremental_row(name: str, vol, history: list[np.ndarray], squared_edt, incr
     max_d = 2.0
     steps = len(masks) - 1
     times, full, errors = np.full(steps, np.inf), np.full(steps, np.inf), []
-    one_thread = np.full(steps, np.inf)
     flips = int(np.mean([(a != b).sum() for a, b in itertools.pairwise(masks)]))
     for repeat in range(3):  # best of 3 per frame, as timed() does for the other rows; each pass starts afresh
         inc = incremental_cls(vol.shape, vol.resolution, vol.origin, max_distance=max_d)
-        single = incremental_cls(vol.shape, vol.resolution, vol.origin, max_distance=max_d, threads=1)
         inc.update(masks[0])
-        single.update(masks[0])
         for i, mask in enumerate(masks[1:]):
             t = time.perf_counter()
             inc.update(mask)
             times[i] = min(times[i], time.perf_counter() - t)
-            t = time.perf_counter()
-            single.update(mask)
-            one_thread[i] = min(one_thread[i], time.perf_counter() - t)
             t = time.perf_counter()
             ref = np.sqrt(squared_edt(mask)) * vol.resolution
             full[i] = min(full[i], time.perf_counter() - t)
@@ -238,8 +232,7 @@ def incremental_row(name: str, vol, history: list[np.ndarray], squared_edt, incr
                 errors.append(float(np.abs(got[fin] - ref[fin]).max()) if fin.any() else 0.0)
     return {"scene": name, "product": "esdf-incremental-per-frame", "ms": round(1e3 * float(np.mean(times)), 2),
             "bytes": None, "error": max(errors), "peer": "full exact transform of the frame",
-            "peer_ms": round(1e3 * float(np.mean(full)), 2), "frames": steps, "flipped_per_frame": flips,
-            "threads": inc.threads, "ms_one_thread": round(1e3 * float(np.mean(one_thread)), 2)}
+            "peer_ms": round(1e3 * float(np.mean(full)), 2), "frames": steps, "flipped_per_frame": flips}
 
 
 def main() -> None:

@@ -174,13 +174,12 @@ def test_esdf_signed_and_queries(room):
         e.distance_at(np.array([[np.nan, 0, 0]]))
 
 
-@pytest.mark.parametrize("threads", [1, 2])
-def test_incremental_matches_full_recompute(threads):
+def test_incremental_matches_full_recompute():
     rng = np.random.default_rng(3)
     shape = (24, 20, 12)
     occ = np.zeros(shape, bool)
     occ[:, :, 1] = True
-    inc = IncrementalEsdf(shape, RES, np.zeros(3), max_distance=0.8, threads=threads)
+    inc = IncrementalEsdf(shape, RES, np.zeros(3), max_distance=0.8)
     for step in range(6):
         occ = occ.copy()
         i, j, k = rng.integers(0, 18), rng.integers(0, 15), rng.integers(2, 8)
@@ -194,30 +193,6 @@ def test_incremental_matches_full_recompute(threads):
         fin = np.isfinite(ref)
         assert np.abs(got[fin] - ref[fin]).max() <= RES / 2  # site propagation: exact but for rare cases
         assert np.abs(got[fin] - ref[fin]).mean() < 1e-3
-
-
-def test_incremental_on_two_threads_agrees_with_one():
-    """The split update hands waves across its plane: both halves end as the one-thread update does."""
-    rng = np.random.default_rng(11)
-    shape = (40, 16, 14)
-    occ = rng.random(shape) < 0.02
-    one = IncrementalEsdf(shape, RES, np.zeros(3), max_distance=1.0, threads=1)
-    two = IncrementalEsdf(shape, RES, np.zeros(3), max_distance=1.0, threads=2)
-    assert two.threads == 2
-    for _ in range(5):
-        occ = occ.copy()
-        occ.ravel()[rng.choice(occ.size, 60)] ^= True  # flips on both sides of any plane
-        one.update(occ), two.update(occ)
-        a, b = one.distance(), two.distance()
-        assert np.array_equal(np.isfinite(a), np.isfinite(b))
-        fin = np.isfinite(a)
-        assert np.abs(a[fin] - b[fin]).max() <= RES / 2
-        assert not two._scratch[1].any() and not two._pending[0].any()  # scratch left as found
-    ref = ndimage.distance_transform_edt(~occ) * RES
-    fin = ref <= 1.0
-    assert np.abs(two.distance()[fin] - ref[fin]).mean() < 1e-3
-    with pytest.raises(ConfigError, match="threads"):
-        IncrementalEsdf(shape, RES, np.zeros(3), threads=3)
 
 
 def test_export_esdf_command(room, tmp_path):

@@ -11,7 +11,6 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-import numba
 import numpy as np
 
 from semmap.errors import ConfigError
@@ -79,40 +78,32 @@ def esdf_of(volume: OccupancyVolume) -> Esdf:
 
 class IncrementalEsdf:
     """Unsigned distance to the nearest occupied voxel within ``max_distance``, updated per frame from the voxels
-    whose occupancy flipped: a wave from removed obstacles raises distances, each raised voxel taking the nearest
-    live site of its neighbours as a start, then a wave from new obstacles and those starts lowers them (site
-    propagation over 26 neighbours, as voxblox and nvblox do; distances agree with the exact transform up to rare
-    site-propagation errors below a tenth of a voxel, measured in bench_products.py). With ``threads=2`` (the
-    default where numba has two threads) the waves run on both halves of the volume at once, split at the median
-    x of the frame's flipped voxels."""
+    whose occupancy flipped: a wave from new obstacles lowers distances, one from removed obstacles raises them,
+    each raised voxel taking the nearest live site of its neighbours as a start (site propagation over 26
+    neighbours, as voxblox and nvblox do; distances agree with the exact transform up to rare site-propagation
+    errors below a tenth of a voxel, measured in bench_products.py)."""
 
     def __init__(self, shape: tuple[int, int, int], resolution: float, origin: np.ndarray,
-                 max_distance: float = 2.0, threads: int | None = None) -> None:
+                 max_distance: float = 2.0) -> None:
         n = int(np.prod(shape))
         self.resolution, self.origin = float(resolution), np.asarray(origin, np.float64)
         self.occupied = np.zeros(shape, np.bool_)
-        self.bits = max(int(max(shape) - 1).bit_length(), 1)
-        index = np.int32 if 3 * self.bits < 31 else np.int64  # half the memory traffic of the wave's random reads
+        index = np.int32 if n < 2**31 else np.int64  # half the memory traffic of the wave's random reads
         self.dist2 = np.full(n, INF, np.float32)
-        self.site = np.full(n, -1, index)  # packed coordinates of the nearest occupied voxel
+        self.site = np.full(n, -1, index)
         self.max_d2 = np.float32((max_distance / resolution) ** 2)
-        self.threads = min(2, numba.get_num_threads()) if threads is None else int(threads)
-        if self.threads not in (1, 2):
-            raise ConfigError(f"threads must be 1 or 2, got {threads}")
-        plane = int(shape[1]) * int(shape[2])
         self._scratch = (np.empty(n, index), np.zeros(n, np.bool_), np.empty(n, index))
-        self._pending = (np.zeros((2, plane), np.bool_), np.empty((2, plane), np.int64),
-                         np.empty((2, plane), np.float32), np.empty((2, plane), index))
 
     def update(self, occupied: np.ndarray) -> int:
         """Take the new occupancy (same shape, bool); returns the number of voxels the update visited."""
-        new = np.ascontiguousarray(occupied, np.bool_)
+        new = np.asarray(occupied, np.bool_)
         if new.shape != self.occupied.shape:
             raise ConfigError(f"occupancy of shape {new.shape} given to a distance field of shape "
                               f"{self.occupied.shape}")
         flipped = np.flatnonzero(new.ravel() != self.occupied.ravel())
-        on = new.ravel()[flipped]
-        return self.apply(flipped[on], flipped[~on], new)
+        added = flipped[new.ravel()[flipped]]
+        removed = flipped[~new.ravel()[flipped]]
+        return self.apply(added, removed, new)
 
     def apply(self, added: np.ndarray, removed: np.ndarray, occupied: np.ndarray | None = None) -> int:
         """Apply flat indices that became occupied (``added``) or free (``removed``)."""
@@ -122,19 +113,8 @@ class IncrementalEsdf:
             occupied.ravel()[removed] = False
         self.occupied = np.ascontiguousarray(occupied)
         index = self.site.dtype
-        added, removed = np.asarray(added, index), np.asarray(removed, index)
-        return int(brushfire_update(self.occupied, self.dist2, self.site, added, removed, self.max_d2,
-                                    *self._scratch, self.bits, self._pending, self._split(added, removed)))
-
-    def _split(self, added: np.ndarray, removed: np.ndarray) -> int | None:
-        """The x plane dividing the frame's flipped voxels in half, or None to run on one thread (one thread asked
-        for, a volume too thin, or too few flips to pay for the second)."""
-        nx = self.occupied.shape[0]
-        if self.threads < 2 or nx < 4 or len(added) + len(removed) < 32:
-            return None
-        plane = self.occupied.shape[1] * self.occupied.shape[2]
-        x = np.concatenate([added, removed]) // plane
-        return int(np.clip(np.median(x), 1, nx - 1))
+        return int(brushfire_update(self.occupied, self.dist2, self.site, np.asarray(added, index),
+                                    np.asarray(removed, index), self.max_d2, *self._scratch))
 
     def distance(self) -> np.ndarray:
         """(nx, ny, nz) float32 metres; inf beyond ``max_distance`` of every obstacle."""
