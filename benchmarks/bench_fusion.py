@@ -29,7 +29,8 @@ Two sweeps replace the presets when asked (each row keeps the fields above):
 Frames are rendered with the ``--realism`` preset (default ``kinect``: structured-light depth, a real colour camera,
 hand-held motion; ``clean`` for today's exact frames); every row names it.
 
-    python benchmarks/bench_fusion.py [--quick] [--scenes N] [--temperatures T,...] [--crf-sweep]
+    python benchmarks/bench_fusion.py [--quick] [--scenes N] [--scene-set held-out|validation]
+                                      [--temperatures T,...] [--crf-sweep]
                                       [--realism clean|kinect|hard] [--resolution M]
 
 Prints a table and, last, one JSON line:
@@ -77,6 +78,11 @@ PERFECT_RULES = (FusionRule.TOPK, FusionRule.BAYES, FusionRule.VOTE)
 #: (kind, seed, size) of the scenes.
 SCENES = (("office", 0, "medium"), ("kitchen", 1, "medium"), ("bedroom", 2, "medium"))
 QUICK_SCENES = (("office", 0, "small"), ("kitchen", 1, "small"), ("bedroom", 2, "small"))
+#: Scenes to choose settings on (``--scene-set validation``): the seeds of the networks' validation scenes
+#: (scripts/make_training_data.py, 300-303, one per kind; never trained on), at the quick size, so that a setting
+#: is picked there and checked once on the held-out scenes above.
+VALIDATION_SCENES = (("office", 300, "small"), ("kitchen", 301, "small"), ("living_room", 302, "small"),
+                     ("bedroom", 303, "small"))
 #: the simulator's preset by default (issue 34)
 DEFAULT_REALISM = "kinect"
 
@@ -417,6 +423,8 @@ def main() -> None:
     parser.add_argument("--crf-sweep", action="store_true", help="sweep the CRF settings instead of the presets")
     parser.add_argument("--crf-settings", default=None, help="only these CRF_SETTINGS names (comma-separated)")
     parser.add_argument("--first-scene", type=int, default=0, help="start at this scene (0-based)")
+    parser.add_argument("--scene-set", default="held-out", choices=("held-out", "validation"), help="the held-out "
+                        "scenes (seeds 0-2) or the validation scenes to choose settings on (seeds 300-303, quick size)")
     parser.add_argument("--realism", default=DEFAULT_REALISM, choices=REALISMS, help="the simulator's preset")
     parser.add_argument("--resolution", type=float, default=RESOLUTION, help="voxel size of the maps, the ground "
                         "truth and the ceiling (m; default 0.05)")
@@ -429,7 +437,8 @@ def main() -> None:
     n, stride = (24, 12) if args.quick else (60, 5)
     if args.frames:
         n, stride = args.frames, max(1, n * stride // args.frames)
-    scenes = (QUICK_SCENES if args.quick else SCENES)[args.first_scene:][: args.scenes]
+    scenes = VALIDATION_SCENES if args.scene_set == "validation" else QUICK_SCENES if args.quick else SCENES
+    scenes = scenes[args.first_scene:][: args.scenes]
     point_resolution = 0.03 if args.quick else 0.02  # coarser than the map's 1 cm default: 45 CRFs over its points
     t_start = time.perf_counter()
     compile_kernels(list(MapKind))
@@ -441,7 +450,7 @@ def main() -> None:
         rows = [{**r, "realism": args.realism} for r in run_sweeps(args, rendered, label_set, point_resolution)]
         print(f"total {time.perf_counter() - t_start:.0f} s")
         print(json.dumps({"bench": "fusion-sweeps", "realism": args.realism, "quick": args.quick, "frames": n,
-                          "resolution": RESOLUTION,
+                          "resolution": RESOLUTION, "scene_set": args.scene_set,
                           "point_resolution": point_resolution, "classes": len(label_set), "network": args.network,
                           "results": rows}))
         return
@@ -475,7 +484,7 @@ def main() -> None:
              "ms_per_frame", "pixel_miou_network", "pixel_miou_map", "gain", "pixel_coverage", "ceiling_voxel_accuracy",
              "unreachable_share", "temperature")
     print(json.dumps({"bench": "fusion", "realism": args.realism, "quick": args.quick, "frames": n,
-                      "resolution": RESOLUTION,
+                      "resolution": RESOLUTION, "scene_set": args.scene_set,
                       "point_resolution": point_resolution, "classes": len(label_set),
                       "results": [{k: r[k] for k in order} for r in results], "upper_bound": upper,
                       "timing": timed}))
