@@ -310,9 +310,11 @@ def table(results: list[dict], upper: dict[str, float]) -> str:
 
 # ------------------------------------------------------------------------------------------------- sweeps
 #: The CRF settings of ``--crf-sweep``: the default, SemanticFusion's, and one parameter of the default changed
-#: (``appearance_weight=4``: the default before the sweep of docs/EXPERIMENTS.md).
+#: (``appearance_weight=4``: the default before the sweep of docs/EXPERIMENTS.md); ``per-pixel``: the default
+#: kernels with a log-odds grid's unaries as summed per pixel (``refine_map(per_view=False)``, before issue 33's
+#: per-view scale).
 CRF_SETTINGS: dict[str, CrfParams] = {
-    "default": CrfParams(), "semanticfusion": SEMANTICFUSION,
+    "default": CrfParams(), "semanticfusion": SEMANTICFUSION, "per-pixel": CrfParams(),
     **{f"{key}={value:g}": replace(CrfParams(), **{key: value}) for key, value in (
         ("appearance_weight", 0.0), ("appearance_weight", 4.0), ("smoothness_weight", 0.0),
         ("smoothness_weight", 3.0), ("appearance_position_std", 0.05), ("appearance_position_std", 0.3),
@@ -365,7 +367,7 @@ def crf_sweep(fr: Frames, segmenters, label_set: LabelSet, prior, gt, viewpoint:
                          "crf_gain": 0.0})
             for setting, params in settings.items():
                 m.restore({k: np.copy(v) for k, v in fused.items()})
-                r = refine_map(m, params, viewpoint=viewpoint)
+                r = refine_map(m, params, viewpoint=viewpoint, per_view=setting != "per-pixel")
                 c = m.cloud()
                 s = evaluate_cloud_3d(c.centers, c.labels, *gt, label_set, RESOLUTION)
                 px = pixel_scores(m, fr, sems, len(label_set))
