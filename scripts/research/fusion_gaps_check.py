@@ -1,8 +1,7 @@
 """Why the default rules and the CRF fall short of issue 33's targets, on validation or held-out scenes.
 
 Renders ``bench_fusion.py``'s quick scenes (``--scene-set held-out``: office/kitchen/bedroom seeds 0-2; or
-``validation``: seeds 300-303, the kinds of the networks' validation scenes at the quick size, never trained
-on), segments each once with the shipped network (cached under ``--cache``), and at ``--resolution`` prints:
+``validation``: seeds 300-307, the networks' validation scenes at the quick size, never trained on), segments each once with the shipped network (cached under ``--cache``), and at ``--resolution`` prints:
 
 1. ``rules``: the OctoMap with ``topk`` at each Algorithm-1 confidence cap of ``--caps`` and with ``bayes``,
    and the voxel grid with ``bayes``: pixel MIoU gain over the network at the same pixels (``eval.pixels``);
