@@ -1,15 +1,18 @@
 """Why the default rules and the CRF fall short of issue 33's targets, on validation or held-out scenes.
 
 Renders ``bench_fusion.py``'s quick scenes (``--scene-set held-out``: office/kitchen/bedroom seeds 0-2; or
-``validation``: seeds 300-307, the networks' validation scenes at the quick size, never trained on), segments each once with the shipped network (cached under ``--cache``), and at ``--resolution`` prints:
+``validation``: seeds 300-307, the networks' validation scenes at the quick size, never trained on), segments
+each once with the shipped network (cached under ``--cache``), and at ``--resolution`` prints:
 
-1. ``rules``: the OctoMap with ``topk`` at each Algorithm-1 confidence cap of ``--caps`` and with ``bayes``,
-   and the voxel grid with ``bayes``: pixel MIoU gain over the network at the same pixels (``eval.pixels``);
+1. ``rules``: the OctoMap with ``topk`` at each Algorithm-1 confidence cap of ``--caps``, the voxel grid with
+   ``bayes``, and both maps with each of ``--rules``: pixel MIoU gain over the network at the same pixels;
 2. ``margins``: per map, the share of voxels whose unary gap (``-log`` of the second class minus of the first,
    as the CRF reads it) exceeds what the pairwise weights can overcome;
-3. ``crf``: the CRF gain of each map with the default parameters and each ``--crf-variants`` entry.
+3. ``crf``: the CRF gain of the OctoMap (topk) and the grid (bayes) with each ``--crf`` entry (``default``,
+   ``per-pixel``: the grid's unaries as summed per pixel, ``floor=E``, ``key=value;...``).
 
     python scripts/research/fusion_gaps_check.py --scene-set validation [--resolution 0.02] [--only rules,crf]
+        [--rules bayes,bayes-prior,vote,max] [--crf "default|per-pixel"]
 """
 
 from __future__ import annotations
