@@ -9,10 +9,13 @@ each once with the shipped network (cached under ``--cache``), and at ``--resolu
 2. ``margins``: per map, the share of voxels whose unary gap (``-log`` of the second class minus of the first,
    as the CRF reads it) exceeds what the pairwise weights can overcome;
 3. ``crf``: the CRF gain of the OctoMap (topk) and the grid (bayes) with each ``--crf`` entry (``default``,
-   ``per-pixel``: the grid's unaries as summed per pixel, ``floor=E``, ``key=value;...``).
+   ``per-pixel``: the grid's unaries as summed per pixel, ``floor=E``, ``key=value;...``);
+4. ``confidence``: the AUROC of the network's top-class confidence, and per voxel how often the plurality of
+   its views, the most confident view (``max``) and the sum of log-probabilities are right (the voxel's true
+   class: its pixels' plurality), overall and where the plurality is wrong.
 
     python scripts/research/fusion_gaps_check.py --scene-set validation [--resolution 0.02] [--only rules,crf]
-        [--rules bayes,bayes-prior,vote,max] [--crf "default|per-pixel"]
+        [--rules bayes,bayes-prior,vote,max] [--crf "default|per-pixel"] [--only confidence]
 """
 
 from __future__ import annotations
@@ -68,6 +71,37 @@ def build(fr, sems, maps: dict) -> dict:
         for m in maps.values():
             m.integrate(o)
     return maps
+
+
+def loss_check():
+    """scripts/research/fusion_loss_check.py as a module (its per-voxel selectors and AUROC)."""
+    path = Path(__file__).resolve().parent / "fusion_loss_check.py"
+    spec = importlib.util.spec_from_file_location("fusion_loss_check", path)
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
+
+
+def confidence_report(fr, sems: list[TopKProbs], resolution: float) -> dict[str, float]:
+    """How much the network's top-class confidence says (AUROC right vs wrong over labelled pixels), and per voxel
+    (every frame's points) how often the plurality of the views, the most confident view (``max``) and the sum of
+    log-probabilities (``bayes``) are the voxel's true class (its pixels' plurality)."""
+    lc = loss_check()
+    keep = [fr.true_labels(i) != 0 for i in range(len(fr.obs))]
+    gt = np.concatenate([fr.true_labels(i)[k] for i, k in enumerate(keep)])
+    labels = np.concatenate([s.labels[k] for s, k in zip(sems, keep, strict=True)]).astype(np.int64)
+    probs = np.concatenate([s.probs[k] for s, k in zip(sems, keep, strict=True)]).astype(np.float64)
+    pts = np.concatenate([o.points_world[k] for o, k in zip(fr.obs, keep, strict=True)])
+    _, inv = lc.voxel_index(pts, resolution)
+    n = int(inv.max()) + 1
+    true = lc.plurality(inv, gt, n)
+    plural = lc.plurality(inv, labels[:, 0], n) == true
+    top = lc.most_confident(inv, labels[:, 0], probs[:, 0], n) == true
+    bayes = lc.summed(inv, labels, probs, n, log=True) == true
+    return {"auroc": lc.auroc(probs[:, 0], labels[:, 0] == gt), "plurality": float(plural.mean()),
+            "max": float(top.mean()), "bayes": float(bayes.mean()),
+            "max_where_plurality_wrong": float(top[~plural].mean()),
+            "bayes_where_plurality_wrong": float(bayes[~plural].mean())}
 
 
 def margin_shares(m, limit: float) -> tuple[float, float]:
@@ -146,6 +180,13 @@ def main() -> None:
             maps[f"octomap {rule.value}"] = SemanticOctoMap(args.resolution, label_set=label_set, fusion=fusion)
             if rule != FusionRule.BAYES:
                 maps[f"grid {rule.value}"] = SemanticVoxelGrid(args.resolution, label_set=label_set, fusion=fusion)
+        if "confidence" in only:
+            c = confidence_report(fr, sems, args.resolution)
+            print(f"== {fr.name}: " + ", ".join(f"{k} {v:.3f}" for k, v in c.items()), flush=True)
+            for k, v in c.items():
+                totals.setdefault(f"confidence {k}", []).append(v)
+            if only == {"confidence"}:
+                continue
         build(fr, sems, maps)
         viewpoint = np.mean([o.origin for o in fr.obs], axis=0)
         print(f"== {fr.name} {args.realism} {args.resolution:g} m", flush=True)
