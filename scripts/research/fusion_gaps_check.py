@@ -98,10 +98,19 @@ def confidence_report(fr, sems: list[TopKProbs], resolution: float) -> dict[str,
     plural = lc.plurality(inv, labels[:, 0], n) == true
     top = lc.most_confident(inv, labels[:, 0], probs[:, 0], n) == true
     bayes = lc.summed(inv, labels, probs, n, log=True) == true
-    return {"auroc": lc.auroc(probs[:, 0], labels[:, 0] == gt), "plurality": float(plural.mean()),
+    sel = {"plurality": lc.plurality(inv, labels[:, 0], n), "max": lc.most_confident(inv, labels[:, 0], probs[:, 0], n),
+           "bayes": lc.summed(inv, labels, probs, n, log=True)}
+    mious = {f"voxel_miou_{k}": voxel_miou(true, v) for k, v in sel.items()}
+    return {**mious, "auroc": lc.auroc(probs[:, 0], labels[:, 0] == gt), "plurality": float(plural.mean()),
             "max": float(top.mean()), "bayes": float(bayes.mean()),
             "max_where_plurality_wrong": float(top[~plural].mean()),
             "bayes_where_plurality_wrong": float(bayes[~plural].mean())}
+
+
+def voxel_miou(true: np.ndarray, pred: np.ndarray) -> float:
+    """Mean over the true classes of the voxels' IoU (each class weighs alike, as pixel MIoU weighs them)."""
+    ious = [np.sum((true == c) & (pred == c)) / np.sum((true == c) | (pred == c)) for c in np.unique(true)]
+    return float(np.mean(ious))
 
 
 def margin_shares(m, limit: float) -> tuple[float, float]:
