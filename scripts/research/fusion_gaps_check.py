@@ -14,8 +14,10 @@ each once with the shipped network (cached under ``--cache``), and at ``--resolu
    its views, the most confident view (``max``) and the sum of log-probabilities are right (the voxel's true
    class: its pixels' plurality), overall and where the plurality is wrong.
 
+With ``--points M`` the rules section fuses the point map (cells of M metres) with each of ``--rules`` instead.
+
     python scripts/research/fusion_gaps_check.py --scene-set validation [--resolution 0.02] [--only rules,crf]
-        [--rules bayes,bayes-prior,vote,max] [--crf "default|per-pixel"] [--only confidence]
+        [--rules bayes,bayes-prior,vote,max] [--crf "default|per-pixel"] [--only confidence] [--points 0.03]
 """
 
 from __future__ import annotations
@@ -30,6 +32,7 @@ import numpy as np
 
 from semmap.fusion.crf import CrfParams, refine_map
 from semmap.fusion.rules import FusionParams, FusionRule
+from semmap.maps.point_map import SemanticPointMap
 from semmap.maps.semantic_octomap import SemanticOctoMap
 from semmap.maps.voxel_grid import SemanticVoxelGrid
 from semmap.perception.registry import demo_network, trained_network_segmenter
@@ -162,6 +165,8 @@ def main() -> None:
     ap.add_argument("--rules", default="bayes", help="rules besides the defaults, in both maps (comma-separated; "
                     "bayes-prior's prior: the other scenes' class frequencies)")
     ap.add_argument("--cache", default="/tmp/fusion_gaps_cache")
+    ap.add_argument("--points", type=float, default=None, help="instead of the OctoMap and the grid, the point map "
+                    "at this cell size (m) with each of --rules")
     args = ap.parse_args()
     bench.RESOLUTION = args.resolution
     scenes = bench.VALIDATION_SCENES if args.scene_set == "validation" else bench.QUICK_SCENES
@@ -184,8 +189,13 @@ def main() -> None:
                 for c in caps}
         maps["grid bayes"] = SemanticVoxelGrid(args.resolution, label_set=label_set,
                                                fusion=FusionParams(FusionRule.BAYES))
+        if args.points:  # the point map's rules only (its default bayes-prior first)
+            maps = {}
         for rule in [FusionRule(r) for r in args.rules.split(",") if r]:
             fusion = FusionParams(rule, prior=prior if rule == FusionRule.BAYES_PRIOR else None)
+            if args.points:
+                maps[f"points {rule.value}"] = SemanticPointMap(args.points, label_set=label_set, fusion=fusion)
+                continue
             maps[f"octomap {rule.value}"] = SemanticOctoMap(args.resolution, label_set=label_set, fusion=fusion)
             if rule != FusionRule.BAYES:
                 maps[f"grid {rule.value}"] = SemanticVoxelGrid(args.resolution, label_set=label_set, fusion=fusion)
