@@ -139,9 +139,9 @@ def refine_map(m, params: CrfParams, *, viewpoint: np.ndarray | None = None, per
 
     ``per_view``: a map that sums every pixel's log-probabilities (the voxel grid and the point map with ``bayes`` /
     ``bayes-prior``) enters with them divided by its points per view (``m.class_probs_per_view()``), so that
-    unaries weigh views, not pixels. Why: at 5 cm the grid's sum made 75 % of the voxels more certain than the pairwise
-    terms can ever outweigh (unary gap at the 1e-8 clip, 18.4 nats, against weights 10 + 2) and the CRF added
-    0.5 pixel-MIoU points against the OctoMap's 4.7 (docs/EXPERIMENTS.md, "The grid's CRF")."""
+    unaries weigh views, not pixels. Why: at 5 cm the grid's sum made 69-84 % of its voxels more certain than the
+    pairwise terms can ever outweigh (unary gap at the 1e-8 clip, 18.4 nats, against weights 10 + 2) and the CRF
+    added 0.5 pixel-MIoU points against the OctoMap's 4.7 (docs/EXPERIMENTS.md, "Issue 33's open gaps")."""
     t0 = time.perf_counter()
     cloud = m.cloud()
     has = cloud.labels != EMPTY_LABEL
