@@ -29,7 +29,8 @@ Two sweeps replace the presets when asked (each row keeps the fields above):
 Frames are rendered with the ``--realism`` preset (default ``kinect``: structured-light depth, a real colour camera,
 hand-held motion; ``clean`` for today's exact frames); every row names it.
 
-    python benchmarks/bench_fusion.py [--quick] [--scenes N] [--temperatures T,...] [--crf-sweep]
+    python benchmarks/bench_fusion.py [--quick] [--scenes N] [--scene-set held-out|validation]
+                                      [--temperatures T,...] [--crf-sweep]
                                       [--realism clean|kinect|hard] [--resolution M]
 
 Prints a table and, last, one JSON line:
@@ -77,6 +78,10 @@ PERFECT_RULES = (FusionRule.TOPK, FusionRule.BAYES, FusionRule.VOTE)
 #: (kind, seed, size) of the scenes.
 SCENES = (("office", 0, "medium"), ("kitchen", 1, "medium"), ("bedroom", 2, "medium"))
 QUICK_SCENES = (("office", 0, "small"), ("kitchen", 1, "small"), ("bedroom", 2, "small"))
+#: Scenes to choose settings on (``--scene-set validation``): the seeds of the networks' validation scenes
+#: (scripts/make_training_data.py, 300-307, two per kind; never trained on), at the quick size, so that a setting
+#: is picked there and checked once on the held-out scenes above.
+VALIDATION_SCENES = tuple((("office", "kitchen", "living_room", "bedroom")[i % 4], 300 + i, "small") for i in range(8))
 #: the simulator's preset by default (issue 34)
 DEFAULT_REALISM = "kinect"
 
@@ -304,9 +309,11 @@ def table(results: list[dict], upper: dict[str, float]) -> str:
 
 # ------------------------------------------------------------------------------------------------- sweeps
 #: The CRF settings of ``--crf-sweep``: the default, SemanticFusion's, and one parameter of the default changed
-#: (``appearance_weight=4``: the default before the sweep of docs/EXPERIMENTS.md).
+#: (``appearance_weight=4``: the default before the sweep of docs/EXPERIMENTS.md); ``per-pixel``: the default
+#: kernels with a log-odds grid's unaries as summed per pixel (``refine_map(per_view=False)``, before issue 33's
+#: per-view scale).
 CRF_SETTINGS: dict[str, CrfParams] = {
-    "default": CrfParams(), "semanticfusion": SEMANTICFUSION,
+    "default": CrfParams(), "semanticfusion": SEMANTICFUSION, "per-pixel": CrfParams(),
     **{f"{key}={value:g}": replace(CrfParams(), **{key: value}) for key, value in (
         ("appearance_weight", 0.0), ("appearance_weight", 4.0), ("smoothness_weight", 0.0),
         ("smoothness_weight", 3.0), ("appearance_position_std", 0.05), ("appearance_position_std", 0.3),
@@ -359,7 +366,7 @@ def crf_sweep(fr: Frames, segmenters, label_set: LabelSet, prior, gt, viewpoint:
                          "crf_gain": 0.0})
             for setting, params in settings.items():
                 m.restore({k: np.copy(v) for k, v in fused.items()})
-                r = refine_map(m, params, viewpoint=viewpoint)
+                r = refine_map(m, params, viewpoint=viewpoint, per_view=setting != "per-pixel")
                 c = m.cloud()
                 s = evaluate_cloud_3d(c.centers, c.labels, *gt, label_set, RESOLUTION)
                 px = pixel_scores(m, fr, sems, len(label_set))
@@ -417,6 +424,8 @@ def main() -> None:
     parser.add_argument("--crf-sweep", action="store_true", help="sweep the CRF settings instead of the presets")
     parser.add_argument("--crf-settings", default=None, help="only these CRF_SETTINGS names (comma-separated)")
     parser.add_argument("--first-scene", type=int, default=0, help="start at this scene (0-based)")
+    parser.add_argument("--scene-set", default="held-out", choices=("held-out", "validation"), help="the held-out "
+                        "scenes (seeds 0-2) or the validation scenes to choose settings on (seeds 300-307, quick size)")
     parser.add_argument("--realism", default=DEFAULT_REALISM, choices=REALISMS, help="the simulator's preset")
     parser.add_argument("--resolution", type=float, default=RESOLUTION, help="voxel size of the maps, the ground "
                         "truth and the ceiling (m; default 0.05)")
@@ -429,7 +438,8 @@ def main() -> None:
     n, stride = (24, 12) if args.quick else (60, 5)
     if args.frames:
         n, stride = args.frames, max(1, n * stride // args.frames)
-    scenes = (QUICK_SCENES if args.quick else SCENES)[args.first_scene:][: args.scenes]
+    scenes = VALIDATION_SCENES if args.scene_set == "validation" else QUICK_SCENES if args.quick else SCENES
+    scenes = scenes[args.first_scene:][: args.scenes]
     point_resolution = 0.03 if args.quick else 0.02  # coarser than the map's 1 cm default: 45 CRFs over its points
     t_start = time.perf_counter()
     compile_kernels(list(MapKind))
@@ -441,7 +451,7 @@ def main() -> None:
         rows = [{**r, "realism": args.realism} for r in run_sweeps(args, rendered, label_set, point_resolution)]
         print(f"total {time.perf_counter() - t_start:.0f} s")
         print(json.dumps({"bench": "fusion-sweeps", "realism": args.realism, "quick": args.quick, "frames": n,
-                          "resolution": RESOLUTION,
+                          "resolution": RESOLUTION, "scene_set": args.scene_set,
                           "point_resolution": point_resolution, "classes": len(label_set), "network": args.network,
                           "results": rows}))
         return
@@ -475,7 +485,7 @@ def main() -> None:
              "ms_per_frame", "pixel_miou_network", "pixel_miou_map", "gain", "pixel_coverage", "ceiling_voxel_accuracy",
              "unreachable_share", "temperature")
     print(json.dumps({"bench": "fusion", "realism": args.realism, "quick": args.quick, "frames": n,
-                      "resolution": RESOLUTION,
+                      "resolution": RESOLUTION, "scene_set": args.scene_set,
                       "point_resolution": point_resolution, "classes": len(label_set),
                       "results": [{k: r[k] for k in order} for r in results], "upper_bound": upper,
                       "timing": timed}))

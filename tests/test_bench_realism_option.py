@@ -63,3 +63,10 @@ def test_fusion_resolution_outside_its_range_is_refused(monkeypatch, capsys):
         fusion.main()
     assert "--resolution must be from 0.005 to 0.5 m, got 0.9" in capsys.readouterr().err
     assert fusion.RESOLUTION == 0.05  # (the refused value never became the run's voxel size)
+
+
+def test_fusion_settings_are_chosen_on_validation_scenes_apart_from_the_held_out_ones():
+    fusion = bench("bench_fusion")
+    seeds = {seed for _, seed, _ in fusion.VALIDATION_SCENES}
+    assert seeds <= set(range(300, 308))  # the networks' validation seeds (scripts/make_training_data.py)
+    assert not seeds & {seed for _, seed, _ in fusion.QUICK_SCENES + fusion.SCENES}

@@ -270,3 +270,15 @@ def test_temperature_check_recovers_the_temperature_that_made_the_probabilities(
     t = check.fitted_temperature(seg, [frame], void=0, step=1)
     assert seg.temperature == 1.0  # it reads the probabilities uncalibrated
     assert 1.8 < t < 2.2
+
+
+def test_fusion_gaps_check_measures_the_crf_unary_gap_of_each_voxel() -> None:
+    gaps = _script("fusion_gaps_check")
+
+    class Fused:
+        def class_probs(self) -> np.ndarray:  # gaps log 9 = 2.2 nats, 0, and the 1e-8 clip's 18.4
+            return np.array([[0.9, 0.1, 0.0], [0.5, 0.5, 0.0], [1.0, 0.0, 0.0]], np.float32)
+
+    share, median = gaps.margin_shares(Fused(), 2.0)
+    assert share == pytest.approx(2 / 3) and median == pytest.approx(np.log(9.0), rel=1e-5)
+    assert gaps.margin_shares(Fused(), 12.0)[0] == pytest.approx(1 / 3)

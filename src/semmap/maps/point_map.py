@@ -61,6 +61,15 @@ class SemanticPointMap(OnSemanticGrid):
         """(M, K) class distribution of each point, in :meth:`cloud` order."""
         return self.grid.class_probs(self.grid.arrays())
 
+    def points_per_view(self) -> np.ndarray:
+        """(M,) measurements each point's distribution sums per view, in :meth:`cloud` order
+        (:meth:`SemanticGrid.points_per_view`)."""
+        return self.grid.points_per_view(self.grid.arrays())
+
+    def class_probs_per_view(self) -> np.ndarray:
+        """(M, K) distributions weighing each view once (what the CRF reads), in :meth:`cloud` order."""
+        return self.grid.class_probs_per_view(self.grid.arrays())
+
     def set_class_probs(self, probs: np.ndarray, *, where: np.ndarray | None = None) -> None:
         """Replace the points' distributions (:meth:`cloud` order; only rows ``where`` is True)."""
         packed = self.grid.arrays().packed

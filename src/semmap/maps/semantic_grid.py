@@ -18,7 +18,7 @@ from typing import ClassVar
 import numpy as np
 
 from semmap.errors import ConfigError
-from semmap.fusion.dense import expand_topk
+from semmap.fusion.dense import expand_topk, logodds_to_probs
 from semmap.fusion.half import from_half_bits, to_half_bits
 from semmap.fusion.rules import FusionParams, FusionRule
 from semmap.keys import keys_to_coords, unpack_keys
@@ -327,6 +327,28 @@ class SemanticGrid:
             return self._entry.class_probs(a.set_labels, from_half_bits(a.dense) if self._half else a.dense,
                                            self.num_classes)
         return self._entry.class_probs(a.set_labels, self._set_probs_f32(a), self.num_classes)
+
+    def points_per_view(self, a: GridArrays) -> np.ndarray:
+        """(M,) float64 measurements each voxel's distribution sums per view: its points over the frames that saw
+        it for a log-odds rule (``bayes``, ``bayes-prior``: every pixel adds its log-probabilities), else 1.
+
+        Why: the pixels one frame puts in a voxel repeat one view's evidence (same object, same network, same
+        moment), so a per-pixel sum is far more certain than the views justify (at 5 cm, 100-200 pixels a frame);
+        the CRF divides the log-probabilities by this to weigh each view once, as the OctoMap fuses them. Both
+        counts saturate at 65535 (points first: the ratio then falls towards 1)."""
+        out = np.ones(a.packed.shape[0], np.float64)
+        if self._entry.layout == "logodds":
+            seen = (a.hits > 0) & (a.rgb_count > 0)
+            out[seen] = np.maximum(a.rgb_count[seen].astype(np.float64) / a.hits[seen], 1.0)
+        return out
+
+    def class_probs_per_view(self, a: GridArrays) -> np.ndarray:
+        """(M, K) class distributions with a log-odds rule's state divided by :meth:`points_per_view` (from the
+        log-odds themselves: the summed ones underflow float32 probabilities); other rules' as :meth:`class_probs`."""
+        if self._entry.layout != "logodds" or self.num_classes == 0:
+            return self.class_probs(a)
+        h = (from_half_bits(a.dense) if self._half else a.dense).astype(np.float64)
+        return logodds_to_probs(h / self.points_per_view(a)[:, None]).astype(np.float32)
 
     def set_class_probs(self, packed: np.ndarray, probs: np.ndarray) -> None:
         """Replace the class distributions of the voxels with keys ``packed`` by ``probs`` (M, K) (e.g. a CRF's

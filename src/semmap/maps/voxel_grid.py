@@ -100,6 +100,17 @@ class SemanticVoxelGrid(OnSemanticGrid):
         sel = self._occupied(a)
         return self.grid.class_probs(a.select(sel))
 
+    def points_per_view(self) -> np.ndarray:
+        """(M,) measurements each occupied voxel's distribution sums per view, in :meth:`cloud` order
+        (:meth:`SemanticGrid.points_per_view`)."""
+        a = self.grid.arrays()
+        return self.grid.points_per_view(a.select(self._occupied(a)))
+
+    def class_probs_per_view(self) -> np.ndarray:
+        """(M, K) distributions weighing each view once (what the CRF reads), in :meth:`cloud` order."""
+        a = self.grid.arrays()
+        return self.grid.class_probs_per_view(a.select(self._occupied(a)))
+
     def set_class_probs(self, probs: np.ndarray, *, where: np.ndarray | None = None) -> None:
         """Replace the distributions of the occupied voxels (:meth:`cloud` order; only rows ``where`` is True),
         e.g. by a CRF's posterior."""
