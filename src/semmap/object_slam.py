@@ -21,6 +21,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
+from scipy.spatial import cKDTree
 
 from semmap.errors import ConfigError
 from semmap.maps.objects import CameraClouds, ObjectMap, ObjectMapParams, Sighting, overlap_iou, pack_cells
@@ -47,10 +48,10 @@ class ObjectPoseParams:
     edges_per_keyframe: int = 2  #: object edges a keyframe gets at most (to the keyframes of the closest views)
     min_objects: int = 3  #: centroid pairs an edge needs (eq. 20 needs three not on a line)
     min_spread: float = 0.05  #: metres; the pairs' second principal spread must exceed this (not on a line)
-    min_overlap_points: int = 20  #: points each overlapping part needs for its centroid
-    #: metres; cells that decide which parts of two clouds overlap (the voxel filter's: with 2 or 3 cm cells the
-    #: edges' median error against the true relative pose was larger, see DESIGN)
-    overlap_cell: float = 0.01
+    min_overlap_points: int = 20  #: matched points an object needs to count in an edge
+    #: metres; ICP's match distance, shrinking over the iterations (the first takes a few cm of drift)
+    icp_distances: tuple[float, ...] = (0.05, 0.03, 0.02)
+    icp_iterations: int = 30
     #: when the tracker's relative pose leaves fewer than ``min_objects`` overlapping parts, find the overlap under
     #: the whole clouds' centroid fit instead (a drift beyond a cell)
     drift_search: bool = True
@@ -180,48 +181,44 @@ class ObjectConstrainedTracker:
 
     def _edge(self, seen_a: dict, seen_b: dict, T_a: np.ndarray, T_b: np.ndarray,
               omap: ObjectMap) -> tuple[np.ndarray, np.ndarray] | None:
-        """Eq. 20 between keyframes a and b over their shared objects' overlapping parts: ``(T_a_b, sigmas)``.
+        """Eq. 20 between keyframes a and b over their shared objects: ``(T_a_b, sigmas)``.
 
-        The overlapping parts are found under the tracker's relative pose. When that leaves fewer than
-        ``min_objects`` of them (``drift_search``), the tracker may be off by more than a cell -- exactly the edges
-        that could correct it -- so the parts are found under the fit of the whole clouds' centroids instead (the
-        pairs that agree on one rigid motion), and eq. 22 judges each pair under that pose, not the drifted one.
-        (Refining the overlap coarse to fine from the tracker's pose, 4-2-1 cm cells, was measured and not adopted:
-        the overlap centroids' fixed point lies 2-4 cm off on the kinect walk, against 1.2 cm for one round.)"""
+        The pairs eq. 22 calls one object (under the tracker's relative pose; when that leaves fewer than
+        ``min_objects`` and ``drift_search`` is on, under the fit of the whole clouds' centroids, the pairs that
+        agree on one rigid motion: a drift beyond the overlap cells) are registered by eq. 20 over their points,
+        the ICP the paper names, each point matched only within its own object (:func:`_object_icp`)."""
         p = self.params
         pairs = [(seen_a[o], seen_b[o]) for o in sorted(seen_a.keys() & seen_b.keys())]
         T_ab = invert_pose(T_a) @ T_b
-        pa, pb, _ = _overlap_centroids(pairs, T_ab, p.overlap_cell, p.min_overlap_points)
-        if len(pa) < p.min_objects and p.drift_search:
-            # the tracker's pose leaves too few overlapping parts: it may be off by more than a cell; start from
-            # the whole clouds' centroids (eq. 16), the pairs that agree on one rigid motion
-            whole_a = np.array([sa.points_cam.mean(axis=0) for sa, _ in pairs], np.float64).reshape(-1, 3)
-            whole_b = np.array([sb.points_cam.mean(axis=0) for _, sb in pairs], np.float64).reshape(-1, 3)
+        same = [(sa, sb) for sa, sb in pairs if self._one_object(sa, sb, T_ab, omap)]
+        if len(same) < p.min_objects and p.drift_search and len(pairs) >= p.min_objects:
+            whole_a = np.array([sa.points_cam.mean(axis=0) for sa, _ in pairs], np.float64)
+            whole_b = np.array([sb.points_cam.mean(axis=0) for _, sb in pairs], np.float64)
             T_whole, inliers = _robust_fit(whole_a, whole_b, p.max_residual, p.min_objects)
             if T_whole is None:
+                self.stats.pairs_rejected += len(pairs) - len(same)
                 self.stats.reject("inconsistent")
                 return None
             T_ab, pairs = T_whole, [pairs[i] for i in inliers]
-        same = [(sa, sb) for sa, sb in pairs if self._one_object(sa, sb, T_ab, omap)]
+            same = [(sa, sb) for sa, sb in pairs if self._one_object(sa, sb, T_ab, omap)]
         self.stats.pairs_rejected += len(pairs) - len(same)
         if len(same) < p.min_objects:
             self.stats.reject("few_pairs")
             return None
-        pa, pb, _ = _overlap_centroids(same, T_ab, p.overlap_cell, p.min_overlap_points)
-        if len(pa) < p.min_objects:
+        found = _object_icp(same, T_ab, p.icp_distances, p.icp_iterations, p.min_overlap_points)
+        if found is None:
             self.stats.reject("little_overlap")
             return None
-        T_ab = fit_rigid(pa, pb)  # eq. 20
-        spread = np.linalg.svd(pa - pa.mean(axis=0), compute_uv=False)
-        if spread[1] / np.sqrt(len(pa)) < p.min_spread:
-            self.stats.reject("on_a_line")
+        T_ab, offsets, centres = found
+        spread = np.linalg.svd(centres - centres.mean(axis=0), compute_uv=False)
+        if len(centres) < p.min_objects or spread[1] / np.sqrt(len(centres)) < p.min_spread:
+            self.stats.reject("on_a_line" if len(centres) >= p.min_objects else "little_overlap")
             return None
-        resid = pa - (pb @ T_ab[:3, :3].T + T_ab[:3, 3])
-        dof = max(3 * len(pa) - 6, 1)
-        sigma_pt = max(float(np.sqrt((resid**2).sum() / dof)), p.centroid_sigma_floor)
-        sig_t = sigma_pt / np.sqrt(len(pa))
-        radius = float(np.sqrt(((pa - pa.mean(axis=0)) ** 2).sum(axis=1).mean()))
-        sig_r = sigma_pt / (radius * np.sqrt(len(pa)))
+        dof = max(3 * len(offsets) - 6, 1)
+        sigma_pt = max(float(np.sqrt((offsets**2).sum() / dof)), p.centroid_sigma_floor)
+        sig_t = sigma_pt / np.sqrt(len(offsets))
+        radius = float(np.sqrt(((centres - centres.mean(axis=0)) ** 2).sum(axis=1).mean()))
+        sig_r = sigma_pt / (radius * np.sqrt(len(offsets)))
         return T_ab, np.array([sig_r] * 3 + [sig_t] * 3)
 
     def _one_object(self, sa: Sighting, sb: Sighting, T_ab: np.ndarray, omap: ObjectMap) -> bool:
@@ -241,23 +238,31 @@ def _cells(points: np.ndarray, cell: float) -> np.ndarray:
     return np.unique(pack_cells(np.floor(points / cell).astype(np.int64)))
 
 
-def _overlap_centroids(pairs: list[tuple[Sighting, Sighting]], T_ab: np.ndarray, cell: float,
-                       min_points: int) -> tuple[np.ndarray, np.ndarray, list[tuple[Sighting, Sighting]]]:
-    """Per pair, the centroids (eq. 16) of the parts of the two clouds that overlap (cells of ``cell`` both hold,
-    b's points moved into a's camera by ``T_ab``), each in its own camera; pairs whose parts have fewer than
-    ``min_points`` points are left out. Returns the centroids of a, of b, and the pairs kept."""
-    pa, pb, kept = [], [], []
-    for sa, sb in pairs:
-        qa, qb = sa.points_cam.astype(np.float64), sb.points_cam.astype(np.float64)
-        ka = pack_cells(np.floor(qa / cell).astype(np.int64))
-        kb = pack_cells(np.floor((qb @ T_ab[:3, :3].T + T_ab[:3, 3]) / cell).astype(np.int64))
-        common = np.intersect1d(ka, kb)
-        in_a, in_b = np.isin(ka, common), np.isin(kb, common)
-        if in_a.sum() >= min_points and in_b.sum() >= min_points:
-            pa.append(qa[in_a].mean(axis=0))
-            pb.append(qb[in_b].mean(axis=0))
-            kept.append((sa, sb))
-    return np.array(pa).reshape(-1, 3), np.array(pb).reshape(-1, 3), kept
+def _object_icp(pairs: list[tuple[Sighting, Sighting]], T_ab: np.ndarray, distances: tuple[float, ...],
+                iterations: int, min_points: int) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+    """Eq. 20 over the points of shared objects from ``T_ab`` on (point-to-point ICP, b's points into a's
+    camera): each point of b is matched to the nearest point of the same object in a, within a distance that
+    shrinks through ``distances`` over the iterations. Returns the pose, each object's mean offset after it (its
+    residual, as a centroid pair's) and a's matched parts' centroids; None when fewer than three objects have
+    ``min_points`` matches."""
+    trees = [cKDTree(sa.points_cam.astype(np.float64)) for sa, _ in pairs]
+    qa = [sa.points_cam.astype(np.float64) for sa, _ in pairs]
+    qb = [sb.points_cam.astype(np.float64) for _, sb in pairs]
+    T = T_ab
+    for it in range(iterations):
+        limit = distances[min(it * len(distances) // iterations, len(distances) - 1)]
+        src, dst = [], []
+        for tree, pa, pb in zip(trees, qa, qb, strict=True):
+            d, idx = tree.query(pb @ T[:3, :3].T + T[:3, 3], distance_upper_bound=limit)
+            ok = np.isfinite(d)
+            if ok.sum() >= min_points:
+                src.append(pb[ok])
+                dst.append(pa[idx[ok]])
+        if len(src) < 3:
+            return None
+        T = fit_rigid(np.vstack(dst), np.vstack(src))
+    offsets = np.array([(a - (b @ T[:3, :3].T + T[:3, 3])).mean(axis=0) for a, b in zip(dst, src, strict=True)])
+    return T, offsets, np.array([a.mean(axis=0) for a in dst])
 
 
 def _robust_fit(pa: np.ndarray, pb: np.ndarray, max_residual: float,
