@@ -30,7 +30,14 @@ from semmap.perception.instances.registry import INSTANCE_SOURCES
 from semmap.perception.schedule import Scheduler, SegmentationSchedule
 from semmap.perception.tracking import DeepSort
 from semmap.poses.base import PoseTracker
-from semmap.poses.object_graph import ObjectEdge, agrees, apply_corrections, fit_rigid, optimise_with_object_edges
+from semmap.poses.object_graph import (
+    ObjectEdge,
+    agrees,
+    apply_corrections,
+    fit_rigid,
+    optimise_with_object_edges,
+    plausible,
+)
 from semmap.poses.track import OBJECT_METHODS, OBJECTS_SUFFIX, make_tracker
 from semmap.types import Frame, Trajectory, invert_pose
 
@@ -94,7 +101,8 @@ class ObjectEdgeStats:
     #: why candidate keyframe pairs gave no edge, with counts: ``few_pairs`` (fewer than ``min_objects`` shared
     #: objects passed eq. 22), ``little_overlap`` (fewer than ``min_objects`` overlapping parts of
     #: ``min_overlap_points``), ``inconsistent`` (no ``min_objects`` centroid pairs agree on one rigid motion),
-    #: ``on_a_line`` (the centroids' spread below ``min_spread``)
+    #: ``on_a_line`` (the centroids' spread below ``min_spread``), ``implausible`` (farther from the tracker than
+    #: its drift over the keyframe steps between them plus the edge's noise explains, 99.9 %)
     rejected: dict[str, int] = field(default_factory=dict)
 
     def reject(self, reason: str) -> None:
@@ -172,7 +180,11 @@ class ObjectConstrainedTracker:
                 if edge is None:
                     continue
                 T_ab, sig = edge
-                if agrees(invert_pose(T_kf[a]) @ T_kf[b], T_ab, sig):
+                tracked = invert_pose(T_kf[a]) @ T_kf[b]
+                if not plausible(tracked, T_ab, sig, b - a, p.odometry_sigma):
+                    self.stats.reject("implausible")
+                    continue
+                if agrees(tracked, T_ab, sig):
                     self.stats.agreeing_edges += 1
                     continue
                 edges.append(ObjectEdge(a, b, T_ab, sig))
@@ -253,8 +265,12 @@ def _object_icp(pairs: list[tuple[Sighting, Sighting]], T_ab: np.ndarray, distan
         limit = distances[min(it * len(distances) // iterations, len(distances) - 1)]
         src, dst = [], []
         for tree, pa, pb in zip(trees, qa, qb, strict=True):
-            d, idx = tree.query(pb @ T[:3, :3].T + T[:3, 3], distance_upper_bound=limit)
+            moved = pb @ T[:3, :3].T + T[:3, 3]
+            d, idx = tree.query(moved, distance_upper_bound=limit)
             ok = np.isfinite(d)
+            if ok.any():  # mutual nearest neighbours only: a part one view has and the other lacks matches nothing
+                back = cKDTree(moved).query(pa[idx[ok]])[1]
+                ok[np.flatnonzero(ok)[back != np.flatnonzero(ok)]] = False
             if ok.sum() >= min_points:
                 src.append(pb[ok])
                 dst.append(pa[idx[ok]])
