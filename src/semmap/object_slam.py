@@ -41,6 +41,8 @@ from semmap.poses.object_graph import (
 from semmap.poses.track import OBJECT_METHODS, OBJECTS_SUFFIX, make_tracker
 from semmap.types import Frame, Trajectory, invert_pose
 
+#: Matched points of two views must have surface normals within this cosine (about 30 degrees).
+MIN_NORMAL_COSINE = 0.87
 #: Weight of the angle between two viewing directions against the distance of the cameras (metres per radian).
 VIEW_METRES_PER_RADIAN = 0.5
 
@@ -257,18 +259,23 @@ def _object_icp(pairs: list[tuple[Sighting, Sighting]], T_ab: np.ndarray, distan
     shrinks through ``distances`` over the iterations. Returns the pose, each object's mean offset after it (its
     residual, as a centroid pair's) and a's matched parts' centroids; None when fewer than three objects have
     ``min_points`` matches."""
-    trees = [cKDTree(sa.points_cam.astype(np.float64)) for sa, _ in pairs]
     qa = [sa.points_cam.astype(np.float64) for sa, _ in pairs]
     qb = [sb.points_cam.astype(np.float64) for _, sb in pairs]
+    trees = [cKDTree(pa) for pa in qa]
+    na = [_normals(pa, tree) for pa, tree in zip(qa, trees, strict=True)]
+    nb = [_normals(pb, cKDTree(pb)) for pb in qb]
     T = T_ab
     for it in range(iterations):
         limit = distances[min(it * len(distances) // iterations, len(distances) - 1)]
         src, dst = [], []
-        for tree, pa, pb in zip(trees, qa, qb, strict=True):
+        for tree, pa, pb, n_a, n_b in zip(trees, qa, qb, na, nb, strict=True):
             moved = pb @ T[:3, :3].T + T[:3, 3]
             d, idx = tree.query(moved, distance_upper_bound=limit)
             ok = np.isfinite(d)
-            if ok.any():  # mutual nearest neighbours only: a part one view has and the other lacks matches nothing
+            # a face one view sees and the other does not matches nothing: surfaces must face alike, and the
+            # matches be mutual nearest neighbours
+            ok[ok] = np.einsum("ij,ij->i", n_a[idx[ok]], n_b[ok] @ T[:3, :3].T) > MIN_NORMAL_COSINE
+            if ok.any():
                 back = cKDTree(moved).query(pa[idx[ok]])[1]
                 ok[np.flatnonzero(ok)[back != np.flatnonzero(ok)]] = False
             if ok.sum() >= min_points:
@@ -279,6 +286,17 @@ def _object_icp(pairs: list[tuple[Sighting, Sighting]], T_ab: np.ndarray, distan
         T = fit_rigid(np.vstack(dst), np.vstack(src))
     offsets = np.array([(a - (b @ T[:3, :3].T + T[:3, 3])).mean(axis=0) for a, b in zip(dst, src, strict=True)])
     return T, offsets, np.array([a.mean(axis=0) for a in dst])
+
+
+def _normals(points: np.ndarray, tree: cKDTree, k: int = 8) -> np.ndarray:
+    """(N, 3) unit surface normals of a camera-frame cloud (least-variance axis of each point's ``k`` nearest
+    neighbours), turned towards the camera."""
+    if len(points) < 3:
+        return np.zeros_like(points)
+    _, idx = tree.query(points, k=min(k, len(points)))
+    nb = points[idx] - points[idx].mean(axis=1, keepdims=True)
+    normals = np.linalg.eigh(np.einsum("nki,nkj->nij", nb, nb))[1][:, :, 0]
+    return normals * -np.sign(np.einsum("ij,ij->i", normals, points))[:, None]
 
 
 def _robust_fit(pa: np.ndarray, pb: np.ndarray, max_residual: float,
