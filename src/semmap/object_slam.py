@@ -74,6 +74,9 @@ class ObjectPoseParams:
     #: object edges that must disagree with the tracker before any is used: drift shows in every later keyframe's
     #: edges, a wrong association in one (the simulated walk's single edge of 49 raised slam-features' ATE 6.6 %)
     min_edges: int = 3
+    #: once ``min_edges`` edges disagree (the tracker drifted), the agreeing edges join the graph too: left out,
+    #: the graph would hold only the edges that disagree, among which the worst registrations gather
+    keep_agreeing: bool = True
     object_map: ObjectMapParams = field(default_factory=ObjectMapParams)
 
     def __post_init__(self) -> None:
@@ -150,18 +153,22 @@ class ObjectConstrainedTracker:
         if len(kfs) < self.params.min_gap + 1:
             return base
         T_kf = np.array([pose_of[k.name] for k in kfs])
-        edges = self._object_edges(kfs, T_kf)
+        edges, agreeing = self._object_edges(kfs, T_kf)
         if len(edges) < self.params.min_edges:  # a lone disagreeing edge among agreeing ones is an outlier
             self.stats.edges_ignored = len(edges)
             self.stats.edges = 0
             return base
+        if self.params.keep_agreeing:
+            edges = edges + agreeing
+            self.stats.edges = len(edges)
         optimised = optimise_with_object_edges(T_kf, edges, odometry_sigma=self.params.odometry_sigma,
                                                huber=self.params.huber)
         return apply_corrections(base, [k.name for k in kfs], T_kf, optimised)
 
     # ------------------------------------------------------------------ object edges
-    def _object_edges(self, kfs: list[_Keyframe], T_kf: np.ndarray) -> list[ObjectEdge]:
-        """Edges between keyframes from their shared objects' overlapping parts (eq. 20)."""
+    def _object_edges(self, kfs: list[_Keyframe], T_kf: np.ndarray) -> tuple[list[ObjectEdge], list[ObjectEdge]]:
+        """Edges between keyframes from their shared objects (eq. 20): those that disagree with the tracker, and
+        those that agree with it."""
         p = self.params
         omap = ObjectMap(self.source.label_set, p.object_map)
         self.object_map = omap
@@ -171,7 +178,7 @@ class ObjectConstrainedTracker:
             ids = omap.integrate_clouds(k.clouds, T, k.index)
             placed.append({int(ids[s.detection]): s for s in sightings if ids[s.detection] > 0})
         placed = [{omap.resolve(o): s for o, s in d.items()} for d in placed]
-        edges = []
+        edges, agreeing = [], []
         for b in range(len(kfs)):
             partners = [a for a in range(b - p.min_gap + 1)
                         if len(placed[a].keys() & placed[b].keys()) >= p.min_objects]
@@ -188,10 +195,11 @@ class ObjectConstrainedTracker:
                     continue
                 if agrees(tracked, T_ab, sig):
                     self.stats.agreeing_edges += 1
+                    agreeing.append(ObjectEdge(a, b, T_ab, sig))
                     continue
                 edges.append(ObjectEdge(a, b, T_ab, sig))
         self.stats.edges = len(edges)
-        return edges
+        return edges, agreeing
 
     def _edge(self, seen_a: dict, seen_b: dict, T_a: np.ndarray, T_b: np.ndarray,
               omap: ObjectMap) -> tuple[np.ndarray, np.ndarray] | None:
