@@ -200,7 +200,8 @@ def main() -> None:
     ap.add_argument("--realism", default=DEFAULT_REALISM, choices=REALISMS, help="the simulator's preset")
     ap.add_argument("--scenes", help=f"comma-separated subset of {', '.join(SCENES)}")
     ap.add_argument("--frames", type=int, help="frames per object scene (default 300, quick 150)")
-    ap.add_argument("--pose-runs", help=f"comma-separated subset of the pose runs {', '.join(POSE_RUNS)}")
+    ap.add_argument("--pose-runs",
+                    help=f"comma-separated subset of the pose runs {', '.join(POSE_RUNS)} (alone: no object scenes)")
     args = ap.parse_args()
     levels = [s for s in args.levels.split(",") if s]
     scenes = _chosen_scenes(ap, args)
@@ -227,6 +228,8 @@ def main() -> None:
 
 def _chosen_scenes(ap: argparse.ArgumentParser, args: argparse.Namespace) -> dict:
     """The object scenes ``--quick``, ``--scenes`` and ``--frames`` ask for: name -> (seed, kind, path, frames)."""
+    if args.pose_runs and not args.scenes:
+        return {}  # --pose-runs alone: the pose runs only
     scenes = dict(QUICK_SCENES if args.quick else SCENES)
     if args.scenes:
         unknown = [s for s in args.scenes.split(",") if s not in SCENES]
