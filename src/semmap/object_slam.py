@@ -99,7 +99,8 @@ class ObjectEdgeStats:
 
     keyframes: int = 0
     candidate_edges: int = 0  #: keyframe pairs with enough shared objects
-    agreeing_edges: int = 0  #: left out: the tracker already agrees within the edge's noise
+    agreeing_edges: int = 0  #: the tracker already agrees within the edge's noise (used only with disagreeing ones)
+    disagreeing_edges: int = 0  #: the tracker disagrees beyond the edge's noise: drift, or a wrong registration
     edges: int = 0  #: object edges in the optimised graph
     pairs_rejected: int = 0  #: shared objects whose two clouds failed eq. 22
     edges_ignored: int = 0  #: disagreeing edges left out because fewer than ``min_edges`` disagreed
@@ -198,7 +199,7 @@ class ObjectConstrainedTracker:
                     agreeing.append(ObjectEdge(a, b, T_ab, sig))
                     continue
                 edges.append(ObjectEdge(a, b, T_ab, sig))
-        self.stats.edges = len(edges)
+        self.stats.edges = self.stats.disagreeing_edges = len(edges)
         return edges, agreeing
 
     def _edge(self, seen_a: dict, seen_b: dict, T_a: np.ndarray, T_b: np.ndarray,
