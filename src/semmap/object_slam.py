@@ -24,7 +24,15 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from semmap.errors import ConfigError
-from semmap.maps.objects import CameraClouds, ObjectMap, ObjectMapParams, Sighting, overlap_iou, pack_cells
+from semmap.maps.objects import (
+    CameraClouds,
+    MaskView,
+    ObjectMap,
+    ObjectMapParams,
+    Sighting,
+    overlap_iou,
+    pack_cells,
+)
 from semmap.perception.instances.base import InstanceSource
 from semmap.perception.instances.registry import INSTANCE_SOURCES
 from semmap.perception.schedule import Scheduler, SegmentationSchedule
@@ -39,7 +47,7 @@ from semmap.poses.object_graph import (
     plausible,
 )
 from semmap.poses.track import OBJECT_METHODS, OBJECTS_SUFFIX, make_tracker
-from semmap.types import Frame, Trajectory, invert_pose
+from semmap.types import CameraIntrinsics, Frame, Trajectory, invert_pose
 
 #: Matched points of two views must have surface normals within this cosine (about 30 degrees).
 MIN_NORMAL_COSINE = 0.87
@@ -91,6 +99,9 @@ class _Keyframe:
     index: int  # position of the frame in the tracked sequence
     name: str
     clouds: CameraClouds
+    #: the detections' masks (detection + 1 per pixel) and the depth image, for the object map's mask check
+    #: (maps.objects step 7) when the map is rebuilt with the final poses; None without the check
+    masks: tuple[np.ndarray, np.ndarray, CameraIntrinsics] | None = None
 
 
 @dataclass
@@ -142,7 +153,12 @@ class ObjectConstrainedTracker:
         instances = self.tracker.update(self.source.detect(frame), frame, T)
         if T is not None and self._keyframe_of.due(T):
             clouds = self._extractor.extract(instances, frame.depth, frame.rgb, frame.intrinsics)
-            self._keyframes.append(_Keyframe(index, frame.name, clouds))
+            masks = None
+            if self.params.object_map.mask_check:
+                ids = np.asarray(instances.ids)
+                masks = (ids.astype(np.uint8 if clouds.n < 255 else np.int32),
+                         np.asarray(frame.depth, np.float32), frame.intrinsics)
+            self._keyframes.append(_Keyframe(index, frame.name, clouds, masks))
         return T
 
     def trajectory(self) -> Trajectory:
@@ -176,7 +192,8 @@ class ObjectConstrainedTracker:
         placed = []  # per keyframe: {object id: (sighting points_cam, cells, track id)}
         for k, T in zip(kfs, T_kf, strict=True):
             sightings = omap.place(k.clouds, T)
-            ids = omap.integrate_clouds(k.clouds, T, k.index)
+            view = None if k.masks is None else MaskView(*k.masks[:3], np.asarray(T, np.float64), k.clouds.n)
+            ids = omap.integrate_clouds(k.clouds, T, k.index, view=view)
             placed.append({int(ids[s.detection]): s for s in sightings if ids[s.detection] > 0})
         placed = [{omap.resolve(o): s for o, s in d.items()} for d in placed]
         edges, agreeing = [], []
