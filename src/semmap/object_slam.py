@@ -156,8 +156,9 @@ class ObjectConstrainedTracker:
             masks = None
             if self.params.object_map.mask_check:
                 ids = np.asarray(instances.ids)
+                # 0.9 MB a 640x480 keyframe: half-precision depth is good to 2 mm at 4 m, the check's tolerance 3 cm
                 masks = (ids.astype(np.uint8 if clouds.n < 255 else np.int32),
-                         np.asarray(frame.depth, np.float32), frame.intrinsics)
+                         np.asarray(frame.depth, np.float16), frame.intrinsics)
             self._keyframes.append(_Keyframe(index, frame.name, clouds, masks))
         return T
 
