@@ -255,6 +255,14 @@ def _chosen_pose_runs(ap: argparse.ArgumentParser, args: argparse.Namespace) -> 
 
 
 def _table(rows: list[dict], pose_rows: list[dict]) -> None:
+    if rows:
+        _scene_table(rows)
+    if pose_rows:
+        _pose_table(pose_rows)
+    print()
+
+
+def _scene_table(rows: list[dict]) -> None:
     print("\n| scene | instances | realism | objects / truth | count error | centroid error cm (whole object) |"
           " id switches | point reduction | tracking ms/frame | map ms/keyframe | Open3D filters ms/keyframe |")
     print("|---|---|---|---|---|---|---|---|---|---|---|")
@@ -264,16 +272,15 @@ def _table(rows: list[dict], pose_rows: list[dict]) -> None:
               f"({100 * (r['centroid_error_whole_m'] or 0):.1f}) | {r['id_switches']} | "
               f"{100 * r['point_reduction']:.1f} % | {r['tracking_ms_per_frame']:.1f} | "
               f"{r['map_ms_per_keyframe']:.1f} | {r['peer_filters_ms_per_keyframe']:.1f} |")
-    if pose_rows:
-        print("\n| sequence | tracker | frames tracked | ATE cm | with objects ATE cm | ratio |"
-              " object edges (agreeing) |")
-        print("|---|---|---|---|---|---|---|")
-        for r in pose_rows:
-            e = r["object_edges"]
-            print(f"| {r['scene']} | {r['tracker']} | {r['frames_tracked_without']} | "
-                  f"{100 * r['ate_without_m']:.2f} | {100 * r['ate_with_m']:.2f} | "
-                  f"{r['ate_ratio']:.3f} | {e['edges']} ({e['agreeing_edges']}) |")
-    print()
+
+
+def _pose_table(pose_rows: list[dict]) -> None:
+    print("\n| sequence | tracker | frames tracked | ATE cm | with objects ATE cm | ratio | object edges (agreeing) |")
+    print("|---|---|---|---|---|---|---|")
+    for r in pose_rows:
+        e = r["object_edges"]
+        print(f"| {r['scene']} | {r['tracker']} | {r['frames_tracked_without']} | {100 * r['ate_without_m']:.2f} | "
+              f"{100 * r['ate_with_m']:.2f} | {r['ate_ratio']:.3f} | {e['edges']} ({e['agreeing_edges']}) |")
 
 
 if __name__ == "__main__":
