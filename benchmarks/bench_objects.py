@@ -228,7 +228,7 @@ def main() -> None:
 
 def _chosen_scenes(ap: argparse.ArgumentParser, args: argparse.Namespace) -> dict:
     """The object scenes ``--quick``, ``--scenes`` and ``--frames`` ask for: name -> (seed, kind, path, frames)."""
-    if args.pose_runs and not args.scenes:
+    if getattr(args, "pose_runs", None) and not args.scenes:
         return {}  # --pose-runs alone: the pose runs only
     scenes = dict(QUICK_SCENES if args.quick else SCENES)
     if args.scenes:
