@@ -56,6 +56,16 @@ def test_object_scenes_subset_and_frames():
         objects._chosen_scenes(ap, argparse.Namespace(quick=False, scenes="nowhere", frames=None))
 
 
+def test_object_pose_runs_subset_alone_skips_the_object_scenes():
+    objects = bench("bench_objects")
+    ap = argparse.ArgumentParser()
+    args = argparse.Namespace(quick=False, scenes=None, frames=None, pose_runs="sim-loop-odometry")
+    assert objects._chosen_pose_runs(ap, args) == {"sim-loop-odometry": (1, "office", "loop", 450, "odometry")}
+    assert objects._chosen_scenes(ap, args) == {}
+    with pytest.raises(SystemExit):
+        objects._chosen_pose_runs(ap, argparse.Namespace(quick=False, pose_runs="nowhere"))
+
+
 def test_fusion_resolution_outside_its_range_is_refused(monkeypatch, capsys):
     fusion = bench("bench_fusion")
     monkeypatch.setattr(sys, "argv", ["bench_fusion.py", "--resolution", "0.9"])

@@ -21,6 +21,9 @@ log = logging.getLogger("semmap")
 
 #: 0.95 quantile of chi-square with 6 degrees of freedom: an object edge within it agrees with the tracker.
 CHI2_6DOF_95 = 12.59
+#: 0.999 quantile: an object edge beyond it, against the tracker's drift over the steps between its keyframes plus
+#: its own noise, is a wrong registration or association, not drift.
+CHI2_6DOF_999 = 22.46
 
 
 @dataclass(frozen=True)
@@ -53,6 +56,18 @@ def agrees(T_ab_tracker: np.ndarray, T_ab_objects: np.ndarray, sigmas: np.ndarra
     angle = rotation_angle(diff)
     d2 = (angle / sigmas[0]) ** 2 + float((diff[:3, 3] ** 2).sum()) / sigmas[3] ** 2
     return d2 < CHI2_6DOF_95
+
+
+def plausible(T_ab_tracker: np.ndarray, T_ab_objects: np.ndarray, sigmas: np.ndarray, steps: int,
+              odometry_sigma: tuple[float, float]) -> bool:
+    """Whether the tracker can have drifted from the object edge over ``steps`` keyframe steps of standard
+    deviations ``odometry_sigma`` (radians, metres; added in quadrature with the edge's own): chi-square, 6 dof,
+    99.9 %."""
+    diff = invert_pose(T_ab_objects) @ T_ab_tracker
+    var_r = steps * odometry_sigma[0] ** 2 + sigmas[0] ** 2
+    var_t = steps * odometry_sigma[1] ** 2 + sigmas[3] ** 2
+    d2 = rotation_angle(diff) ** 2 / var_r + float((diff[:3, 3] ** 2).sum()) / var_t
+    return d2 < CHI2_6DOF_999
 
 
 
