@@ -186,3 +186,80 @@ def test_the_run_report_names_the_preset_of_simulated_frames(tmp_path):
     assert simulated_realism(object(), root) == "hard"
     (root / "scene.json").write_text("{not json")
     assert simulated_realism(object(), root) is None
+
+
+#: Only the systematic distortion: no noise, no quantisation to speak of, nothing dropped.
+EXACT = dataclasses.replace(PLAIN, sigma_disp_px=0.0, sigma_corr_px=0.0, subpixel=1e7)
+
+
+def test_zero_distortion_and_calibration_error_are_the_identity():
+    assert StructuredLight().distortion_image(H, W).max() == 0.0
+    assert StructuredLight().sensor_intrinsics(ROOM_CAMERA) is ROOM_CAMERA
+    depth, cos = _plane(2.0)
+    assert np.allclose(EXACT.apply_view(depth, cos, 0, fx=FX), depth, rtol=0, atol=1e-6)
+    # the kinect preset's other parameters with the new ones at zero give the frames of before
+    kinect = realism("kinect").depth_model(4)
+    before = dataclasses.replace(kinect, distortion_px=0.0, distortion_field_px=0.0)
+    ramp = np.linspace(1.0, 3.5, W, dtype=np.float32)[None].repeat(H, 0)
+    a = before.apply_view(ramp, np.ones_like(ramp), 2, fx=FX)
+    b = StructuredLight(seed=4).apply_view(ramp, np.ones_like(ramp), 2, fx=FX)
+    assert np.array_equal(a, b)
+
+
+def test_distortion_bias_grows_with_depth_squared_and_towards_the_corners():
+    sensor = dataclasses.replace(EXACT, distortion_px=0.1)
+    corner, mid, centre = (W - 1, H - 1), (W * 3 // 4, H * 3 // 4), (W // 2, H // 2)
+    errs = {}
+    for z in (1.0, 2.0, 3.0):
+        depth, cos = _plane(z)
+        out = sensor.apply_view(depth, cos, 0, fx=FX)
+        for name, (u, v) in (("corner", corner), ("mid", mid), ("centre", centre)):
+            errs[z, name] = float(out[v, u]) - z
+            assert errs[z, name] == pytest.approx(float(sensor.depth_bias(z, u, v, H, W)), abs=1e-5)
+    fb = sensor.focal_px * sensor.baseline_m
+    assert errs[3.0, "corner"] == pytest.approx(fb / (fb / 3.0 + 0.1) - 3.0, rel=1e-4)  # reads ~2 cm nearer
+    assert -0.025 < errs[3.0, "corner"] < -0.015
+    assert abs(errs[1.0, "centre"]) < 1e-4 and abs(errs[3.0, "centre"]) < 1e-3
+    for name in ("corner", "mid"):  # ~z^2: x4 and x9
+        assert 3.5 < errs[2.0, name] / errs[1.0, name] < 4.5 and 8.0 < errs[3.0, name] / errs[1.0, name] < 10.0
+    assert errs[3.0, "corner"] < errs[3.0, "mid"] < errs[3.0, "centre"] <= 0.0  # grows with the radius
+    # Herrera's decay: the disparity bias shrinks with depth, exp(-decay (d_1m - d))
+    decayed = dataclasses.replace(sensor, distortion_decay=0.05)
+    ratio = decayed.disparity_bias(3.0, *corner, H, W) / sensor.disparity_bias(3.0, *corner, H, W)
+    assert ratio == pytest.approx(np.exp(-0.05 * (fb - fb / 3.0)), rel=1e-6)
+    assert decayed.disparity_bias(1.0, *corner, H, W) == pytest.approx(0.1, rel=1e-6)
+
+
+def test_distortion_field_is_smooth_fixed_per_unit_and_seeded():
+    a = dataclasses.replace(EXACT, distortion_field_px=0.05, seed=1)
+    img = a.distortion_image(H, W)
+    assert float(img.std()) == pytest.approx(0.05, rel=0.05)
+    assert np.abs(np.diff(img, axis=1)).max() < 0.3 * 0.05  # low frequency: small steps from pixel to pixel
+    assert np.array_equal(img, dataclasses.replace(a).distortion_image(H, W))  # same unit, same pattern
+    assert not np.array_equal(img, dataclasses.replace(a, seed=2).distortion_image(H, W))
+    depth, cos = _plane(2.5)
+    f0, f7 = a.apply_view(depth, cos, 0, fx=FX), a.apply_view(depth, cos, 7, fx=FX)
+    assert np.array_equal(f0, f7)  # systematic: the same in every frame (no noise in EXACT)
+    with pytest.raises(SimulationError, match="distortion"):
+        StructuredLight(distortion_px=float("nan"))
+    with pytest.raises(SimulationError, match="focal_error"):
+        StructuredLight(focal_error=0.5)
+
+
+def test_the_renderer_looks_through_the_true_intrinsics_and_publishes_the_nominal_ones():
+    from semmap.sim.render import Renderer
+
+    scene = generate_scene(0, "office", "small")
+    poses = make_trajectory(scene, "loop", 1, seed=0)
+    sensor = StructuredLight(focal_error=0.02, principal_offset_px=(4.0, -2.0))
+    true = sensor.sensor_intrinsics(ROOM_CAMERA)
+    assert (true.fx, true.fy, true.cx, true.cy) == pytest.approx((71.4, 71.4, 43.5, 27.5))
+    r = Renderer(scene, ROOM_CAMERA, noise=sensor)
+    assert r.intrinsics == ROOM_CAMERA and r.camera == true
+    ids, z = r.visible(poses[0])
+    ids_true, z_true = Renderer(scene, true).visible(poses[0])
+    assert np.array_equal(ids, ids_true) and np.array_equal(z, z_true)
+    assert not np.array_equal(z, Renderer(scene, ROOM_CAMERA).visible(poses[0])[1])
+    frame = next(simulate_frames(scene, poses, seed=0, intrinsics=ROOM_CAMERA, realism="kinect"))
+    assert frame.intrinsics == ROOM_CAMERA  # what a dataset publishes: the nominal calibration
+    assert Renderer(scene, ROOM_CAMERA, noise=KinectNoise()).camera is ROOM_CAMERA

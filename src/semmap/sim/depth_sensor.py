@@ -18,7 +18,13 @@
 - holes on materials that return little infrared: dark albedo, specular (metal, screens, glazed porcelain) and
   transparent (window glass) surfaces drop pixels with per-material probabilities, in blobs of ``blob_px``;
 - holes at grazing incidence, below ``min_depth`` and beyond ``max_depth`` (with a dropout ramp before it), and in
-  the ``dead_px`` columns on the projector's side of the image, where the matching window does not fit.
+  the ``dead_px`` columns on the projector's side of the image, where the matching window does not fit;
+- a low-frequency, spatially varying **disparity distortion** fixed for the unit (not per frame): the model of
+  Herrera, Kannala & Heikkila 2012, ``d' = d + D(u, v) exp(-decay (fb / 1 m - d))``, with ``D`` a radial bowl
+  (``distortion_px`` at the image corners, ``r^2``) plus a smooth per-unit field (``distortion_field_px``), so the
+  depth error grows as ``z^2`` and towards the corners (Smisek et al. 2011; Teichman et al. 2013, CLAMS);
+- the **true intrinsics** of the IR camera differ from the nominal ones a dataset publishes (``focal_error``,
+  ``principal_offset_px``): :meth:`StructuredLight.sensor_intrinsics`, which the renderer looks through.
 
 :class:`TimeOfFlight` is the optional alternative: noise growing linearly with depth (amplitude falls with the
 incidence), no quantisation, flying pixels (depths between the two sides) at edges and multipath (corners seen
@@ -30,6 +36,7 @@ and the parallel kernels give the same bytes for any thread count.
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 
@@ -39,6 +46,7 @@ import numpy as np
 
 from semmap.errors import SimulationError
 from semmap.sim.materials import Material
+from semmap.types import CameraIntrinsics
 
 #: Stream id mixed into the per-frame key, so these numbers never coincide with another user's.
 _STREAM = 0x5EED_D3A7
@@ -77,6 +85,11 @@ class StructuredLight:
     transparent_drop_p: float = 0.95
     blob_px: int = 3
     dead_px: int = 8  # columns without depth on the projector's side of the image (7-Scenes: the last 8)
+    distortion_px: float = 0.0  # disparity bias (px) at the image corners, growing as r^2 (+: reads nearer)
+    distortion_field_px: float = 0.0  # std (px) of the unit's smooth non-radial disparity distortion field
+    distortion_decay: float = 0.0  # Herrera's alpha_1 per px of disparity: the bias shrinks by exp(-decay) per px
+    focal_error: float = 0.0  # relative error of the published focal length: true f = nominal f (1 + focal_error)
+    principal_offset_px: tuple[float, float] = (0.0, 0.0)  # true principal point minus the published one (px)
 
     def __post_init__(self) -> None:
         if not 0 < self.min_depth < self.max_depth:
@@ -85,6 +98,44 @@ class StructuredLight:
             raise SimulationError("focal length, baseline and sub-pixel factor must be positive")
         if self.corr_px < 1 or self.blob_px < 1 or self.projector_side not in (-1, 1):
             raise SimulationError("corr_px and blob_px must be >= 1 and projector_side -1 or +1")
+        checks = (abs(self.distortion_px) <= 2.0, 0.0 <= self.distortion_field_px <= 2.0,
+                  0.0 <= self.distortion_decay <= 10.0, abs(self.focal_error) <= 0.1,
+                  len(self.principal_offset_px) == 2 and all(abs(o) <= 64 for o in self.principal_offset_px))
+        if not all(checks):  # (NaN fails every comparison)
+            raise SimulationError("depth distortion must be within +-2 px (field 0..2 px, decay 0..10), focal_error "
+                                  "within +-0.1 and principal_offset_px two numbers within +-64 px")
+
+    def sensor_intrinsics(self, published: CameraIntrinsics) -> CameraIntrinsics:
+        """The IR camera's true intrinsics, given the nominal ones a dataset publishes (``published`` itself
+        when both errors are zero, so exact frames stay exact)."""
+        dx, dy = (float(o) for o in self.principal_offset_px)
+        if self.focal_error == 0.0 and dx == 0.0 and dy == 0.0:
+            return published
+        g = 1.0 + float(self.focal_error)
+        return CameraIntrinsics(published.width, published.height, published.fx * g, published.fy * g,
+                                published.cx + dx, published.cy + dy)
+
+    def distortion_image(self, height: int, width: int) -> np.ndarray:
+        """The unit's disparity distortion ``D(u, v)`` (H, W float32, px, at 1 m; fixed per ``seed``, never per
+        frame): ``distortion_px r^2`` (r = 1 at the corners) plus the smooth field."""
+        return _distortion_image(float(self.distortion_px), float(self.distortion_field_px), int(self.seed),
+                                 int(height), int(width))
+
+    def disparity_bias(self, z: np.ndarray | float, u: np.ndarray | float, v: np.ndarray | float, height: int,
+                       width: int) -> np.ndarray:
+        """Disparity bias (px) of a pixel (u, v) seeing depth ``z`` (Herrera's ``D(u, v) exp(-decay (d_1m - d))``,
+        d the true disparity ``fb / z``)."""
+        D = self.distortion_image(height, width)
+        d = self.focal_px * self.baseline_m / np.asarray(z, np.float64)
+        dv = D[np.asarray(v, np.int64), np.asarray(u, np.int64)].astype(np.float64)
+        return dv * np.exp(-self.distortion_decay * (self.focal_px * self.baseline_m - d))
+
+    def depth_bias(self, z: np.ndarray | float, u: np.ndarray | float, v: np.ndarray | float, height: int,
+                   width: int) -> np.ndarray:
+        """Depth error (metres, negative: reads nearer) the distortion alone gives at (u, v) and true depth ``z``."""
+        z = np.asarray(z, np.float64)
+        fb = self.focal_px * self.baseline_m
+        return fb / (fb / z + self.disparity_bias(z, u, v, height, width)) - z
 
     def axial_sigma(self, z: np.ndarray | float) -> np.ndarray | float:
         """Axial standard deviation (metres) at depth ``z`` seen head-on, before quantisation."""
@@ -123,11 +174,12 @@ class StructuredLight:
         c0 = math.cos(math.radians(self.grazing_deg - self.grazing_ramp_deg / 2))
         c1 = math.cos(math.radians(self.grazing_deg + self.grazing_ramp_deg / 2))
         out = np.empty((H, W), np.float32)
-        _structured_kernel(z_in, cos_in, ids, np.ascontiguousarray(tri_drop, np.float32), shadow, grid, key, out,
+        dist = self.distortion_image(H, W)
+        _structured_kernel(z_in, cos_in, ids, np.ascontiguousarray(tri_drop, np.float32), shadow, grid, dist, key, out,
                            np.array([self.min_depth, self.max_depth, self.far_drop_from, self.far_drop_p,
                                      self.focal_px * self.baseline_m, self.subpixel, self.sigma_disp_px,
                                      self.sigma_corr_px, self.angle_gain, c0, c1, self.lateral_px,
-                                     self.edge_jump_rel, self.edge_drop_p], np.float64),
+                                     self.edge_jump_rel, self.edge_drop_p, self.distortion_decay], np.float64),
                            int(self.corr_px), int(self.blob_px), int(self.dead_px) * (self.projector_side > 0),
                            int(self.dead_px) * (self.projector_side < 0))
         return out
@@ -216,6 +268,24 @@ def _checked(depth: np.ndarray, cos_incidence: np.ndarray) -> tuple[np.ndarray, 
     return np.ascontiguousarray(depth, np.float32), np.ascontiguousarray(cos_incidence, np.float32)
 
 
+@functools.lru_cache(maxsize=8)
+def _distortion_image(corner_px: float, field_px: float, seed: int, height: int, width: int) -> np.ndarray:
+    """Disparity distortion image (px) of a unit: ``corner_px r^2`` plus a smooth field of std ``field_px`` drawn
+    on a 4x3 grid of cells and interpolated bicubically (the unit's own pattern, seeded by ``seed`` only)."""
+    out = np.zeros((height, width), np.float32)
+    if corner_px != 0.0:
+        u = (np.arange(width, dtype=np.float64) - (width - 1) / 2) / ((width - 1) / 2)
+        v = (np.arange(height, dtype=np.float64) - (height - 1) / 2) / ((height - 1) / 2)
+        r2 = (u[None, :] ** 2 * width ** 2 + v[:, None] ** 2 * height ** 2) / (width ** 2 + height ** 2)
+        out += (corner_px * r2).astype(np.float32)
+    if field_px != 0.0:
+        cells = np.random.default_rng([_STREAM + 2, seed]).standard_normal((4, 5)).astype(np.float32)
+        field = cv2.resize(cells, (width, height), interpolation=cv2.INTER_CUBIC)
+        out += field_px * field / max(float(field.std()), 1e-6)
+    out.setflags(write=False)
+    return out
+
+
 def _frame_key(seed: int, frame_index: int) -> np.uint64:
     """64-bit key of one frame's random numbers."""
     h = np.random.default_rng([_STREAM, int(seed), int(frame_index)]).integers(0, 2**63, dtype=np.int64)
@@ -261,11 +331,12 @@ def _is_jump(z, zn, rel):  # pragma: no cover - compiled
 
 
 @nb.njit(cache=True, parallel=True)
-def _structured_kernel(z_in, cos_in, ids, tri_drop, shadow, grid, key, out, prm, corr, blob, dead_right,
+def _structured_kernel(z_in, cos_in, ids, tri_drop, shadow, grid, dist, key, out, prm, corr, blob, dead_right,
                        dead_left):  # pragma: no cover - compiled
     z_min, z_max, far0, far_p, fb, subpx = prm[0], prm[1], prm[2], prm[3], prm[4], prm[5]
     s_white, s_corr, a_gain, c0, c1, lat, rel, edge_p = (prm[6], prm[7], prm[8], prm[9], prm[10], prm[11],
                                                          prm[12], prm[13])
+    decay = prm[14]
     H, W = z_in.shape
     lat_scale = lat * math.sqrt(6.0)
     for row in nb.prange(H):
@@ -323,6 +394,9 @@ def _structured_kernel(z_in, cos_in, ids, tri_drop, shadow, grid, key, out, prm,
             h3 = _mix(h1 ^ np.uint64(0x8CB92BA72F3D8DD7))
             n = (_u16(h3, 0) + _u16(h3, 1) + _u16(h3, 2) + _u16(h3, 3) - 2.0) * math.sqrt(3.0)
             d = fb / z + gain * (s_white * n + s_corr * g)
+            bias = dist[v, u]
+            if bias != 0.0:  # the unit's low-frequency distortion (Herrera et al. 2012)
+                d += bias * math.exp(-decay * (fb - fb / z)) if decay > 0.0 else bias
             if d <= 0.0:
                 continue
             d = math.floor(d * subpx + 0.5) / subpx

@@ -84,7 +84,11 @@ class Renderer:
         # per-triangle probability that the depth sensor gets no return (dark, glossy, transparent materials)
         self._tri_drop = (None if self.noise is None or isinstance(self.noise, KinectNoise) else
                           np.ascontiguousarray(self.noise.material_dropout(scene.materials)[self._tri_mat]))
-        cam = self.intrinsics
+        #: the camera the frames are rendered through: the depth sensor's true intrinsics, which may differ from the
+        #: nominal ``intrinsics`` the frames publish (a real dataset's calibration error; the same for ``clean``)
+        true_cam = getattr(self.noise, "sensor_intrinsics", None)
+        self.camera = self.intrinsics if true_cam is None else true_cam(self.intrinsics)
+        cam = self.camera
         u, v = np.meshgrid(np.arange(cam.width, dtype=np.float64), np.arange(cam.height, dtype=np.float64))
         self._dirs = np.stack([(u - cam.cx) / cam.fx, (v - cam.cy) / cam.fy, np.ones_like(u)], -1) \
             .reshape(-1, 3).astype(np.float32)
@@ -127,7 +131,7 @@ class Renderer:
         T = check_pose(T_world_cam, "camera pose")
         R = np.ascontiguousarray(T[:3, :3])
         t = np.ascontiguousarray(T[:3, 3])
-        cam = self.intrinsics
+        cam = self.camera
         if self.backend == "raster":
             n_sub = raster_k.setup(self._vertices, self._triangles, R, t, cam.fx, cam.fy, cam.cx, cam.cy, cam.width,
                              cam.height, self._sub_xy, self._sub_box, self._sub_tri, self._planes)
@@ -146,7 +150,7 @@ class Renderer:
                twist: tuple[np.ndarray, np.ndarray] | None = None, fps: float = 30.0) -> RenderedView:
         """Render all channels from ``T_world_cam``; depth carries the noise model when one is set, colour the
         colour camera's effects (``twist``: the camera-frame velocity (m/s, rad/s) for blur and shutter)."""
-        cam = self.intrinsics
+        cam = self.camera
         ids, z = self.visible(T_world_cam)
         T = np.asarray(T_world_cam, np.float64)
         n = cam.width * cam.height
