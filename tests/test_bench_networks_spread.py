@@ -3,21 +3,13 @@
 
 from __future__ import annotations
 
-import importlib.util
-import sys
-from pathlib import Path
-
 import numpy as np
 
-BENCH = Path(__file__).resolve().parents[1] / "benchmarks" / "bench_networks.py"
+from script_modules import load_script
 
 
 def bench():
-    spec = importlib.util.spec_from_file_location("_bench_networks_spread", BENCH)
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = module
-    spec.loader.exec_module(module)
-    return module
+    return load_script("benchmarks/bench_networks.py")
 
 
 def frame_confusions(rng, frames: int, k: int, accuracy: float) -> np.ndarray:

@@ -4,25 +4,18 @@
 from __future__ import annotations
 
 import argparse
-import importlib.util
 import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
 
+from script_modules import load_script
 from semmap.types import CameraIntrinsics
-
-BENCH = Path(__file__).resolve().parents[1] / "benchmarks"
 
 
 def bench(name: str):
     """The benchmark script ``name`` imported as a module (its ``main`` is not run)."""
-    spec = importlib.util.spec_from_file_location(f"_bench_{name}", BENCH / f"{name}.py")
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = module  # (dataclasses look their module up there)
-    spec.loader.exec_module(module)
-    return module
+    return load_script(f"benchmarks/{name}.py")
 
 
 @pytest.mark.parametrize("name", ["bench_tracking", "bench_objects", "bench_fusion"])

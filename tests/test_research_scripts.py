@@ -6,25 +6,17 @@ pose-list reading, colour-camera move and rotation comparison of
 
 from __future__ import annotations
 
-import importlib.util
-import sys
-from pathlib import Path
-
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
+from script_modules import load_script
 from semmap.errors import FormatError
 from semmap.types import Trajectory
 
-SCRIPTS = Path(__file__).resolve().parents[1] / "scripts" / "research"
-
 
 def _script(name: str):
-    spec = importlib.util.spec_from_file_location(f"_script_{name}", SCRIPTS / f"{name}.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+    return load_script(f"scripts/research/{name}.py")
 
 
 @pytest.fixture(scope="module")
@@ -229,10 +221,7 @@ def test_counterfactual_gain_is_zero_when_the_map_takes_every_network_label(loss
 
 def test_segmentation_grid_agreement_pairs_the_same_things_of_two_label_sets():
     """``scripts/segmentation_grid.py``: PASCAL's chair / diningtable against semmap's chair / table+desk."""
-    spec = importlib.util.spec_from_file_location("_script_segmentation_grid", SCRIPTS.parent / "segmentation_grid.py")
-    grid = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = grid  # its dataclass looks its module up
-    spec.loader.exec_module(grid)
+    grid = load_script("scripts/segmentation_grid.py")
     voc = ("background", "chair", "diningtable")
     ours = ("unknown", "wall", "table", "chair", "desk")
     a = np.array([[1, 1, 2, 2, 0]])  # chair chair diningtable diningtable background
