@@ -41,14 +41,18 @@ from semmap.types import Observation, TopKProbs
 K = 40
 
 
-def bench_fusion():
-    """benchmarks/bench_fusion.py as a module (its scenes, rendering and scoring)."""
-    path = Path(__file__).resolve().parents[2] / "benchmarks" / "bench_fusion.py"
-    spec = importlib.util.spec_from_file_location("bench_fusion", path)
+def _module(path: Path, name: str):
+    """A script of this repository as a module, registered in ``sys.modules`` (a dataclass looks its module up)."""
+    spec = importlib.util.spec_from_file_location(name, path)
     mod = importlib.util.module_from_spec(spec)
-    sys.modules["bench_fusion"] = mod
+    sys.modules[name] = mod
     spec.loader.exec_module(mod)
     return mod
+
+
+def bench_fusion():
+    """benchmarks/bench_fusion.py as a module (its scenes, rendering and scoring)."""
+    return _module(Path(__file__).resolve().parents[2] / "benchmarks" / "bench_fusion.py", "bench_fusion")
 
 
 bench = bench_fusion()
@@ -78,11 +82,7 @@ def build(fr, sems, maps: dict) -> dict:
 
 def loss_check():
     """scripts/research/fusion_loss_check.py as a module (its per-voxel selectors and AUROC)."""
-    path = Path(__file__).resolve().parent / "fusion_loss_check.py"
-    spec = importlib.util.spec_from_file_location("fusion_loss_check", path)
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
+    return _module(Path(__file__).resolve().parent / "fusion_loss_check.py", "fusion_loss_check")
 
 
 def confidence_report(fr, sems: list[TopKProbs], resolution: float) -> dict[str, float]:
