@@ -271,7 +271,8 @@ def _checked(depth: np.ndarray, cos_incidence: np.ndarray) -> tuple[np.ndarray, 
 @functools.lru_cache(maxsize=8)
 def _distortion_image(corner_px: float, field_px: float, seed: int, height: int, width: int) -> np.ndarray:
     """Disparity distortion image (px) of a unit: ``corner_px r^2`` plus a smooth field of std ``field_px`` drawn
-    on a 4x3 grid of cells and interpolated bicubically (the unit's own pattern, seeded by ``seed`` only)."""
+    on a 4x5 grid of cells (rows x columns) and interpolated bicubically (the unit's own pattern, seeded by
+    ``seed`` only)."""
     out = np.zeros((height, width), np.float32)
     if corner_px != 0.0:
         u = (np.arange(width, dtype=np.float64) - (width - 1) / 2) / ((width - 1) / 2)
