@@ -148,7 +148,7 @@ def refine_map(m, params: CrfParams, *, viewpoint: np.ndarray | None = None, per
     if m.label_set is None or not has.any():
         return CrfResult(0, 0, (time.perf_counter() - t0) * 1e3)
     check_crf(int(has.sum()), len(m.label_set), f"the {getattr(m.kind, 'value', 'map')} map")
-    probs = m.class_probs_per_view() if per_view and hasattr(m, "class_probs_per_view") else m.class_probs()
+    probs = m.class_probs_per_view() if per_view else m.class_probs()
     normals = cloud.normals
     if normals is None or not np.isfinite(normals).all():
         normals = estimate_normals(cloud.centers, 2.5 * max(cloud.resolution, 0.01), viewpoint)

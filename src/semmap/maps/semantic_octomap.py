@@ -751,6 +751,11 @@ class SemanticOctoMap:
         rows = c.attr[c.logodds >= self._thr]
         return self._entry.class_probs(*self._states(rows, c.sem_labels, c.sem_probs), self._num_classes)
 
+    def class_probs_per_view(self) -> np.ndarray:
+        """What the CRF reads: :meth:`class_probs` as they are, since the OctoMap already fuses one distribution
+        per view and voxel (a per-pixel log-odds map divides its sum by its points per view instead)."""
+        return self.class_probs()
+
     def set_class_probs(self, probs: np.ndarray, *, where: np.ndarray | None = None) -> None:
         """Replace the class states of the occupied voxels (:meth:`cloud` order; only rows ``where`` is True) by
         (M, K) distributions, e.g. a CRF's posterior, as the rule keeps them (a set: the top pairs, top confidence
