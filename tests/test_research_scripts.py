@@ -271,3 +271,39 @@ def test_fusion_gaps_check_measures_the_crf_unary_gap_of_each_voxel() -> None:
     share, median = gaps.margin_shares(Fused(), 2.0)
     assert share == pytest.approx(2 / 3) and median == pytest.approx(np.log(9.0), rel=1e-5)
     assert gaps.margin_shares(Fused(), 12.0)[0] == pytest.approx(1 / 3)
+
+
+def test_network_fit_check_scores_a_one_class_network_by_that_class_share(tmp_path) -> None:
+    """``network_fit_check.py`` scores a folder as the trainer validates: a network calling every pixel class c
+    gets the pixel accuracy of c's share of the labelled pixels, and IoU only for c."""
+    import torch
+
+    from semmap.sim.export import simulate_sequence
+    from semmap.train.data import gather
+
+    fit = _script("network_fit_check")
+    assert fit.every_nth(7, 3).tolist() == [0, 3, 6]
+    with pytest.raises(ValueError, match="--every"):
+        fit.every_nth(7, 0)
+    folder = tmp_path / "seq"
+    simulate_sequence(folder, scene_seed=5, frames=2, image_size=(64, 48))
+    ds = gather([folder], (64, 48))
+    labels = ds.labels[ds.labels != 0]
+    c = int(np.bincount(labels).argmax())
+
+    class OneClass(torch.nn.Module):
+        def forward_train(self, x, depth):
+            out = torch.zeros(x.shape[0], len(ds.label_set), *x.shape[-2:])
+            out[:, c] = 1.0
+            return out, None
+
+    class Net:
+        input_size, label_set, model = (64, 48), ds.label_set, OneClass()
+
+        class spec:  # noqa: N801  (stands in for a NetworkSpec)
+            uses_depth = False
+
+    row = fit.folder_scores(Net(), folder, 1)
+    assert row["images"] == 2
+    assert row["pixel_accuracy"] == pytest.approx(np.mean(labels == c), abs=1e-3)
+    assert 0.0 < row["miou"] < row["pixel_accuracy"]
