@@ -31,17 +31,19 @@ from semmap.sim.scene import KINDS, SIZES
 from semmap.sim.trajectory import TRAJECTORY_KINDS
 
 TRAIN_SEEDS = range(100, 220)
+#: Seeds of the extra training scenes of ``--extra N`` (disjoint from training, validation and test).
+EXTRA_SEEDS = range(400, 1000)
 VAL_SEEDS = range(300, 308)
 TRAIN_FRAMES, VAL_FRAMES = 17, 10
 #: Seconds of camera motion the stored frames of a scene are spread over.
 PATH_SECONDS = 20.0
 
 
-def train_plan() -> list[tuple[int, str, str, str]]:
-    """(seed, kind, size, trajectory) of every training scene."""
+def train_plan(seeds: range = TRAIN_SEEDS) -> list[tuple[int, str, str, str]]:
+    """(seed, kind, size, trajectory) of every training scene (of ``seeds``)."""
     # every kind meets every trajectory kind and size (kind i % 4, trajectory (i + i // 4) % 4, size (i // 4) % 3)
     return [(seed, KINDS[i % 4], SIZES[(i // 4) % 3], TRAJECTORY_KINDS[(i + i // 4) % 4])
-            for i, seed in enumerate(TRAIN_SEEDS)]
+            for i, seed in enumerate(seeds)]
 
 
 def val_plan() -> list[tuple[int, str, str, str]]:
@@ -76,15 +78,23 @@ def main(argv: list[str] | None = None) -> None:
                              f"at least 1; default all)")
     parser.add_argument("--frames", type=int, default=None,
                         help=f"frames per scene (default {TRAIN_FRAMES} for training, {VAL_FRAMES} for validation)")
+    parser.add_argument("--extra", type=int, default=0,
+                        help=f"also render this many more training scenes into OUT/train-extra (seeds from "
+                             f"{EXTRA_SEEDS.start}, the same plan; at most {len(EXTRA_SEEDS)})")
     args = parser.parse_args(argv)
     w, h = (int(v) for v in args.image_size.lower().split("x"))
     if (args.scenes is not None and args.scenes < 1) or (args.frames is not None and args.frames < 1):
         parser.error("--scenes and --frames must be at least 1")
+    if not 0 <= args.extra <= len(EXTRA_SEEDS):
+        parser.error(f"--extra must be 0-{len(EXTRA_SEEDS)}")
     train, val = train_plan(), val_plan()
     if args.scenes is not None:
         train, val = train[: args.scenes], val[: max(1, args.scenes // 2)]
     render(args.out / "train", train, args.frames or TRAIN_FRAMES, (w, h))
     render(args.out / "val", val, args.frames or VAL_FRAMES, (w, h))
+    if args.extra:
+        extra = train_plan(EXTRA_SEEDS)[: args.extra]
+        render(args.out / "train-extra", extra, args.frames or TRAIN_FRAMES, (w, h))
 
 
 if __name__ == "__main__":

@@ -27,6 +27,8 @@ from make_training_data import PATH_SECONDS, TRAIN_FRAMES, VAL_FRAMES, train_pla
 #: Largest shipped weight file (bytes).
 MAX_BYTES = 10 * 1024 * 1024
 TEST_SCENES = "scene seeds 0-3 (office, kitchen, living_room, bedroom; medium; loop of 300 frames), 640x480"
+#: The data of the shipped runs (scripts/train_shipped.sh).
+DEFAULT_DATA_COMMAND = "python scripts/make_training_data.py --out outputs/train-data-320 --image-size 320x240"
 
 
 def command(config: dict) -> str:
@@ -97,7 +99,7 @@ def main() -> None:
                  "val": {"scene_seeds": [p[0] for p in val_plan()], "frames_per_scene": VAL_FRAMES,
                          "path_seconds": PATH_SECONDS},
                  "test": TEST_SCENES,
-                 "generate": "python scripts/make_training_data.py --out outputs/train-data --image-size 160x120"},
+                 "generate": args.data_command or DEFAULT_DATA_COMMAND},
         "networks": networks,
     }
     if only is not None:  # the data section describes the networks kept from before

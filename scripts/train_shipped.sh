@@ -1,23 +1,24 @@
 #!/bin/bash
-# The five shipped networks: same size (width 0.25, ResNet-18 or VGG-16 backbone), same data, same schedule
-# (2000 SGD steps of 8 images at 160x120 = 8 epochs of the 2040 training frames, lr 0.05, poly 0.9, seed 0),
-# one CPU thread each, run one after another.  Data: python scripts/make_training_data.py --out outputs/train-data
-# Afterwards: python scripts/ship_weights.py copies each run's best.pt into weights/ and writes the manifest.
-#
-# Pretrained starts (issue 32): INIT=espnetv2-pascal-s1 SIZE=320x240 LR=0.02 DATA=outputs/train-data-320
-# RUNS=outputs/runs-320 puts every head on the ESPNetv2 PASCAL encoder (data: make_training_data.py --image-size
-# 320x240); the same command runs on a GPU with DEVICE=cuda.  An interrupted run continues with --resume.
+# The five shipped networks (issue 32): each head of the papers on the ESPNetv2 s=1.0 encoder pretrained on ImageNet
+# and PASCAL VOC (--init espnetv2-pascal-s1, ../shared/weights/espnetv2), same data and schedule: 1000 SGD steps of
+# 8 images at 320x240 (4 epochs of the 2040 training frames), lr 0.02, poly 0.9, seed 0, one CPU thread each
+# (about 1.5 CPU-s a step; the five ran two or three at a time on two shared cores, 30-35 min each).
+# Data: python scripts/make_training_data.py --out outputs/train-data-320 --image-size 320x240
+# Afterwards: python scripts/ship_weights.py --runs outputs/runs-320 --bench BENCH.json copies each run's best.pt
+# into weights/ and writes the manifest.  The same command runs on a GPU with DEVICE=cuda; an interrupted run
+# continues with --resume.  The earlier scratch networks: INIT= SIZE=160x120 LR=0.05 ITERATIONS=2000
+# DATA=outputs/train-data RUNS=outputs/train-runs (data: make_training_data.py --image-size 160x120).
 set -euo pipefail
 cd "$(dirname "$0")/.."
-DATA=${DATA:-outputs/train-data}
-RUNS=${RUNS:-outputs/train-runs}
+DATA=${DATA:-outputs/train-data-320}
+RUNS=${RUNS:-outputs/runs-320}
 MODELS=${MODELS:-"cbam-pspnet pspnet fcn rgb-only rgbd-net"}
-SIZE=${SIZE:-160x120}
-LR=${LR:-0.05}
-ITERATIONS=${ITERATIONS:-2000}
+SIZE=${SIZE:-320x240}
+LR=${LR:-0.02}
+ITERATIONS=${ITERATIONS:-1000}
 DEVICE=${DEVICE:-cpu}
 THREADS=${THREADS:-1}
-INIT=${INIT:-}
+INIT=${INIT-espnetv2-pascal-s1}
 mkdir -p "$RUNS"
 for model in $MODELS; do
   if [ -f "$RUNS/$model/final.pt" ]; then continue; fi
