@@ -152,3 +152,40 @@ def test_a_grey_image_prepares_the_same_pyramids_as_its_colour_one(desk_frames):
     assert grey(f.rgb).dtype == np.uint8 and grey(f.rgb).shape == f.rgb.shape[:2]
     for a, b in zip(from_rgb.intensity, from_grey.intensity, strict=True):
         assert np.array_equal(a, b)
+
+
+def _half_blind(frame: Frame, share: float = 0.7) -> Frame:
+    """``frame`` with no depth in its left ``share`` of columns (a surface nearer than the sensor's minimum range)."""
+    depth = frame.depth.copy()
+    depth[:, : int(share * depth.shape[1])] = 0.0
+    return Frame(index=frame.index, timestamp=frame.timestamp, rgb=frame.rgb, depth=depth,
+                 intrinsics=frame.intrinsics, T_world_cam=frame.T_world_cam, name=frame.name)
+
+
+def test_overlap_counts_only_the_pixels_that_have_depth(desk_frames):
+    aligner = OdometryConfig().aligner(desk_frames[0].intrinsics)
+    f0, f2 = _half_blind(desk_frames[0]), _half_blind(desk_frames[2])
+    out = aligner.align(aligner.image(f2.rgb, f2.depth), aligner.image(f0.rgb, f0.depth),
+                        invert_pose(f0.T_world_cam) @ f2.T_world_cam)
+    assert out is not None and out.fitness < 0.3  # 70 % of the pixels cannot have a correspondence
+    assert out.overlap > 0.85  # but nearly all that can, do
+
+
+def test_a_view_mostly_without_depth_keeps_its_keyframe(desk_frames):
+    """(issue 34) Keyframes follow the views' overlap, not the share of pixels the sensor measured: a frame-sized
+    fitness made a keyframe of every frame of a view 70 % out of range, chaining every step's error."""
+    from semmap.poses.odometry import DenseOdometry
+
+    blind = [_half_blind(f) for f in desk_frames]
+    counts = {}
+    for overlap in (True, False):
+        odometry = DenseOdometry(OdometryConfig(overlap_fitness=overlap))
+        for f in blind:
+            odometry.track(f)
+        counts[overlap] = sum(r.keyframe for r in odometry.reports)
+        assert not odometry.fallbacks
+    full = DenseOdometry()
+    for f in desk_frames:
+        full.track(f)
+    assert counts[True] == sum(r.keyframe for r in full.reports) < len(desk_frames)
+    assert counts[False] == len(desk_frames)

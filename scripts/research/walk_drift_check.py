@@ -11,7 +11,7 @@ and ceiling pixels where the frame has labels); per keyframe its ORB keypoints w
 relocalisation attempt with its outcome. The report then gives the ATE along the path, the raw chain's drift
 (frame 0 aligned, no fit), the keyframe steps whose rotation error is largest (a rotation error tilts all the
 path after it: lever arm = the distance the camera travels afterwards), and what those steps looked like against
-the median step; and the path's length, turning and revisits (``--revisit``), the statistics to compare a
+the median step; and the path's length, turning and revisits (:func:`path_stats`), the statistics to compare a
 simulated walk with the 7-Scenes frames.
 """
 
@@ -141,7 +141,7 @@ def relative_error(gt: np.ndarray, est: np.ndarray, i: int, j: int) -> tuple[flo
     return float(np.linalg.norm(E[:3, 3])), float(np.degrees(rotation_angle(E[:3, :3])))
 
 
-def path_stats(gt: np.ndarray, radius: float = 0.3, angle_deg: float = 30.0, gap_s: float = 10.0,
+def path_stats(gt: np.ndarray, radius: float = 0.5, angle_deg: float = 45.0, gap_s: float = 5.0,
                fps: float = 30.0) -> dict:
     """Path length, total turning, extent, and revisits: the share of frames with an earlier frame at least
     ``gap_s`` before within ``radius`` metres and ``angle_deg`` of viewing direction (a place seen again)."""
