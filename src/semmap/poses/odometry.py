@@ -54,10 +54,10 @@ class OdometryConfig:
     keyframe_fitness: float = 0.6
     #: An alignment with lower fitness is rejected (motion-model fallback).
     min_fitness: float = 0.2
-    #: Fitness (all three rules above, and the SLAM's loop check) is the share of the frame's valid-depth pixels
-    #: that found a correspondence (True), not of all its pixels (False). Only pixels with depth can have one, so
-    #: with the pixel share a view that is mostly out of the sensor's range (a door passed closer than the Kinect's
-    #: 0.4-0.5 m minimum: 25-35 % valid depth on the simulated walk) made a keyframe of every frame and had its
+    #: Fitness (the keyframe and rejection rules above, and the SLAM's loop check) is the share of the frame's
+    #: valid-depth pixels that found a correspondence (True), not of all its pixels (False). Only pixels with depth
+    #: can have one, so with the pixel share a view mostly out of the sensor's range (a door passed closer than the
+    #: Kinect's 0.8 m minimum: 25-35 % valid depth on the simulated walk) made a keyframe of every frame and had
     #: alignments rejected, chaining frame-to-frame and motion-model errors (scripts/research/walk_drift_check.py).
     overlap_fitness: bool = True
     #: An alignment this far from the prediction (metres, degrees) is rejected as a jump.
