@@ -30,14 +30,12 @@ METHODS = ("hybrid", "intensity", "point_to_plane")
 
 @dataclass(frozen=True)
 class AlignResult:
-    """A dense alignment: ``T_target_source``, the fraction of pixels with a correspondence, the RMSE of their
-    (weighted) residuals, and ``overlap``: the fraction of the source's pixels with valid depth (the only ones that
-    can have one) that found a correspondence, i.e. how much of what the sensor saw the two views share."""
+    """A dense alignment: ``T_target_source``, the fraction of pixels with a correspondence, and the RMSE of their
+    (weighted) residuals."""
 
     T: np.ndarray
     fitness: float
     inlier_rmse: float
-    overlap: float = float("nan")
 
 
 def _gradient(image: np.ndarray, dx: int, dy: int) -> np.ndarray:
@@ -65,14 +63,6 @@ class DenseImage:
         self.vertex = [_vertex_map(d, k) for d, k in zip(depth, K, strict=True)]
         self._gradients: list[tuple[np.ndarray, ...]] | None = None
         self._normals: list[np.ndarray] | None = None
-        self._valid: list[int] | None = None
-
-    @property
-    def valid(self) -> list[int]:
-        """Per level: the number of pixels with valid depth (within the aligner's range)."""
-        if self._valid is None:
-            self._valid = [int(np.isfinite(d).sum()) for d in self.depth]
-        return self._valid
 
     @property
     def gradients(self) -> list[tuple[np.ndarray, ...]]:
@@ -185,9 +175,9 @@ class DenseAligner:
         return DenseImage(depths, grays, self._K)
 
     def _step(self, source: DenseImage, target: DenseImage, level: int, T: np.ndarray,
-              loss: tuple[float, float, float]) -> tuple[np.ndarray, float, float, float] | None:
-        """One Gauss-Newton step at pyramid ``level`` from ``T``: the new ``T``, fitness, residual RMSE and overlap
-        (see :class:`AlignResult`), or None when the system is singular."""
+              loss: tuple[float, float, float]) -> tuple[np.ndarray, float, float] | None:
+        """One Gauss-Newton step at pyramid ``level`` from ``T``: the new ``T``, fitness and residual RMSE, or None
+        when the system is singular."""
         trunc, depth_huber, intensity_huber = loss
         K = self._K[level]
         if self.method == "point_to_plane":
@@ -202,14 +192,13 @@ class DenseAligner:
         if step is None:
             return None
         count = system[28]
-        overlap = count / max(source.valid[level], 1)
-        return step @ T, count / source.intensity[level].size, float(np.sqrt(system[27] / count)), overlap
+        return step @ T, count / source.intensity[level].size, float(np.sqrt(system[27] / count))
 
     def align(self, source: DenseImage, target: DenseImage, T_init: np.ndarray) -> AlignResult | None:
         """``T_target_source`` from the initial guess ``T_init``, or None when a step's system is singular (e.g. an
         image without valid depth) or the result is not finite."""
         T = np.array(T_init, dtype=np.float64)
-        fitness, rmse, overlap = 0.0, float("nan"), 0.0
+        fitness, rmse = 0.0, float("nan")
         schedule = zip(range(self.levels - 1, -1, -1), self.iterations, self.robust_iterations, strict=True)
         for level, plain, robust in schedule:
             for i, loss in enumerate((self.loss,) * plain + (self.robust_loss,) * robust):
@@ -217,9 +206,9 @@ class DenseAligner:
                 if out is None:
                     return None
                 moved = np.abs(out[0] - T).max()
-                T, fitness, rmse, overlap = out
+                T, fitness, rmse = out
                 if moved < CONVERGED and i < plain:  # converged: the level ends here
                     break
         if not np.isfinite(T).all():
             return None
-        return AlignResult(snap_rigid(T), fitness, rmse, overlap)
+        return AlignResult(snap_rigid(T), fitness, rmse)

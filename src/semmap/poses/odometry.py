@@ -54,12 +54,6 @@ class OdometryConfig:
     keyframe_fitness: float = 0.6
     #: An alignment with lower fitness is rejected (motion-model fallback).
     min_fitness: float = 0.2
-    #: Fitness (the keyframe and rejection rules above, and the SLAM's loop check) is the share of the frame's
-    #: valid-depth pixels that found a correspondence (True), not of all its pixels (False). Only pixels with depth
-    #: can have one, so with the pixel share a view mostly out of the sensor's range (a door passed closer than the
-    #: Kinect's 0.8 m minimum: 25-35 % valid depth on the simulated walk) made a keyframe of every frame and had
-    #: alignments rejected, chaining frame-to-frame and motion-model errors (scripts/research/walk_drift_check.py).
-    overlap_fitness: bool = True
     #: An alignment this far from the prediction (metres, degrees) is rejected as a jump.
     max_jump: float = 0.25
     max_jump_deg: float = 20.0
@@ -152,8 +146,7 @@ class DenseOdometry:
         if result is None:  # a singular system ("tracking failed") or a non-finite result
             return predicted, 0.0, float("nan"), "dense alignment failed (too little valid depth or texture)"
         pose = snap_rigid(ref.pose @ result.T)
-        fitness = result.overlap if self.config.overlap_fitness else result.fitness
-        return pose, fitness, result.inlier_rmse, self._reject(pose, predicted, fitness)
+        return pose, result.fitness, result.inlier_rmse, self._reject(pose, predicted, result.fitness)
 
     def _set_reference(self, frame: Frame, image: DenseImage, pose: np.ndarray) -> None:
         """Make ``frame`` (about to be recorded at ``pose``) the keyframe the next frames are aligned to."""
