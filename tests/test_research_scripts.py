@@ -2,7 +2,8 @@
 pose averaging of ``scripts/research/tracker_agreement.py``, the RPE of ``scripts/research/slam_check.py``, and the
 pose-list reading, colour-camera move and rotation comparison of
 ``scripts/research/seven_scenes_sfm_reference.py``; the per-voxel selectors and edge masks of
-``scripts/research/fusion_loss_check.py``."""
+``scripts/research/fusion_loss_check.py``; the revisit count and drift placement of
+``scripts/research/walk_drift_check.py``."""
 
 from __future__ import annotations
 
@@ -307,3 +308,31 @@ def test_network_fit_check_scores_a_one_class_network_by_that_class_share(tmp_pa
     assert row["images"] == 2
     assert row["pixel_accuracy"] == pytest.approx(np.mean(labels == c), abs=1e-3)
     assert 0.0 < row["miou"] < row["pixel_accuracy"]
+
+
+def _line(n: int, back: bool) -> np.ndarray:
+    """(n, 4, 4) poses along x at 1 cm per frame looking along +z, turning back half-way when ``back``."""
+    x = np.arange(n) * 0.01
+    if back:
+        x = np.where(np.arange(n) < n // 2, x, x[n // 2] - (np.arange(n) - n // 2) * 0.01)
+    poses = np.tile(np.eye(4), (n, 1, 1))
+    poses[:, 0, 3] = x
+    return poses
+
+
+def test_walk_drift_check_counts_revisits_and_places_drift_where_it_arose():
+    drift = _script("walk_drift_check")
+    assert drift.path_stats(_line(600, back=False))["revisit_share"] == 0.0
+    there_and_back = drift.path_stats(_line(600, back=True))
+    assert there_and_back["path_m"] == pytest.approx(5.99) and 0.3 < there_and_back["revisit_share"] < 0.5
+    gt = _line(300, back=False)
+    est = gt.copy()
+    turn = np.eye(4)
+    turn[:3, :3] = Rotation.from_euler("y", 2.0, degrees=True).as_matrix()
+    est[100:] = est[99] @ turn @ np.linalg.inv(gt[99]) @ gt[100:]  # a 2-degree error in the step 99 -> 100
+    pos, rot = drift.anchored_drift(gt, est)
+    assert np.allclose(rot[:100], 0.0) and np.allclose(rot[100:], 2.0)
+    assert pos[99] == 0.0 and pos[-1] == pytest.approx(np.radians(2.0) * 2.0, rel=0.01)  # lever arm 2 m
+    assert drift.relative_error(gt, est, 99, 100)[1] == pytest.approx(2.0)
+    assert drift.stretches(rot, 30)[0][2] == pytest.approx(2.0)
+    assert drift.aligned_errors(gt, gt + 0.0).max() < 1e-12
