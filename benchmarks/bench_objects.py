@@ -90,6 +90,9 @@ def map_scene(name: str, seed: int, kind: str, trajectory: str, frames: int, lev
         switches.add(tracked.track_ids, g, cover)
         truth.add_frame(f.instances)
         if not keyframe.due(f.T_world_cam):
+            t0 = time.perf_counter()
+            omap.note(tracked, f.depth, f.rgb, f.intrinsics, f.T_world_cam)  # what a keyframe's detector may miss
+            t_map += time.perf_counter() - t0
             continue
         keyframes += 1
         dense_points += int(((f.depth > omap.params.min_depth) & (f.depth <= omap.params.max_depth)).sum())

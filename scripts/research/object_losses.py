@@ -77,6 +77,7 @@ def run(args: argparse.Namespace) -> None:
         g, cover = detection_truth(tracked.ids, f.instances, len(tracked))
         truth.add_frame(f.instances)
         if not keyframe.due(f.T_world_cam):
+            omap.note(tracked, f.depth, f.rgb, f.intrinsics, f.T_world_cam)
             continue
         ids = omap.integrate(tracked, f.depth, f.rgb, f.intrinsics, f.T_world_cam, f.index)
         truth.add_detections(ids, g, cover)
