@@ -250,16 +250,18 @@ def test_mask_view_counts_only_points_the_camera_sees_and_allows_the_outline_err
 
 def test_a_keyframe_takes_what_its_detector_missed_from_the_frames_before_it():
     """A chair detected in the first keyframe and the frames after it, missed in the second keyframe: the frames'
-    latest detection joins that keyframe (two sightings, a real object); not when the option is off, and not when
-    the second keyframe's camera looks away (the chair is not in view, nothing was missed)."""
+    latest detection joins that keyframe (two sightings, a real object); not when the option is off, not when the
+    second keyframe's camera looks away (the chair is not in view, nothing was missed), and not when the keyframe
+    shows it smaller than the detector's smallest mask (small, not missed)."""
     from dataclasses import replace
 
     from object_helpers import look_at, render_boxes
 
     frames = box_frames(BOXES[:1], [CHAIR], 6, arc_deg=30)
 
-    def run(window: bool, away: bool) -> ObjectMap:
-        omap = ObjectMap(INDOOR_LABELS, ObjectMapParams(pixel_stride=1, window_sightings=window))
+    def run(window: bool, away: bool, min_pixels: int = 150) -> ObjectMap:
+        params = ObjectMapParams(pixel_stride=1, window_sightings=window, window_min_pixels=min_pixels)
+        omap = ObjectMap(INDOOR_LABELS, params)
         for f in frames[:5]:
             inst = replace(Instances.from_id_image(f.instances, [CHAIR], [1.0]), track_ids=np.array([7], np.int32))
             omap.count_track_frames(inst.track_ids)
@@ -278,6 +280,8 @@ def test_a_keyframe_takes_what_its_detector_missed_from_the_frames_before_it():
     assert found.window_sightings == 1 and len(found.real_objects()) == 1
     assert found.real_objects()[0].sightings == 2
     assert _inside(found.real_objects()[0].points, BOXES[0]).mean() > 0.99
-    for window, away in ((False, False), (True, True)):
-        omap = run(window, away)
+    shown = (BOXES[0][1] - BOXES[0][0])[2] * OBJECT_CAMERA.fx / 2.2  # its height in pixels, about
+    assert 20 < shown < 100
+    for window, away, min_pixels in ((False, False, 150), (True, True, 150), (True, False, int(2 * shown ** 2))):
+        omap = run(window, away, min_pixels)
         assert omap.window_sightings == 0 and omap.real_objects() == [] and len(omap.objects) == 1

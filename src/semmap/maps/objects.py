@@ -118,6 +118,9 @@ class ObjectMapParams:
     mask_check_max_size: float = 0.4
     #: use the detections between keyframes where a keyframe's detector missed an object in view (step 8)
     window_sightings: bool = True
+    #: ... for objects the keyframe shows with at least this many pixels (estimated from the kept cloud): one shown
+    #: smaller than a detector's smallest mask (Mask R-CNN-like: 150 px) was not missed, only small
+    window_min_pixels: int = 150
 
     def __post_init__(self) -> None:
         if min(self.voxel, self.overlap_voxel, self.centroid_distance, self.overlap_threshold) <= 0:
@@ -359,13 +362,23 @@ class ObjectMap:
                 continue
             world = pts.astype(np.float64) @ T[:3, :3].T + T[:3, 3]
             hits, seen, _ = view.masks_hit(world, p.mask_outline_px)
-            if seen < p.min_visible_points or hits[0] < p.mask_share * seen:
+            if seen < p.min_visible_points or hits[0] < p.mask_share * seen or \
+                    self._shown_pixels(pts, world, view.T_world_cam, seen) < p.window_min_pixels:
                 continue
             one = CameraClouds(pts, colors, np.zeros(len(pts), np.int64), np.array([cls], np.int32),
                                np.array([score], np.float32), np.array([track], np.int32))
             out += [replace(s, detection=-1) for s in self.place(one, T)]
         self.window_sightings += len(out)
         return out
+
+    def _shown_pixels(self, pts_then: np.ndarray, world: np.ndarray, T_now: np.ndarray, seen: int) -> float:
+        """Pixels a kept cloud (one point per ``pixel_stride``-squared mask pixels at its frame's depth) covers in
+        a keyframe whose camera sees ``seen`` of its (up to ``MAX_PROJECTED``) projected points."""
+        sampled = len(world[::max(1, -(-len(world) // MAX_PROJECTED))])
+        z_then = float(np.mean(pts_then[:, 2]))
+        z_now = float(np.mean((world - T_now[:3, 3]) @ T_now[:3, 2]))
+        scale = (z_then / z_now) ** 2 if z_now > 1e-3 else 0.0
+        return seen / max(sampled, 1) * len(world) * self.params.pixel_stride ** 2 * scale
 
     def integrate_clouds(self, clouds: CameraClouds, T_world_cam: np.ndarray, frame_index: int, *,
                          view: MaskView | None = None) -> np.ndarray:
