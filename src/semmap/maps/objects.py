@@ -36,7 +36,8 @@ keyframe and tracked detection (:class:`~semmap.types.Instances` with track ids)
    in none) are not merged. A book beside a missed or re-tracked neighbour shares its 3 cm cells and lies within
    10 cm of it, which eq. 22 alone takes for one object; the image tells them apart (objects a few outline
    errors wide in the image, ``min_width_outlines``, are left to eq. 22);
-8. what the detector missed in a keyframe is taken from the frames before it (``window_sightings``): between
+8. optionally (``window_sightings``, off: measured in docs/realism.md, it over-counts books on the living room
+   and office walks), what the detector missed in a keyframe is taken from the frames before it: between
    keyframes :meth:`ObjectMap.note` keeps each track's latest detection cloud; at the keyframe, a kept cloud whose
    track the keyframe does not detect, and which the keyframe's camera sees (``min_visible_points``, depth
    agreeing) mostly in no mask, joins the keyframe as one more sighting. A detector that finds a thin book spine
@@ -116,8 +117,9 @@ class ObjectMapParams:
     #: centroid distances of each other can be glued by eq. 22, and a large object's few visible points (its far
     #: side hidden) are too easily its mask's bleed onto the floor behind
     mask_check_max_size: float = 0.4
-    #: use the detections between keyframes where a keyframe's detector missed an object in view (step 8)
-    window_sightings: bool = True
+    #: use the detections between keyframes where a keyframe's detector missed an object in view (step 8; off:
+    #: on kinect it finds bedroom books but adds more books than it finds on the living room walk, docs/realism.md)
+    window_sightings: bool = False
     #: ... for objects the keyframe shows with at least this many pixels (estimated from the kept cloud): one shown
     #: smaller than a detector's smallest mask (Mask R-CNN-like: 150 px) was not missed, only small
     window_min_pixels: int = 150
