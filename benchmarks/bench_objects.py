@@ -40,7 +40,7 @@ from semmap.datasets.simulated import SimulatedDataset
 from semmap.eval.objects import IdentitySwitches, ObjectTruth, count_errors, detection_truth
 from semmap.eval.trajectory import evaluate_trajectory
 from semmap.labels import INDOOR_LABELS
-from semmap.maps.objects import ObjectMap
+from semmap.maps.objects import ObjectMap, ObjectMapParams
 from semmap.object_slam import make_pose_tracker
 from semmap.perception.instances.oracle import OracleInstances
 from semmap.perception.schedule import Scheduler, SegmentationSchedule
@@ -69,12 +69,13 @@ MIN_PIXELS, MIN_SIGHTINGS = 150, 3
 
 
 def map_scene(name: str, seed: int, kind: str, trajectory: str, frames: int, level: str,
-              realism: str = DEFAULT_REALISM) -> dict:
-    """One object-map run with ground-truth poses on frames of the ``realism`` preset; its metrics and timings."""
+              realism: str = DEFAULT_REALISM, window: bool = False) -> dict:
+    """One object-map run with ground-truth poses on frames of the ``realism`` preset; its metrics and timings
+    (``window``: the object map's optional sightings from the frames between keyframes)."""
     ds = SimulatedDataset.default(scene_seed=seed, kind=kind, trajectory=trajectory, frames=frames, realism=realism)
     source = OracleInstances(ds.label_set, preset=level, seed=seed)
     tracker = DeepSort(num_classes=len(ds.label_set))
-    omap = ObjectMap(ds.label_set)
+    omap = ObjectMap(ds.label_set, ObjectMapParams(window_sightings=window))
     keyframe = Scheduler(SegmentationSchedule(keyframes=True))
     switches, truth = IdentitySwitches(), ObjectTruth(min_pixels=MIN_PIXELS)
     gt_class: dict[int, int] = {}
@@ -90,6 +91,9 @@ def map_scene(name: str, seed: int, kind: str, trajectory: str, frames: int, lev
         switches.add(tracked.track_ids, g, cover)
         truth.add_frame(f.instances)
         if not keyframe.due(f.T_world_cam):
+            t0 = time.perf_counter()
+            omap.note(tracked, f.depth, f.rgb, f.intrinsics, f.T_world_cam)  # what a keyframe's detector may miss
+            t_map += time.perf_counter() - t0
             continue
         keyframes += 1
         dense_points += int(((f.depth > omap.params.min_depth) & (f.depth <= omap.params.max_depth)).sum())
@@ -200,6 +204,8 @@ def main() -> None:
     ap.add_argument("--realism", default=DEFAULT_REALISM, choices=REALISMS, help="the simulator's preset")
     ap.add_argument("--scenes", help=f"comma-separated subset of {', '.join(SCENES)}")
     ap.add_argument("--frames", type=int, help="frames per object scene (default 300, quick 150)")
+    ap.add_argument("--window-sightings", action="store_true",
+                    help="the object map also takes what a keyframe's detector missed from the frames before it")
     ap.add_argument("--pose-runs",
                     help=f"comma-separated subset of the pose runs {', '.join(POSE_RUNS)} (alone: no object scenes)")
     args = ap.parse_args()
@@ -208,7 +214,7 @@ def main() -> None:
     rows = []
     for name, spec in scenes.items():
         for level in levels:
-            row = map_scene(name, *spec, level, args.realism)
+            row = map_scene(name, *spec, level, args.realism, args.window_sightings)
             print(json.dumps(row), flush=True)
             rows.append(row)
     pose_rows = []

@@ -246,3 +246,42 @@ def test_mask_view_counts_only_points_the_camera_sees_and_allows_the_outline_err
     assert seen == 3 and hits.tolist() == [2, 1]
     hits, seen, _ = view.masks_hit(pts, outline_px=2)
     assert seen == 3 and hits.tolist() == [1, 2]  # the point 2 px off the mask counts for it
+
+
+def test_a_keyframe_takes_what_its_detector_missed_from_the_frames_before_it():
+    """A chair detected in the first keyframe and the frames after it, missed in the second keyframe: the frames'
+    latest detection joins that keyframe (two sightings, a real object); not when the option is off, not when the
+    second keyframe's camera looks away (the chair is not in view, nothing was missed), and not when the keyframe
+    shows it smaller than the detector's smallest mask (small, not missed)."""
+    from dataclasses import replace
+
+    from object_helpers import look_at, render_boxes
+
+    frames = box_frames(BOXES[:1], [CHAIR], 6, arc_deg=30)
+
+    def run(window: bool, away: bool, min_pixels: int = 150) -> ObjectMap:
+        params = ObjectMapParams(pixel_stride=1, window_sightings=window, window_min_pixels=min_pixels)
+        omap = ObjectMap(INDOOR_LABELS, params)
+        for f in frames[:5]:
+            inst = replace(Instances.from_id_image(f.instances, [CHAIR], [1.0]), track_ids=np.array([7], np.int32))
+            omap.count_track_frames(inst.track_ids)
+            if f.index == 0:
+                omap.integrate(inst, f.depth, f.rgb, f.intrinsics, f.T_world_cam, f.index)
+            else:
+                omap.note(inst, f.depth, f.rgb, f.intrinsics, f.T_world_cam)
+        last = frames[5]
+        T = look_at(last.T_world_cam[:3, 3], 2 * last.T_world_cam[:3, 3] - BOXES[0][1]) if away else last.T_world_cam
+        depth, _ = render_boxes(BOXES[:1], T)
+        missed = Instances.from_id_image(np.zeros_like(last.instances), np.zeros(0, np.int32), np.zeros(0))
+        omap.integrate(missed, depth, last.rgb, last.intrinsics, T, last.index)
+        return omap
+
+    found = run(True, False)
+    assert found.window_sightings == 1 and len(found.real_objects()) == 1
+    assert found.real_objects()[0].sightings == 2
+    assert _inside(found.real_objects()[0].points, BOXES[0]).mean() > 0.99
+    shown = (BOXES[0][1] - BOXES[0][0])[2] * OBJECT_CAMERA.fx / 2.2  # its height in pixels, about
+    assert 20 < shown < 100
+    for window, away, min_pixels in ((False, False, 150), (True, True, 150), (True, False, int(2 * shown ** 2))):
+        omap = run(window, away, min_pixels)
+        assert omap.window_sightings == 0 and omap.real_objects() == [] and len(omap.objects) == 1

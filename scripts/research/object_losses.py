@@ -13,7 +13,7 @@ maximum range, far dropout, beside a depth edge (shadow / edge dropout), dark ma
 sensor's depth with the exact depth of the same frames.
 
     PYTHONPATH=src:benchmarks python scripts/research/object_losses.py [--scene office-loop] [--frames 300]
-        [--realism kinect] [--level maskrcnn-like] [--cls book] [--no-check]
+        [--realism kinect] [--level maskrcnn-like] [--cls book] [--no-check] [--window]
 """
 
 from __future__ import annotations
@@ -65,7 +65,7 @@ def run(args: argparse.Namespace) -> None:
     exact = SimulatedDataset(ds.scene, ds.poses, noise=False, seed=seed, realism="clean")
     source = OracleInstances(ds.label_set, preset=args.level, seed=seed)
     tracker = DeepSort(num_classes=len(ds.label_set))
-    omap = ObjectMap(ds.label_set, ObjectMapParams(mask_check=not args.no_check))
+    omap = ObjectMap(ds.label_set, ObjectMapParams(mask_check=not args.no_check, window_sightings=args.window))
     keyframe, truth = Scheduler(SegmentationSchedule(keyframes=True)), ObjectTruth(min_pixels=MIN_PIXELS)
     cid = ds.label_set.id_of(args.cls)
     stats: dict[int, collections.Counter] = collections.defaultdict(collections.Counter)
@@ -77,6 +77,7 @@ def run(args: argparse.Namespace) -> None:
         g, cover = detection_truth(tracked.ids, f.instances, len(tracked))
         truth.add_frame(f.instances)
         if not keyframe.due(f.T_world_cam):
+            omap.note(tracked, f.depth, f.rgb, f.intrinsics, f.T_world_cam)
             continue
         ids = omap.integrate(tracked, f.depth, f.rgb, f.intrinsics, f.T_world_cam, f.index)
         truth.add_detections(ids, g, cover)
@@ -140,6 +141,7 @@ def main() -> None:
     ap.add_argument("--level", default="maskrcnn-like")
     ap.add_argument("--cls", default="book", help="class whose lost depth is broken down")
     ap.add_argument("--no-check", action="store_true", help="the object map without its mask check")
+    ap.add_argument("--window", action="store_true", help="the object map with sightings between keyframes")
     run(ap.parse_args())
 
 

@@ -69,6 +69,10 @@ class ObjectStage:
             self.ms["objects"] += (time.perf_counter() - t3) * 1e3
             if truth is not None:
                 self._add_truth(frame, ids, truth, cover)
+        else:  # between keyframes: what the next keyframe's detector may miss
+            t3 = time.perf_counter()
+            self.map.note(tracked, frame.depth, frame.rgb, frame.intrinsics, T_world_cam)
+            self.ms["objects"] += (time.perf_counter() - t3) * 1e3
 
     def _add_truth(self, frame: Frame, ids: np.ndarray, truth: np.ndarray, cover: np.ndarray) -> None:
         self.truth.add_detections(ids, truth, cover)

@@ -35,7 +35,14 @@ keyframe and tracked detection (:class:`~semmap.types.Instances` with track ids)
    detection's object, and two objects whose visible points lie in different masks (or one in a mask, the other
    in none) are not merged. A book beside a missed or re-tracked neighbour shares its 3 cm cells and lies within
    10 cm of it, which eq. 22 alone takes for one object; the image tells them apart (objects a few outline
-   errors wide in the image, ``min_width_outlines``, are left to eq. 22).
+   errors wide in the image, ``min_width_outlines``, are left to eq. 22);
+8. optionally (``window_sightings``, off: measured in docs/realism.md, it over-counts books on the living room
+   and office walks), what the detector missed in a keyframe is taken from the frames before it: between
+   keyframes :meth:`ObjectMap.note` keeps each track's latest detection cloud; at the keyframe, a kept cloud whose
+   track the keyframe does not detect, and which the keyframe's camera sees (``min_visible_points``, depth
+   agreeing) mostly in no mask, joins the keyframe as one more sighting. A detector that finds a thin book spine
+   in half of the frames (its 2 px outline error halves a 5 px spine, under its 150 px minimum) would otherwise
+   map it from one keyframe of the two to four that show it, and one keyframe is not enough (step 5).
 
 Every object keeps score-weighted class votes, its cells, points and colours, track ids, sightings and the first
 and last frame it was seen in; its centroid is the mean of its points (eq. 16).
@@ -43,7 +50,7 @@ and last frame it was seen in; its centroid is the mean of its points (eq. 16).
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 from scipy.optimize import linear_sum_assignment
@@ -110,6 +117,12 @@ class ObjectMapParams:
     #: centroid distances of each other can be glued by eq. 22, and a large object's few visible points (its far
     #: side hidden) are too easily its mask's bleed onto the floor behind
     mask_check_max_size: float = 0.4
+    #: use the detections between keyframes where a keyframe's detector missed an object in view (step 8; off:
+    #: on kinect it finds bedroom books but adds more books than it finds on the living room walk, docs/realism.md)
+    window_sightings: bool = False
+    #: ... for objects the keyframe shows with at least this many pixels (estimated from the kept cloud): one shown
+    #: smaller than a detector's smallest mask (Mask R-CNN-like: 150 px) was not missed, only small
+    window_min_pixels: int = 150
 
     def __post_init__(self) -> None:
         if min(self.voxel, self.overlap_voxel, self.centroid_distance, self.overlap_threshold) <= 0:
@@ -169,7 +182,7 @@ class MapObject:
 class Sighting:
     """One detection's filtered cloud in one keyframe (world frame), before association."""
 
-    detection: int
+    detection: int  # index in the keyframe's detections; -1: kept from a frame before it (module step 8)
     class_id: int
     score: float
     track_id: int
@@ -264,6 +277,9 @@ class ObjectMap:
         self.track_frames: dict[int, int] = {}  # track id -> tracked frames it appeared in
         self._view: MaskView | None = None  # the keyframe being integrated, when its masks are known
         self._hits: dict[int, tuple[np.ndarray, int] | None] = {}
+        #: track id -> its latest detection since the last keyframe: (class, score, camera points, colours, pose)
+        self._window: dict[int, tuple[int, float, np.ndarray, np.ndarray, np.ndarray]] = {}
+        self.window_sightings = 0  # sightings taken from frames between keyframes (step 8)
 
     # ------------------------------------------------------------------ queries
     def count_track_frames(self, track_ids: np.ndarray) -> None:
@@ -316,11 +332,62 @@ class ObjectMap:
         return self.integrate_clouds(self.extract(instances, depth, rgb, intrinsics), T_world_cam, frame_index,
                                      view=view)
 
+    def note(self, instances: Instances, depth: np.ndarray, rgb: np.ndarray, intrinsics: CameraIntrinsics,
+             T_world_cam: np.ndarray) -> None:
+        """A tracked frame between keyframes: keep each tracked detection's cloud, the latest per track id, for
+        the next keyframe to use where its detector misses the object (module step 8)."""
+        tracks = instances.track_ids
+        if not (self.params.window_sightings and self.params.mask_check) or tracks is None or not np.any(tracks > 0):
+            return
+        counted = self.points_in, self.points_after_sor
+        clouds = self.extract(instances, depth, rgb, intrinsics)
+        self.points_in, self.points_after_sor = counted  # only what keyframes integrate is counted
+        T = np.asarray(T_world_cam, np.float64)
+        order = np.argsort(clouds.detection, kind="stable")
+        bounds = np.searchsorted(clouds.detection[order], np.arange(clouds.n + 1))
+        for k in np.flatnonzero((clouds.track_ids > 0) & (np.diff(bounds) >= self.params.min_points)):
+            rows = order[bounds[k]:bounds[k + 1]]
+            self._window[int(clouds.track_ids[k])] = (int(clouds.class_ids[k]), float(clouds.scores[k]),
+                                                      clouds.points[rows], clouds.colors[rows], T)
+
+    def _missed_sightings(self, clouds: CameraClouds, view: MaskView | None) -> list[Sighting]:
+        """The kept detections (:meth:`note`) of tracks this keyframe does not detect whose points the keyframe's
+        camera sees mostly in no mask: objects in view its detector missed (module step 8); the buffer is emptied."""
+        window, self._window = self._window, {}
+        if view is None or not window:
+            return []
+        p = self.params
+        detected = set(clouds.track_ids.tolist())
+        out: list[Sighting] = []
+        for track, (cls, score, pts, colors, T) in window.items():
+            if track in detected:
+                continue
+            world = pts.astype(np.float64) @ T[:3, :3].T + T[:3, 3]
+            hits, seen, _ = view.masks_hit(world, p.mask_outline_px)
+            if seen < p.min_visible_points or hits[0] < p.mask_share * seen or \
+                    self._shown_pixels(pts, world, view.T_world_cam, seen) < p.window_min_pixels:
+                continue
+            one = CameraClouds(pts, colors, np.zeros(len(pts), np.int64), np.array([cls], np.int32),
+                               np.array([score], np.float32), np.array([track], np.int32))
+            out += [replace(s, detection=-1) for s in self.place(one, T)]
+        self.window_sightings += len(out)
+        return out
+
+    def _shown_pixels(self, pts_then: np.ndarray, world: np.ndarray, T_now: np.ndarray, seen: int) -> float:
+        """Pixels a kept cloud (one point per ``pixel_stride``-squared mask pixels at its frame's depth) covers in
+        a keyframe whose camera sees ``seen`` of its (up to ``MAX_PROJECTED``) projected points."""
+        sampled = len(world[::max(1, -(-len(world) // MAX_PROJECTED))])
+        z_then = float(np.mean(pts_then[:, 2]))
+        z_now = float(np.mean((world - T_now[:3, 3]) @ T_now[:3, 2]))
+        scale = (z_then / z_now) ** 2 if z_now > 1e-3 else 0.0
+        return seen / max(sampled, 1) * len(world) * self.params.pixel_stride ** 2 * scale
+
     def integrate_clouds(self, clouds: CameraClouds, T_world_cam: np.ndarray, frame_index: int, *,
                          view: MaskView | None = None) -> np.ndarray:
         """Add one keyframe's filtered detection clouds seen from ``T_world_cam`` (see :meth:`integrate`); ``view``
-        (its masks and depth) lets the image veto associations and merges (module step 7)."""
-        sightings = self.place(clouds, T_world_cam)
+        (its masks and depth) lets the image veto associations and merges (module step 7) and brings in what its
+        detector missed (step 8)."""
+        sightings = self.place(clouds, T_world_cam) + self._missed_sightings(clouds, view)
         self.keyframes += 1
         self._view, self._hits = view, {}
         assigned = np.zeros(clouds.n, np.int64)
@@ -332,7 +399,8 @@ class ObjectMap:
                 obj = self._new_object(s, frame_index)
             else:
                 self._add(obj, s, frame_index)
-            assigned[s.detection] = obj.id
+            if s.detection >= 0:
+                assigned[s.detection] = obj.id
             touched.append(obj.id)
         self._index()
         self._hits = {}  # the touched objects now hold this keyframe's points
