@@ -409,7 +409,7 @@ PARTS = {"octree": ("octree_vs_octomap", "benchmarks/bench_octree_vs_octomap.py"
          "networks": ("networks", "benchmarks/bench_networks.py"),
          "products": ("products", "benchmarks/bench_products.py")}
 #: parts the docs can do without when an earlier run did not have them yet
-OPTIONAL = {"end_to_end", "localization", "networks"}
+OPTIONAL = {"end_to_end", "localization", "networks", "products"}
 #: What the docs use of the demo's report (kept in the JSON block so ``--only`` can reuse it).
 DEMO_KEYS = ("segmenter", "miou_3d", "geometric_precision_3d", "frames_used", "ms_per_frame", "bytes_on_disk",
              "dense_point_cloud_bytes")
