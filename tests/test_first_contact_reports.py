@@ -308,3 +308,22 @@ def test_make_training_data_makes_a_small_set_on_request(tmp_path, monkeypatch):
     assert rendered == [("train", 120, 17, (160, 120)), ("val", 8, 10, (160, 120))]  # the shipped networks' set
     with pytest.raises(SystemExit):
         make_training_data.main(["--out", str(tmp_path), "--frames", "0"])
+
+
+def test_make_training_data_renders_extra_scenes_with_their_own_seeds(tmp_path, monkeypatch):
+    """``--extra N``: N more training scenes into train-extra, seeds from 400 (disjoint from training 100-219,
+    validation 300-307 and the test scenes 0-9), the same kind / size / path plan."""
+    make_training_data = _script("make_training_data")
+    rendered = []
+    monkeypatch.setattr(make_training_data, "render", lambda out, plan, frames, size: rendered.append(
+        (out.name, [p[0] for p in plan], frames)))
+    make_training_data.main(["--out", str(tmp_path), "--extra", "5", "--image-size", "320x240"])
+    names = [r[0] for r in rendered]
+    assert names == ["train", "val", "train-extra"]
+    extra = rendered[2][1]
+    assert extra == [400, 401, 402, 403, 404] and rendered[2][2] == 17
+    assert not set(extra) & (set(rendered[0][1]) | set(rendered[1][1]) | set(range(10)))
+    kinds = [p[1:] for p in make_training_data.train_plan(make_training_data.EXTRA_SEEDS)[:4]]
+    assert kinds == [p[1:] for p in make_training_data.train_plan()[:4]]  # the same plan
+    with pytest.raises(SystemExit):
+        make_training_data.main(["--out", str(tmp_path), "--extra", "-1"])
