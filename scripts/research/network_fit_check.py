@@ -18,10 +18,10 @@ from pathlib import Path
 import numpy as np
 
 from semmap.eval.semantic import confusion, scores
-from semmap.perception.network import IMAGENET_MEAN, IMAGENET_STD
 from semmap.perception.networks.registry import load_weights
+from semmap.train.calibrate import image_logits
 from semmap.train.class_weights import IGNORE
-from semmap.train.data import DEPTH_MM, gather
+from semmap.train.data import gather
 
 
 def every_nth(n: int, every: int) -> np.ndarray:
@@ -33,21 +33,12 @@ def every_nth(n: int, every: int) -> np.ndarray:
 
 def folder_scores(net, folder: Path, every: int) -> dict:
     """MIoU and pixel accuracy of ``net`` (a loaded weight file) on every ``every``-th image of ``folder``."""
-    import torch
-
     ds = gather([folder], net.input_size, label_set=net.label_set, need_depth=net.spec.uses_depth)
     k = len(net.label_set)
-    mean = torch.tensor(IMAGENET_MEAN).view(1, 3, 1, 1)
-    std = torch.tensor(IMAGENET_STD).view(1, 3, 1, 1)
     conf = np.zeros((k, k), np.int64)
     picked = every_nth(len(ds), every)
-    net.model.eval()
-    with torch.no_grad():
-        for i in picked:
-            rgb = torch.from_numpy(ds.rgb[i:i + 1]).permute(0, 3, 1, 2).float().div_(255.0)
-            depth = None if ds.depth is None else torch.from_numpy(ds.depth[i:i + 1] / DEPTH_MM).float()[:, None]
-            logits, _ = net.model.forward_train((rgb - mean) / std, depth)
-            conf += confusion(logits.argmax(1).numpy(), ds.labels[i:i + 1].astype(np.int64), k, ignore=IGNORE)
+    for i, logits in image_logits(net, ds, picked):
+        conf += confusion(logits.argmax(1).numpy(), ds.labels[i:i + 1].astype(np.int64), k, ignore=IGNORE)
     sc = scores(conf, ignore=IGNORE)
     return {"images": len(picked), "miou": round(sc.miou, 4), "pixel_accuracy": round(sc.accuracy, 4)}
 

@@ -81,28 +81,19 @@ def calibrate_weights(weights: Path, val: list[Path], out: Path, *, pixel_step: 
     """Fit the temperature of the network in ``weights`` on the validation folders ``val`` (at its training size,
     every ``pixel_step``-th row and column, void left out) and write a copy of the file to ``out`` with
     ``meta.temperature`` and ``meta.calibration`` (NLL and ECE before and after); returns that record."""
-    import torch
-
     from semmap.files.outputs import OutputKind, check_outputs
-    from semmap.perception.network import IMAGENET_MEAN, IMAGENET_STD
     from semmap.perception.networks.registry import load_weights, save_weights
     from semmap.train.class_weights import IGNORE
-    from semmap.train.data import DEPTH_MM, gather
+    from semmap.train.data import gather
 
     check_outputs([("--out", out, OutputKind.FILE)], [("--weights", weights), *(("--val", v) for v in val)])
     net = load_weights(weights)
     ds = gather(list(val), net.input_size, label_set=net.label_set, need_depth=net.spec.uses_depth)
-    mean = torch.tensor(IMAGENET_MEAN).view(1, 3, 1, 1)
-    std = torch.tensor(IMAGENET_STD).view(1, 3, 1, 1)
     k = len(net.label_set)
     logits, labels = [], []
-    with torch.no_grad():
-        for i in range(len(ds)):
-            rgb = torch.from_numpy(ds.rgb[i : i + 1]).permute(0, 3, 1, 2).float().div_(255.0)
-            depth = None if ds.depth is None else torch.from_numpy(ds.depth[i : i + 1] / DEPTH_MM).float()[:, None]
-            lg, _ = net.model.forward_train((rgb - mean) / std, depth)
-            logits.append(lg[:, :, ::pixel_step, ::pixel_step].permute(0, 2, 3, 1).reshape(-1, k).numpy())
-            labels.append(ds.labels[i, ::pixel_step, ::pixel_step].reshape(-1).astype(np.int64))
+    for i, lg in image_logits(net, ds, range(len(ds))):
+        logits.append(lg[:, :, ::pixel_step, ::pixel_step].permute(0, 2, 3, 1).reshape(-1, k).numpy())
+        labels.append(ds.labels[i, ::pixel_step, ::pixel_step].reshape(-1).astype(np.int64))
     z, y = np.concatenate(logits), np.concatenate(labels)
     keep = y != IGNORE
     z, y = z[keep], y[keep]
@@ -121,3 +112,21 @@ def softmax(logits: np.ndarray) -> np.ndarray:
     """Row-wise softmax of (N, K) logits."""
     z = np.exp(logits - logits.max(axis=1, keepdims=True))
     return z / z.sum(axis=1, keepdims=True)
+
+
+def image_logits(net, ds, indices):
+    """(index, logits (1, K, H, W) at the training size) of each image ``indices`` of training set ``ds`` under a
+    loaded weight file ``net``, normalised and with depth as the trainer feeds them, without gradients."""
+    import torch
+
+    from semmap.perception.network import IMAGENET_MEAN, IMAGENET_STD
+    from semmap.train.data import DEPTH_MM
+
+    mean = torch.tensor(IMAGENET_MEAN).view(1, 3, 1, 1)
+    std = torch.tensor(IMAGENET_STD).view(1, 3, 1, 1)
+    net.model.eval()
+    with torch.no_grad():
+        for i in indices:
+            rgb = torch.from_numpy(ds.rgb[i : i + 1]).permute(0, 3, 1, 2).float().div_(255.0)
+            depth = None if ds.depth is None else torch.from_numpy(ds.depth[i : i + 1] / DEPTH_MM).float()[:, None]
+            yield i, net.model.forward_train((rgb - mean) / std, depth)[0]
