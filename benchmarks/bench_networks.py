@@ -1,20 +1,20 @@
 """The papers' networks as semmap trains and ships them (weights/), on held-out simulated scenes.
 
-Test frames: scene seeds 0-3 (office, kitchen, living_room, bedroom; medium; the demo's 300-frame loop),
-disjoint from the training (100-139) and validation (200-203) scenes, rendered at 640x480 with depth noise;
-every 10th frame, 120 in all (every 60th with --quick: 20 frames).  For every shipped network and runtime
-(PyTorch, ONNX Runtime): MPA and MIoU (eqs. 11-12 of the CBAM paper, classes present in the ground truth, void
-pixels left out) of the top class at 640x480, parameters, and ms per 640x480 frame through the segmenter
-`semmap run` uses (resize, network, softmax, sampling at every pixel, top-3).  ESPNetv2 (PASCAL VOC weights in
-../shared) is the peer: timed in the same run, scored on the classes VOC shares with the simulator
-(``miou_shared``; every network gets that column too).  ONNX rows report the share of pixels whose top class
-equals PyTorch's.  PyTorch rows also give the calibration of the probabilities on the test pixels: expected
-calibration error (15 bins) and NLL with the temperature stored with the weights (``ece``, ``nll``) and without
+Test frames: scene seeds 0-3 (office, kitchen, living_room, bedroom; medium; the demo's 300-frame loop), disjoint
+from the training (100-219; 400 on with make_training_data.py --extra) and validation (300-307) scenes, rendered at
+640x480 with depth noise; every 10th frame, 120 in all (every 60th with --quick: 20 frames).  For every shipped
+network and runtime (PyTorch, ONNX Runtime): MPA and MIoU (eqs. 11-12 of the CBAM paper, classes present in the
+ground truth, void pixels left out) of the top class at 640x480, parameters, and ms per 640x480 frame through the
+segmenter `semmap run` uses (resize, network, softmax, sampling at every pixel, top-3).  ESPNetv2 (PASCAL VOC
+weights in ../shared) is the peer: timed in the same run, scored on the classes VOC shares with the simulator
+(``miou_shared``; every network gets that column too).  ONNX rows report the share of pixels whose top class equals
+PyTorch's.  PyTorch rows also give the calibration of the probabilities on the test pixels: expected calibration
+error (15 bins) and NLL with the temperature stored with the weights (``ece``, ``nll``) and without
 (``ece_uncalibrated``, ``nll_uncalibrated``); ``init`` says how the network started (``scratch`` or --init).
 Spread: ``miou_ci95`` is a 95 % bootstrap interval of the MIoU over the test frames (1,000 resamples of whole
-frames, the confusion summed over each resample); ``comparisons`` gives the papers' two claims (CBAM-PSPNet
-against PSPNet, the RGB-D net against its colour-only twin) as the MIoU difference with a paired interval (the
-same resampled frames for both networks), so a reader can tell a difference from noise.
+frames, the confusion summed over each resample); ``comparisons`` gives the papers' two claims (CBAM-PSPNet against
+PSPNet, the RGB-D net against its colour-only twin) as the MIoU difference with a paired interval (the same
+resampled frames for both networks), so a reader can tell a difference from noise.
 
 Timings depend on the machine's load: the development machine is shared (2 cores, other jobs running).
 The last line is JSON: {"bench": "networks", "results": [{"model", "input", "params", "mpa", "miou",
