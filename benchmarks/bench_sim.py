@@ -1,7 +1,9 @@
 """Simulator throughput: full frames (RGB, noisy depth, labels, instances) of the default scene at 640x480.
 
-Renders with a ``--realism`` preset (default ``kinect``: every sensor effect on) and, in the same run, with
-``clean`` (today's light depth noise); compares the default rasteriser backend with the open3d ray-casting
+Renders with a ``--realism`` preset (default ``kinect``: every sensor effect on: the structured-light depth model
+and the colour camera's blur, rolling shutter, exposure, noise and JPEG, with the camera's motion from the
+neighbouring poses as ``semmap simulate`` renders them) and, in the same run, with ``clean`` (light depth noise,
+the exact image); compares the default rasteriser backend with the open3d ray-casting
 backend, and prints one JSON line last: {"bench": "sim", "realism": ..., "fps": ..., "fps_clean": ..., ...}.
 
     python benchmarks/bench_sim.py [--quick] [--realism kinect]
@@ -24,23 +26,23 @@ from semmap.sim.trajectory import make_trajectory
 def _fps_pair(a: Renderer, b: Renderer, poses: np.ndarray) -> tuple[float, float]:
     """Frames per second of ``a`` and of ``b``, rendering each pose with one then the other (so a busy machine's
     changing load falls on both alike)."""
-    a.render(poses[0], frame_index=0)
-    b.render(poses[0], frame_index=0)
+    a.render_in(poses, 0)
+    b.render_in(poses, 0)
     spent = [0.0, 0.0]
-    for i, T in enumerate(poses):
+    for i in range(len(poses)):
         for k, r in enumerate((a, b)):
             start = time.perf_counter()
-            r.render(T, frame_index=i)
+            r.render_in(poses, i)
             spent[k] += time.perf_counter() - start
     return len(poses) / spent[0], len(poses) / spent[1]
 
 
 def _fps(renderer: Renderer, poses: np.ndarray) -> float:
     """Frames per second rendering all of ``poses`` (after one warm-up frame)."""
-    renderer.render(poses[0], frame_index=0)
+    renderer.render_in(poses, 0)
     start = time.perf_counter()
-    for i, T in enumerate(poses):
-        renderer.render(T, frame_index=i)
+    for i in range(len(poses)):
+        renderer.render_in(poses, i)
     return len(poses) / (time.perf_counter() - start)
 
 
@@ -56,11 +58,12 @@ def main() -> None:
     poses = make_trajectory(scene, "loop", n, seed=0)
     setup_s = time.perf_counter() - t0
     t0 = time.perf_counter()
-    depth = realism(args.realism).depth_model(0)
-    raster = Renderer(scene, noise=depth, backend="raster")
+    preset, clean = realism(args.realism), realism(DEFAULT_REALISM)
+    raster = Renderer(scene, noise=preset.depth_model(0), backend="raster", colour=preset.colour_camera(0))
     init_s = time.perf_counter() - t0
-    raycast = Renderer(scene, noise=depth, backend="raycast")
-    fps, fps_clean = _fps_pair(raster, Renderer(scene, noise=realism(DEFAULT_REALISM).depth_model(0)), poses)
+    raycast = Renderer(scene, noise=preset.depth_model(0), backend="raycast", colour=preset.colour_camera(0))
+    fps, fps_clean = _fps_pair(raster, Renderer(scene, noise=clean.depth_model(0), colour=clean.colour_camera(0)),
+                               poses)
     fps_raycast = _fps(raycast, poses[: max(10, n // 3)])
     cam = raster.intrinsics
     print(f"scene: {scene.n_triangles} triangles, {len(scene.objects)} objects, {len(scene.materials)} materials; "

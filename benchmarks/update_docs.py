@@ -370,8 +370,9 @@ def headline_rows(results: dict) -> list[str]:
                          "bench_localization.py"))
     sim = results.get("sim")
     if sim:
-        rows.append((f"Simulator, {sim['width']}×{sim['height']}, every channel", f"{sim['fps']} frames/s",
-                     f"Open3D ray casting {sim.get('fps_raycast', '?')} frames/s", "bench_sim.py"))
+        rows.append((f"Simulator, {sim['width']}×{sim['height']}, `{sim.get('realism', 'clean')}`",
+                     f"{sim['fps']} frames/s",
+                     f"`clean` {sim.get('fps_clean', '?')}, ray casting {sim.get('fps_raycast', '?')}", "bench_sim.py"))
     return ["| measured | semmap | against | script |", "|---|---|---|---|",
             *(f"| {a} | {b} | {c} | `{d}` |" for a, b, c, d in rows[:HEADLINE_ROWS])]
 
@@ -488,9 +489,11 @@ def benchmarks_lines(results: dict, quick: bool, stamp: str, where: str) -> list
             f"{r['resolution']} m: " + ", ".join(f"{k} {v}" for k, v in r["semmap_stage_ms"].items())
             for r in octree["results"]), "",
         "## Simulator", "",
-        f"`benchmarks/bench_sim.py`: {sim['fps']} frames/s at {sim['width']}×{sim['height']} (rgb, depth with noise, "
-        f"labels, instances; {sim.get('backend', 'raster')} backend), versus {sim.get('fps_raycast', '?')} frames/s "
-        "with open3d ray casting.", "",
+        f"`benchmarks/bench_sim.py`: {sim['fps']} frames/s at {sim['width']}×{sim['height']} with the "
+        f"`{sim.get('realism', 'clean')}` preset's every channel (rgb through the colour camera, depth through the "
+        f"sensor model, labels, instances; {sim.get('backend', 'raster')} backend); `clean` "
+        f"{sim.get('fps_clean', '?')} frames/s in the same run; {sim.get('fps_raycast', '?')} frames/s with open3d "
+        "ray casting.", "",
         "## Camera tracking", "",
         "`benchmarks/bench_tracking.py`: ATE (RMSE after SE(3) Umeyama alignment) and RPE (1 frame) with evo, on the "
         "real 7-Scenes frames (ground truth from KinectFusion) and simulated sequences (exact ground truth); "
