@@ -277,3 +277,23 @@ def test_calibrate_weights_writes_a_copy_with_its_temperature(tmp_path: Path) ->
     assert "temperature" not in load_weights(src).meta
     with pytest.raises(SemmapError):  # the input is never an output
         calibrate_weights(src, [data], src)
+
+
+def test_calibrate_weights_on_rendered_validation_scenes_writes_the_fitted_temperature(tmp_path: Path) -> None:
+    """``calibrate_weights.py --scenes``: the temperature is fitted on validation scenes rendered as `semmap run`
+    meets frames (through the segmenter), and the copy carries it with the record of where it was fitted."""
+    from script_modules import load_script
+    from semmap.labels import INDOOR_LABELS
+    from semmap.perception.networks.registry import load_weights
+
+    script = load_script("scripts/calibrate_weights.py")
+    spec = NetworkSpec("fcn", len(INDOOR_LABELS), width=0.125, depth=18)
+    torch.manual_seed(0)
+    src = save_weights(tmp_path / "fcn.pt", build_network(spec), spec, INDOOR_LABELS, (32, 24), {})
+    record = script.calibrate_on_scenes(src, tmp_path / "cal.pt", scenes=1, every=300, threads=1)
+    cal = load_weights(tmp_path / "cal.pt")
+    assert cal.meta["temperature"] == record["temperature"] > 0
+    assert record["images"] == 1 and record["nll_calibrated"] <= record["nll"] + 1e-9
+    assert record["fitted_on"].startswith("validation scenes 300-300")
+    with pytest.raises(SemmapError):  # the input is never an output
+        script.calibrate_on_scenes(src, src, scenes=1, every=300)

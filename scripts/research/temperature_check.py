@@ -16,47 +16,31 @@ import json
 import sys
 from pathlib import Path
 
-import numpy as np
-
 from semmap.perception.registry import make_segmenter, shipped_weights
-from semmap.sim.export import simulate_frames
-from semmap.sim.scene import KINDS, generate_scene
-from semmap.sim.trajectory import make_trajectory
 from semmap.train.calibrate import fit_temperature
 
-BENCH = Path(__file__).resolve().parents[2] / "benchmarks" / "bench_networks.py"
+SCRIPTS = Path(__file__).resolve().parents[1]
+BENCH = SCRIPTS.parent / "benchmarks" / "bench_networks.py"
 
 
-def bench_networks():
-    """benchmarks/bench_networks.py as a module (its test frames and calibration scores)."""
-    spec = importlib.util.spec_from_file_location("_bench_networks", BENCH)
+def load_module(name: str, path: Path):
+    """A script as a module (bench_networks' test frames and scores, calibrate_weights' validation frames)."""
+    spec = importlib.util.spec_from_file_location(name, path)
     module = importlib.util.module_from_spec(spec)
     sys.modules[spec.name] = module
     spec.loader.exec_module(module)
     return module
 
 
-def validation_frames(scenes: int, every: int) -> list:
-    """Every ``every``-th frame of the 300-frame loops of validation scenes 300.. (kinds cycling, medium)."""
-    frames = []
-    for i, seed in enumerate(range(300, 300 + scenes)):
-        scene = generate_scene(seed, KINDS[i % len(KINDS)], "medium")
-        poses = make_trajectory(scene, "loop", 300, seed=seed)
-        frames += list(simulate_frames(scene, poses[::every], noise=True, seed=seed))
-    return frames
+def bench_networks():
+    """benchmarks/bench_networks.py as a module."""
+    return load_module("_bench_networks", BENCH)
 
 
 def fitted_temperature(seg, frames: list, void: int, step: int = 4) -> float:
     """NLL temperature of ``seg``'s probabilities (at T = 1) on every ``step``-th row and column of ``frames``."""
-    seg.temperature = 1.0
-    logits, labels = [], []
-    for f in frames:
-        p = seg.probabilities(f.rgb, f.depth if seg.uses_depth else None)[::step, ::step].astype(np.float64)
-        lab = f.labels[::step, ::step].astype(np.int64)
-        keep = lab != void
-        logits.append(np.log(np.clip(p[keep], 1e-12, 1.0)))  # log-probabilities: logits up to a constant
-        labels.append(lab[keep])
-    return fit_temperature(np.concatenate(logits), np.concatenate(labels))
+    cal = load_module("_calibrate_weights", SCRIPTS / "calibrate_weights.py")
+    return fit_temperature(*cal.frame_log_probabilities(seg, frames, void, step))
 
 
 def main() -> None:
@@ -68,7 +52,8 @@ def main() -> None:
     args = parser.parse_args()
     bn = bench_networks()
     seg = make_segmenter(args.network, weights=shipped_weights(args.network), backend="torch", threads=2)
-    val = validation_frames(args.scenes, args.every)
+    cal = load_module("_calibrate_weights", SCRIPTS / "calibrate_weights.py")
+    val = cal.validation_frames(args.scenes, args.every)
     test = bn.test_frames(args.test_every)
     out = {"network": args.network, "validation_frames": len(val), "test_frames": len(test)}
     seg.temperature = fitted_temperature(seg, val, bn.VOID)

@@ -97,15 +97,28 @@ def calibrate_weights(weights: Path, val: list[Path], out: Path, *, pixel_step: 
     z, y = np.concatenate(logits), np.concatenate(labels)
     keep = y != IGNORE
     z, y = z[keep], y[keep]
-    t = fit_temperature(z, y)
-    p1, pt = softmax(z), softmax(z / t)
-    before, after = calibration_scores(p1, y), calibration_scores(pt, y)
-    record = {"temperature": round(t, 4), "pixels": len(y), "images": len(ds),
-              "nll": before["nll"], "nll_calibrated": after["nll"], "ece": before["ece"],
-              "ece_calibrated": after["ece"]}
+    record = fitted_record(z, y) | {"images": len(ds)}
     meta = dict(net.meta) | {"temperature": record["temperature"], "calibration": record}
     save_weights(out, net.model, net.spec, net.label_set, net.input_size, meta)
     return record
+
+
+def fitted_record(logits: np.ndarray, labels: np.ndarray) -> dict:
+    """The NLL temperature of (N, K) ``logits`` (log-probabilities will do) against ``labels``, with NLL and ECE
+    before and after: the ``meta.calibration`` record a calibrated weight file carries."""
+    t = fit_temperature(logits, labels)
+    before, after = calibration_scores(softmax(logits), labels), calibration_scores(softmax(logits / t), labels)
+    return {"temperature": round(t, 4), "pixels": len(labels), "nll": before["nll"], "nll_calibrated": after["nll"],
+            "ece": before["ece"], "ece_calibrated": after["ece"]}
+
+
+def write_calibrated(weights: Path, out: Path, record: dict) -> None:
+    """A copy of the weight file ``weights`` at ``out`` carrying ``record``'s temperature and the record itself."""
+    from semmap.perception.networks.registry import load_weights, save_weights
+
+    net = load_weights(weights)
+    meta = dict(net.meta) | {"temperature": record["temperature"], "calibration": record}
+    save_weights(out, net.model, net.spec, net.label_set, net.input_size, meta)
 
 
 def softmax(logits: np.ndarray) -> np.ndarray:
