@@ -134,21 +134,23 @@ def merge_voxels(order: np.ndarray, keys: np.ndarray, offsets: np.ndarray, color
         table_keys = np.full(cap, np.int64(-1))
         table_ids = np.empty(cap, np.int64)
         n_ids = 0
+        last_k, v = np.int64(-1), np.int64(-1)
         for j in range(lo, hi):
             k = keys[j]
-            h = np.int64(key_hash(k) & np.uint64(cap - 1))
-            while table_keys[h] != k and table_keys[h] != -1:
-                h = (h + 1) & (cap - 1)
-            if table_keys[h] == -1:
-                table_keys[h] = k
-                table_ids[h] = lo + n_ids
-                vox_keys[lo + n_ids] = k
-                vox_points[lo + n_ids] = 0
-                vox_rgb[lo + n_ids, 0] = 0
-                vox_rgb[lo + n_ids, 1] = 0
-                vox_rgb[lo + n_ids, 2] = 0
-                n_ids += 1
-            v = table_ids[h]
+            if k != last_k:  # (a voxel's points often follow each other: no lookup for those)
+                h = np.int64(key_hash(k) & np.uint64(cap - 1))
+                while table_keys[h] != k and table_keys[h] != -1:
+                    h = (h + 1) & (cap - 1)
+                if table_keys[h] == -1:
+                    table_keys[h] = k
+                    table_ids[h] = lo + n_ids
+                    vox_keys[lo + n_ids] = k
+                    vox_points[lo + n_ids] = 0
+                    vox_rgb[lo + n_ids, 0] = 0
+                    vox_rgb[lo + n_ids, 1] = 0
+                    vox_rgb[lo + n_ids, 2] = 0
+                    n_ids += 1
+                last_k, v = k, table_ids[h]
             vox_points[v] += 1
             if has_colors:
                 p = order[j]
