@@ -11,6 +11,11 @@ A frame is fused in five passes, every point counting (not only the first of eac
 5. ``fuse_points``: per shard in parallel, new voxels get their attribute rows and each voxel takes its points'
    colours (running mean), one hit, and their class evidence through the configured fusion rule (``fusion/``),
    and, for the point map, their mean position and normal.
+
+A frame with nothing but colour into a grid without geometry (the run's dense cloud, ``cloud.ply``) takes a
+shorter way: ``merge_voxels`` replaces pass 3 and merges each voxel's points (count, summed colour), so
+``find_voxels`` and ``fuse_voxels`` run once per voxel, without reading the points again.  The sums are exact
+integers, so the voxels, rows and colour means are those of the per-point passes.
 """
 
 from __future__ import annotations
