@@ -16,6 +16,7 @@ from semmap.io.map_files import MAP_FILES, save_map_files
 from semmap.io.ply import read_ply
 from semmap.keys import coords_to_keys, pack_keys
 from semmap.maps.point_map import SemanticPointMap
+from semmap.maps.semantic_grid import SemanticGrid
 from semmap.maps.voxel_grid import SemanticVoxelGrid
 from semmap.types import EMPTY_LABEL, LabelSet, Observation, TopKProbs
 
@@ -61,6 +62,28 @@ def test_bayes_grid_sums_every_pixel_like_the_naive_reference(dtype):
     tol = 2e-2 if dtype == "float16" else 1e-4
     for key, p in expected.items():
         np.testing.assert_allclose(got[key], p, atol=tol)
+
+
+def test_colour_only_frames_merged_per_voxel_leave_what_the_per_point_path_leaves():
+    """A frame with nothing but colour (the dense cloud) is merged per voxel before the table; keeping geometry
+    forces the per-point path, which must leave the same table, rows, hits and colour means (exact sums)."""
+    rng = np.random.default_rng(7)
+    merged = SemanticGrid(0.02, label_set=None)
+    per_point = SemanticGrid(0.02, label_set=None, keep_geometry=True)
+    for f in range(6):
+        pts = rng.uniform(-0.2, 0.2, (3000, 3)).astype(np.float32) + np.float32(f * 0.05)
+        pts = np.repeat(pts, rng.integers(1, 4, len(pts)), axis=0)  # runs in one voxel, as image rows give them
+        pts[::97] = np.nan  # skipped, as are keys out of range
+        pts[5] = 1e7
+        cols = None if f == 2 else rng.integers(0, 256, (len(pts), 3), dtype=np.uint8)
+        steps = merged.integrate_points(pts, colors=cols)
+        per_point.integrate_points(pts, colors=cols)
+    assert sorted(steps) == ["fuse", "hash", "keys"]
+    a, b = merged.state(), per_point.state()
+    assert merged.num_voxels > 10_000 and a["rgb_count"].max() > 3
+    for name in ("rgb", "rgb_count", "hits", "table_keys", "table_logodds", "table_rows", "shard_counts",
+                 "shard_capacity", "rows_used"):
+        assert np.array_equal(a[name], b[name]), name
 
 
 def test_every_pixel_counts_not_only_the_first():

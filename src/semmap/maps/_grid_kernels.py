@@ -11,6 +11,11 @@ A frame is fused in five passes, every point counting (not only the first of eac
 5. ``fuse_points``: per shard in parallel, new voxels get their attribute rows and each voxel takes its points'
    colours (running mean), one hit, and their class evidence through the configured fusion rule (``fusion/``),
    and, for the point map, their mean position and normal.
+
+A frame with nothing but colour into a grid without geometry (the run's dense cloud, ``cloud.ply``) takes a
+shorter way: ``merge_voxels`` replaces pass 3 and merges each voxel's points (count, summed colour), so
+``find_voxels`` and ``fuse_voxels`` run once per voxel, without reading the points again.  The sums are exact
+integers, so the voxels, rows and colour means are those of the per-point passes.
 """
 
 from __future__ import annotations
@@ -119,17 +124,89 @@ def group_shards(order: np.ndarray, keys: np.ndarray, offsets: np.ndarray, out_p
 
 
 @nb.njit(cache=True, parallel=True)
+def merge_voxels(order: np.ndarray, keys: np.ndarray, offsets: np.ndarray, colors: np.ndarray, has_colors: bool,
+                 vox_keys: np.ndarray, vox_points: np.ndarray, vox_rgb: np.ndarray, voxels: np.ndarray) -> None:
+    """Frames with nothing but colour (the dense cloud): within each shard, its points merged per voxel with the
+    local hash table of :func:`group_shards` (voxels in order of first appearance, from the shard's offset): the
+    key, the number of points and the summed colour of each, so later passes run once per voxel, not per point.
+    ``voxels[s]`` = distinct keys in shard s."""
+    for sh in nb.prange(N_SHARDS):
+        lo, hi = offsets[sh], offsets[sh + 1]
+        n = hi - lo
+        cap = 16
+        while cap < 2 * n:
+            cap *= 2
+        table_keys = np.full(cap, np.int64(-1))
+        table_ids = np.empty(cap, np.int64)
+        n_ids = 0
+        last_k, v = np.int64(-1), np.int64(-1)
+        for j in range(lo, hi):
+            k = keys[j]
+            if k != last_k:  # (a voxel's points often follow each other: no lookup for those)
+                h = np.int64(key_hash(k) & np.uint64(cap - 1))
+                while table_keys[h] != k and table_keys[h] != -1:
+                    h = (h + 1) & (cap - 1)
+                if table_keys[h] == -1:
+                    table_keys[h] = k
+                    table_ids[h] = lo + n_ids
+                    vox_keys[lo + n_ids] = k
+                    vox_points[lo + n_ids] = 0
+                    vox_rgb[lo + n_ids, 0] = 0
+                    vox_rgb[lo + n_ids, 1] = 0
+                    vox_rgb[lo + n_ids, 2] = 0
+                    n_ids += 1
+                last_k, v = k, table_ids[h]
+            vox_points[v] += 1
+            if has_colors:
+                p = order[j]
+                vox_rgb[v, 0] += np.int64(colors[p, 0])
+                vox_rgb[v, 1] += np.int64(colors[p, 1])
+                vox_rgb[v, 2] += np.int64(colors[p, 2])
+        voxels[sh] = n_ids
+
+
+@nb.njit(cache=True, parallel=True)
+def fuse_voxels(attr: np.ndarray, logodds: np.ndarray, offsets: np.ndarray, voxels: np.ndarray,
+                vox_slot: np.ndarray, first_row: np.ndarray, vox_points: np.ndarray, vox_rgb: np.ndarray,
+                has_colors: bool, rgb: np.ndarray, rgb_count: np.ndarray, hits: np.ndarray,
+                hit_log: np.float32, clamp_max: np.float32) -> None:
+    """:func:`fuse_points` for the merged voxels of :func:`merge_voxels` (no classes, no geometry): the same
+    rows, hit, occupancy and colour mean, from each voxel's point count and summed colour (exact integers, so the
+    same numbers as summing its points one by one)."""
+    for sh in nb.prange(N_SHARDS):
+        next_row = first_row[sh]
+        for j in range(offsets[sh], offsets[sh] + voxels[sh]):
+            s0 = vox_slot[j]
+            if attr[s0] == -2:
+                attr[s0] = next_row
+                next_row += 1
+            a = attr[s0]
+            v = logodds[s0] + hit_log
+            logodds[s0] = clamp_max if v > clamp_max else v
+            if hits[a] < _COUNT_MAX:
+                hits[a] += 1
+            if has_colors:
+                m = vox_points[j]
+                n_old = np.int64(rgb_count[a])
+                w = np.float64(m) / (n_old + m) if n_old + m <= _COUNT_MAX else np.float64(m) / _COUNT_MAX
+                _blend(rgb, a, 0, np.float64(vox_rgb[j, 0]) / m, w)
+                _blend(rgb, a, 1, np.float64(vox_rgb[j, 1]) / m, w)
+                _blend(rgb, a, 2, np.float64(vox_rgb[j, 2]) / m, w)
+                rgb_count[a] = min(n_old + m, _COUNT_MAX)
+
+
+@nb.njit(cache=True, parallel=True)
 def find_voxels(keys: np.ndarray, logodds: np.ndarray, attr: np.ndarray, counts: np.ndarray, shard_cap: int,
-                sorted_keys: np.ndarray, offsets: np.ndarray, run_slot: np.ndarray, new_rows: np.ndarray,
-                failed: np.ndarray) -> None:
+                sorted_keys: np.ndarray, offsets: np.ndarray, ends: np.ndarray, run_slot: np.ndarray,
+                new_rows: np.ndarray, failed: np.ndarray) -> None:
     """Slot of each voxel of the frame (stored at its first point's position in ``run_slot``), inserted when new;
-    new voxels are marked (attribute row -2) and counted per shard.  ``failed[s]``: a lane of shard s was full
-    (grow the table and call again; keys found so far stay)."""
+    shard s's keys are ``sorted_keys[offsets[s]:ends[s]]``.  New voxels are marked (attribute row -2) and counted
+    per shard.  ``failed[s]``: a lane of shard s was full (grow the table and call again; keys found so far stay)."""
     for sh in nb.prange(N_SHARDS):
         failed[sh] = False
         n_new = 0
         prev = np.int64(-1)
-        for j in range(offsets[sh], offsets[sh + 1]):
+        for j in range(offsets[sh], ends[sh]):
             k = sorted_keys[j]
             if k == prev:
                 continue
