@@ -3,9 +3,12 @@
 For every network: the file's sha256 and size, the architecture, the exact training command, the data (scene
 seeds of scripts/make_training_data.py), the validation scores of the kept checkpoint and, given the JSON line
 of benchmarks/bench_networks.py (--bench), the held-out test scores and timings.  With --bench the manifest also
-names the demo's network: the best test MIoU per millisecond (ONNX Runtime, 640x480 frame).
+names the demo's network: the best test MIoU per millisecond (ONNX Runtime, 640x480 frame).  With --calibrated,
+the file shipped is the run's best checkpoint as scripts/calibrate_weights.py recalibrated it (``<network>.pt``
+in that folder; its calibration record goes into the manifest).
 
-    .venv/bin/python scripts/ship_weights.py --runs outputs/train-runs [--bench outputs/bench-networks.json]
+    .venv/bin/python scripts/ship_weights.py --runs outputs/train-runs [--bench outputs/bench-networks.json] \
+        [--calibrated outputs/calibrated]
 """
 
 from __future__ import annotations
@@ -49,6 +52,8 @@ def main() -> None:
     parser.add_argument("--bench", type=Path, default=None, help="JSON line of benchmarks/bench_networks.py")
     parser.add_argument("--networks", default=None, help="comma-separated networks to ship from --runs; the other "
                         "entries of the manifest are kept as they are (default: all, manifest rewritten)")
+    parser.add_argument("--calibrated", type=Path, default=None, help="folder of <network>.pt: the runs' best "
+                        "checkpoints recalibrated by scripts/calibrate_weights.py, shipped instead of best.pt")
     parser.add_argument("--data-command", default=None, help="the make_training_data.py command of these runs' data, "
                         "recorded per network (when it differs from the manifest's)")
     args = parser.parse_args()
@@ -64,7 +69,10 @@ def main() -> None:
             print(f"{name}: no finished run in {run}; not shipped")
             continue
         target = out / f"{name}.pt"
-        shutil.copyfile(run / "best.pt", target)
+        source = run / "best.pt" if args.calibrated is None else args.calibrated / f"{name}.pt"
+        if not source.is_file():
+            raise SystemExit(f"{source}: no such weight file")
+        shutil.copyfile(source, target)
         data = target.read_bytes()
         if len(data) > MAX_BYTES:
             raise SystemExit(f"{target}: {len(data)} bytes exceeds the {MAX_BYTES} byte limit")
@@ -79,6 +87,8 @@ def main() -> None:
                  "train_seconds": log["rows"][-1]["seconds"], "train_images": config["train_images"],
                  "val_images": config["val_images"], "init": config.get("init") or "scratch",
                  "temperature": loaded.meta.get("temperature", 1.0)}
+        if "calibration" in loaded.meta:  # fitted after training (scripts/calibrate_weights.py), with where
+            entry["calibration"] = loaded.meta["calibration"]
         if args.data_command:
             entry["data_command"] = args.data_command
         if bench is not None:
