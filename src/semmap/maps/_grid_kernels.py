@@ -165,6 +165,21 @@ def merge_voxels(order: np.ndarray, keys: np.ndarray, offsets: np.ndarray, color
         voxels[sh] = n_ids
 
 
+@nb.njit(cache=True, inline="always")
+def _hit_voxel(attr, logodds, hits, s0, next_row, hit_log, clamp_max):
+    """A frame's hit on the voxel in table slot ``s0``: its attribute row (the shard's next free row if the voxel
+    is new), the hit log-odds added under the clamp, one more hit; returns (row, next free row)."""
+    if attr[s0] == -2:
+        attr[s0] = next_row
+        next_row += 1
+    a = attr[s0]
+    v = logodds[s0] + hit_log
+    logodds[s0] = clamp_max if v > clamp_max else v
+    if hits[a] < _COUNT_MAX:
+        hits[a] += 1
+    return a, next_row
+
+
 @nb.njit(cache=True, parallel=True)
 def fuse_voxels(attr: np.ndarray, logodds: np.ndarray, offsets: np.ndarray, voxels: np.ndarray,
                 vox_slot: np.ndarray, first_row: np.ndarray, vox_points: np.ndarray, vox_rgb: np.ndarray,
@@ -176,15 +191,7 @@ def fuse_voxels(attr: np.ndarray, logodds: np.ndarray, offsets: np.ndarray, voxe
     for sh in nb.prange(N_SHARDS):
         next_row = first_row[sh]
         for j in range(offsets[sh], offsets[sh] + voxels[sh]):
-            s0 = vox_slot[j]
-            if attr[s0] == -2:
-                attr[s0] = next_row
-                next_row += 1
-            a = attr[s0]
-            v = logodds[s0] + hit_log
-            logodds[s0] = clamp_max if v > clamp_max else v
-            if hits[a] < _COUNT_MAX:
-                hits[a] += 1
+            a, next_row = _hit_voxel(attr, logodds, hits, vox_slot[j], next_row, hit_log, clamp_max)
             if has_colors:
                 m = vox_points[j]
                 n_old = np.int64(rgb_count[a])
@@ -309,16 +316,9 @@ def _fuse_shard(sh: int, generic: bool, attr, logodds, sorted_pts, offsets, run_
         while e < hi and sorted_keys[e] == key:
             e += 1
         m = e - j
-        s0 = run_slot[j]
-        if attr[s0] == -2:
-            attr[s0] = next_row
-            next_row += 1
-        a = attr[s0]
-        # occupancy and hits: one hit per voxel per frame (OctoMap's discretised insertion)
-        v = logodds[s0] + hit_log
-        logodds[s0] = clamp_max if v > clamp_max else v
-        if hits[a] < _COUNT_MAX:
-            hits[a] += 1
+        # its row (a new one for a new voxel), occupancy and hits: one hit per voxel per frame (OctoMap's
+        # discretised insertion)
+        a, next_row = _hit_voxel(attr, logodds, hits, run_slot[j], next_row, hit_log, clamp_max)
         if dense and has_semantics:
             _load(dense_f32, dense_u16, half, a, w_val)
         elif has_semantics:
