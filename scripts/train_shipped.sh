@@ -4,8 +4,11 @@
 # 8 images at 320x240 (4 epochs of the 2040 training frames), lr 0.02, poly 0.9, seed 0, one CPU thread each
 # (about 1.5 CPU-s a step; the five ran two or three at a time on two shared cores, 30-35 min each).
 # Data: python scripts/make_training_data.py --out outputs/train-data-320 --image-size 320x240
-# Afterwards: python scripts/ship_weights.py --runs outputs/runs-320 --bench BENCH.json copies each run's best.pt
-# into weights/ and writes the manifest.  The same command runs on a GPU with DEVICE=cuda; an interrupted run
+# The shipped fcn had more: 360 scenes (make_training_data.py ... --extra 240, DATA's train-extra/ added as a second
+# --data) and 2000 steps on two threads; its exact command is in weights/manifest.json.
+# Afterwards: python scripts/calibrate_weights.py --weights RUNS/NET/best.pt --scenes 8 --out CAL/NET.pt for each
+# network (the temperature fitted on full-size validation frames), then python scripts/ship_weights.py --runs
+# outputs/runs-320 --bench BENCH.json --calibrated CAL copies them into weights/ and writes the manifest.  The same command runs on a GPU with DEVICE=cuda; an interrupted run
 # continues with --resume.  The earlier scratch networks: INIT= SIZE=160x120 LR=0.05 ITERATIONS=2000
 # DATA=outputs/train-data RUNS=outputs/train-runs (data: make_training_data.py --image-size 160x120).
 set -euo pipefail
