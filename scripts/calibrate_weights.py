@@ -76,7 +76,7 @@ def calibrate_on_scenes(weights: Path, out: Path, scenes: int, every: int, threa
     record = fitted_record(z, y) | {"images": len(frames), "fitted_on": f"validation scenes {VALIDATION_SEED}-"
                                     f"{VALIDATION_SEED + scenes - 1} rendered at 640x480 through the segmenter, "
                                     f"every {every}th frame"}
-    write_calibrated(weights, out, record)
+    write_calibrated(net, out, record)
     return record
 
 

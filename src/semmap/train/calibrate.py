@@ -82,7 +82,7 @@ def calibrate_weights(weights: Path, val: list[Path], out: Path, *, pixel_step: 
     every ``pixel_step``-th row and column, void left out) and write a copy of the file to ``out`` with
     ``meta.temperature`` and ``meta.calibration`` (NLL and ECE before and after); returns that record."""
     from semmap.files.outputs import OutputKind, check_outputs
-    from semmap.perception.networks.registry import load_weights, save_weights
+    from semmap.perception.networks.registry import load_weights
     from semmap.train.class_weights import IGNORE
     from semmap.train.data import gather
 
@@ -98,8 +98,7 @@ def calibrate_weights(weights: Path, val: list[Path], out: Path, *, pixel_step: 
     keep = y != IGNORE
     z, y = z[keep], y[keep]
     record = fitted_record(z, y) | {"images": len(ds)}
-    meta = dict(net.meta) | {"temperature": record["temperature"], "calibration": record}
-    save_weights(out, net.model, net.spec, net.label_set, net.input_size, meta)
+    write_calibrated(net, out, record)
     return record
 
 
@@ -112,11 +111,10 @@ def fitted_record(logits: np.ndarray, labels: np.ndarray) -> dict:
             "ece": before["ece"], "ece_calibrated": after["ece"]}
 
 
-def write_calibrated(weights: Path, out: Path, record: dict) -> None:
-    """A copy of the weight file ``weights`` at ``out`` carrying ``record``'s temperature and the record itself."""
-    from semmap.perception.networks.registry import load_weights, save_weights
+def write_calibrated(net, out: Path, record: dict) -> None:
+    """A copy of the loaded weight file ``net`` at ``out`` carrying ``record``'s temperature and the record."""
+    from semmap.perception.networks.registry import save_weights
 
-    net = load_weights(weights)
     meta = dict(net.meta) | {"temperature": record["temperature"], "calibration": record}
     save_weights(out, net.model, net.spec, net.label_set, net.input_size, meta)
 
