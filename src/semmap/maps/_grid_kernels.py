@@ -193,13 +193,8 @@ def fuse_voxels(attr: np.ndarray, logodds: np.ndarray, offsets: np.ndarray, voxe
         for j in range(offsets[sh], offsets[sh] + voxels[sh]):
             a, next_row = _hit_voxel(attr, logodds, hits, vox_slot[j], next_row, hit_log, clamp_max)
             if has_colors:
-                m = vox_points[j]
-                n_old = np.int64(rgb_count[a])
-                w = np.float64(m) / (n_old + m) if n_old + m <= _COUNT_MAX else np.float64(m) / _COUNT_MAX
-                _blend(rgb, a, 0, np.float64(vox_rgb[j, 0]) / m, w)
-                _blend(rgb, a, 1, np.float64(vox_rgb[j, 1]) / m, w)
-                _blend(rgb, a, 2, np.float64(vox_rgb[j, 2]) / m, w)
-                rgb_count[a] = min(n_old + m, _COUNT_MAX)
+                _add_colours(rgb, rgb_count, a, vox_points[j], np.float64(vox_rgb[j, 0]), np.float64(vox_rgb[j, 1]),
+                             np.float64(vox_rgb[j, 2]))
 
 
 @nb.njit(cache=True, parallel=True)
@@ -254,6 +249,18 @@ def _store(state_f32, state_u16, half: bool, a: int, src: np.ndarray) -> None:
 def _blend(rgb: np.ndarray, a: int, ch: int, mean: float, w: float) -> None:
     old = np.float64(rgb[a, ch])
     rgb[a, ch] = np.uint8(np.int64(old + (mean - old) * w + 0.5))
+
+
+@nb.njit(cache=True, inline="always")
+def _add_colours(rgb, rgb_count, a, m, sum_r, sum_g, sum_b) -> None:
+    """Row ``a``'s colour takes ``m`` more points whose colours sum to (``sum_r``, ``sum_g``, ``sum_b``): a running
+    mean over every point's colour, a moving average once the count saturates."""
+    n_old = np.int64(rgb_count[a])
+    w = np.float64(m) / (n_old + m) if n_old + m <= _COUNT_MAX else np.float64(m) / _COUNT_MAX
+    _blend(rgb, a, 0, sum_r / m, w)
+    _blend(rgb, a, 1, sum_g / m, w)
+    _blend(rgb, a, 2, sum_b / m, w)
+    rgb_count[a] = min(n_old + m, _COUNT_MAX)
 
 
 @nb.njit(cache=True, parallel=True)
@@ -346,13 +353,8 @@ def _fuse_shard(sh: int, generic: bool, attr, logodds, sorted_pts, offsets, run_
             if has_semantics and fuse_measurement(generic, code, update, w_lab, w_val, sem_labels[p], sem_probs[p],
                                                   params, si, sf):
                 n_sem += 1
-        if has_colors:  # running mean over every point's colour (a moving average once the count saturates)
-            n_old = np.int64(rgb_count[a])
-            w = np.float64(m) / (n_old + m) if n_old + m <= _COUNT_MAX else np.float64(m) / _COUNT_MAX
-            _blend(rgb, a, 0, cr / m, w)
-            _blend(rgb, a, 1, cg / m, w)
-            _blend(rgb, a, 2, cb / m, w)
-            rgb_count[a] = min(n_old + m, _COUNT_MAX)
+        if has_colors:
+            _add_colours(rgb, rgb_count, a, m, cr, cg, cb)
         if keep_geometry:  # point map: running mean of the frames' mean points, summed normals
             n_prev = np.float64(min(hits[a], _COUNT_MAX - 1) - 1)
             positions[a, 0] = np.float32((positions[a, 0] * n_prev + px / m) / (n_prev + 1.0))
