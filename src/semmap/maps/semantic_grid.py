@@ -167,8 +167,7 @@ class SemanticGrid:
         kern.group_shards(order, bucket_keys, offsets, sorted_pts, sorted_keys, voxels)
         t1 = time.perf_counter()
         run_slot, new_rows = self._find_voxels(sorted_keys, offsets, offsets[1:], voxels)
-        first_row = self._rows + np.concatenate([[0], np.cumsum(new_rows)[:-1]])
-        self._ensure_rows(self._rows + int(new_rows.sum()))
+        first_row = self._reserve_rows(new_rows)
         t2 = time.perf_counter()
         e = self._entry
         update, finish = e.kernels()
@@ -213,8 +212,7 @@ class SemanticGrid:
                           voxels)
         t1 = time.perf_counter()
         slot, new_rows = self._find_voxels(vox_keys, offsets, offsets[:-1] + voxels, voxels)
-        first_row = self._rows + np.concatenate([[0], np.cumsum(new_rows)[:-1]])
-        self._ensure_rows(self._rows + int(new_rows.sum()))
+        first_row = self._reserve_rows(new_rows)
         t2 = time.perf_counter()
         t = self._table
         kern.fuse_voxels(t.attr, t.logodds, offsets, voxels, slot, first_row, vox_points, vox_rgb, col is not None,
@@ -223,6 +221,12 @@ class SemanticGrid:
         t.settle()
         t3 = time.perf_counter()
         return {"keys": (t1 - t0) * 1e3, "hash": (t2 - t1) * 1e3, "fuse": (t3 - t2) * 1e3}
+
+    def _reserve_rows(self, new_rows: np.ndarray) -> np.ndarray:
+        """Room for a frame's new voxels (``new_rows`` per shard, rows handed out in shard order); returns each
+        shard's first new row."""
+        self._ensure_rows(self._rows + int(new_rows.sum()))
+        return self._rows + np.concatenate([[0], np.cumsum(new_rows)[:-1]])
 
     def _find_voxels(self, sorted_keys: np.ndarray, offsets: np.ndarray, ends: np.ndarray,
                      voxels: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
