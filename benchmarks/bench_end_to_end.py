@@ -36,7 +36,7 @@ from pathlib import Path
 
 SHARED = Path(__file__).resolve().parents[1].parent / "shared"
 SEVEN_SCENES = SHARED / "data" / "7scenes-redkitchen"
-WEIGHTS = SHARED / "weights" / "espnetv2" / "espnetv2_s_2.0_pascal_384x384.pth"
+WEIGHTS = Path(__file__).resolve().parents[1] / "weights" / "espnetv2" / "espnetv2_s_2.0_pascal_384x384.pth"
 SEGMENT_EVERY = 5
 #: camera rate (frames per second) at which latency is measured per resolution: the frame-rate targets
 CAMERA_RATE = {0.05: 10.0, 0.02: 7.0}

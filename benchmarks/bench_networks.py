@@ -43,7 +43,7 @@ from semmap.train.calibrate import calibration_scores
 from semmap.types import Frame
 
 SHARED = Path(__file__).resolve().parents[1].parent / "shared"
-ESPNETV2 = SHARED / "weights" / "espnetv2" / "espnetv2_s_2.0_pascal_384x384.pth"
+ESPNETV2 = Path(__file__).resolve().parents[1] / "weights" / "espnetv2" / "espnetv2_s_2.0_pascal_384x384.pth"
 #: Held-out test scenes: (scene seed, kind), medium size, the demo's loop trajectory of 300 frames.
 TEST_SCENES = ((0, "office"), (1, "kitchen"), (2, "living_room"), (3, "bedroom"))
 TRAJECTORY_FRAMES = 300

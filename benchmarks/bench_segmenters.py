@@ -39,7 +39,7 @@ from semmap.perception.registry import make_segmenter
 from semmap.types import CameraIntrinsics, Frame
 
 SHARED = Path(__file__).resolve().parents[1].parent / "shared"
-WEIGHTS = SHARED / "weights" / "espnetv2"
+WEIGHTS = Path(__file__).resolve().parents[1] / "weights" / "espnetv2"
 FRAMES = SHARED / "data" / "7scenes-redkitchen"
 
 

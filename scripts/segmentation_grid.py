@@ -194,7 +194,7 @@ def parse_args() -> argparse.Namespace:
     parser.add_argument("--frames", type=int, nargs="+", default=list(DEFAULT_FRAMES), help="frame indices")
     parser.add_argument("--segmenter", default="espnetv2")
     parser.add_argument("--weights", type=Path,
-                        default=SHARED / "weights" / "espnetv2" / "espnetv2_s_2.0_pascal_384x384.pth")
+                        default=ROOT / "weights" / "espnetv2" / "espnetv2_s_2.0_pascal_384x384.pth")
     parser.add_argument("--compare", nargs="*", default=None,
                         help="further segmenters in their own columns, with their default (shipped) weights "
                              "(default: the demo's network; --compare alone: none)")

@@ -20,7 +20,7 @@ from semmap.perception.espnetv2 import (
 from semmap.perception.voc import PASCAL_VOC
 
 SHARED = Path(__file__).resolve().parents[1].parent / "shared"
-WEIGHTS = SHARED / "weights" / "espnetv2"
+WEIGHTS = Path(__file__).resolve().parents[1] / "weights" / "espnetv2"
 FRAMES = SHARED / "data" / "7scenes-redkitchen"
 
 #: Key patterns of the published state dicts (526 tensors, BN buffers included).
@@ -185,3 +185,47 @@ def test_onnx_export_holds_the_pooling_weights_as_constants(tmp_path: Path) -> N
     path = export_onnx(model, tmp_path / "e.onnx", (1, 3, 96, 128))
     ops = [n.op_type for n in onnx.load(str(path)).graph.node]
     assert "ScatterND" not in ops and len(ops) < 1500
+
+
+# --------------------------------------------------------------------------------------------------
+# The shipped copy (weights/espnetv2, MIT): a fresh clone segments real frames with nothing from outside
+# --------------------------------------------------------------------------------------------------
+def test_shipped_espnetv2_files_match_the_manifest_and_carry_their_licence() -> None:
+    import hashlib
+    import json
+
+    from semmap.perception.registry import ESPNETV2_FILES, MANIFEST, shipped_weights_dir
+
+    folder = shipped_weights_dir()
+    external = json.loads((folder / MANIFEST).read_text())["external"]
+    assert {Path(e["file"]).name for e in external.values()} == set(ESPNETV2_FILES.values())
+    for entry in external.values():
+        data = (folder / entry["file"]).read_bytes()
+        assert hashlib.sha256(data).hexdigest() == entry["sha256"] and len(data) == entry["bytes"]
+        assert entry["licence"].startswith("MIT")
+    licence = (folder / "espnetv2" / "LICENSE").read_text()
+    assert "MIT License" in licence and "Sachin Mehta" in licence
+
+
+def test_espnetv2_without_weights_segments_with_the_shipped_file() -> None:
+    from semmap.perception.registry import make_segmenter
+
+    seg = make_segmenter("espnetv2")
+    assert seg.label_set.names == PASCAL_VOC.names
+
+
+def test_a_changed_shipped_espnetv2_file_is_refused(tmp_path: Path, monkeypatch) -> None:
+    import json
+
+    from semmap.errors import ConfigError
+    from semmap.perception.registry import ESPNETV2_FILES, MANIFEST, make_segmenter, shipped_espnetv2
+
+    folder = tmp_path / "weights"
+    (folder / "espnetv2").mkdir(parents=True)
+    target = folder / "espnetv2" / ESPNETV2_FILES["s2"]
+    target.write_bytes(shipped_espnetv2().read_bytes())
+    (folder / MANIFEST).write_text(json.dumps({"networks": {}, "external": {
+        "espnetv2-s2": {"file": f"espnetv2/{target.name}", "sha256": "0" * 64}}}))
+    monkeypatch.setenv("SEMMAP_WEIGHTS", str(folder))
+    with pytest.raises(ConfigError, match=r"espnetv2_s_2\.0.*sha256 .* differs"):
+        make_segmenter("espnetv2")

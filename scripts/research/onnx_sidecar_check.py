@@ -34,7 +34,7 @@ def main() -> None:
     ap.add_argument("--frames", type=int, default=6)
     ap.add_argument("--s", default="2.0", choices=("1.0", "2.0"))
     args = ap.parse_args()
-    weights = SHARED / "weights" / "espnetv2" / f"espnetv2_s_{args.s}_pascal_384x384.pth"
+    weights = Path(__file__).resolve().parents[2] / "weights" / "espnetv2" / f"espnetv2_s_{args.s}_pascal_384x384.pth"
     frames = list(open_dataset(SHARED / "data" / "7scenes-redkitchen", "auto", stride=50, max_frames=args.frames))
     with tempfile.TemporaryDirectory() as tmp:
         model = Path(tmp) / "espnetv2.onnx"

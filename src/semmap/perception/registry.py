@@ -52,6 +52,18 @@ def shipped_weights(name: str) -> Path:
     return shipped_weights_dir() / f"{name}.pt"
 
 
+#: The shipped ESPNetv2 PASCAL VOC weights (MIT licence, ``weights/espnetv2/LICENSE``), by width.
+ESPNETV2_FOLDER = "espnetv2"
+ESPNETV2_FILES = {"s1": "espnetv2_s_1.0_pascal_384x384.pth", "s2": "espnetv2_s_2.0_pascal_384x384.pth"}
+#: The width ``--segmenter espnetv2`` runs without ``--weights``.
+ESPNETV2_DEFAULT = "s2"
+
+
+def shipped_espnetv2(size: str = ESPNETV2_DEFAULT) -> Path:
+    """Path of a shipped ESPNetv2 PASCAL weight file (``weights/espnetv2/espnetv2_s_2.0_pascal_384x384.pth``)."""
+    return shipped_weights_dir() / ESPNETV2_FOLDER / ESPNETV2_FILES[size]
+
+
 def _manifest_entry(path: Path) -> tuple[Path, dict | None]:
     """The manifest of the shipped weights and its entry for the file ``path`` (None when it is not listed)."""
     manifest = shipped_weights_dir() / MANIFEST
@@ -61,8 +73,14 @@ def _manifest_entry(path: Path) -> tuple[Path, dict | None]:
         return manifest, None
     except (OSError, ValueError, KeyError, TypeError, UnicodeDecodeError) as exc:
         raise FormatError(f"{manifest}: unreadable weights manifest ({type(exc).__name__})") from None
+    try:  # the weights semmap ships but did not train (ESPNetv2's authors' files)
+        external = json.loads(manifest.read_text()).get("external", {})
+    except (OSError, ValueError, AttributeError):
+        external = {}
     target = path.resolve()
-    for entry in networks.values() if isinstance(networks, dict) else ():
+    entries = [*(networks.values() if isinstance(networks, dict) else ()),
+               *(external.values() if isinstance(external, dict) else ())]
+    for entry in entries:
         if isinstance(entry, dict) and (manifest.parent / str(entry.get("file", ""))).resolve() == target:
             return manifest, entry
     return manifest, None
@@ -131,13 +149,20 @@ def _precomputed(*, weights: Path | None, label_set: LabelSet | None, k: int, la
 
 
 def _espnetv2(*, weights: Path | None, k: int, backend: str, batch_size: int,
-              input_size: tuple[int, int] | int | None, threads: int | None, **_) -> Segmenter:
+              input_size: tuple[int, int] | int | None, threads: int | None, trust_weights: bool = False,
+              **_) -> Segmenter:
     from semmap.perception.espnetv2 import load_espnetv2
     from semmap.perception.network import NetworkInput, NetworkSegmenter
     from semmap.perception.voc import PASCAL_VOC
 
-    if weights is None:
-        raise ConfigError("--segmenter espnetv2 needs its weights: --weights espnetv2_s_2.0_pascal_384x384.pth")
+    shipped = weights is None
+    if shipped:
+        weights = shipped_espnetv2()
+        if not weights.is_file():
+            raise ConfigError(f"--segmenter espnetv2: no shipped weights at {weights}; pass --weights "
+                              f"espnetv2_s_2.0_pascal_384x384.pth")
+    if Path(weights).is_file():
+        verify_weights(Path(weights), shipped=shipped, trust=trust_weights)
     model = load_espnetv2(weights, full_resolution=False)  # the segmenter upsamples once, to the image
     size = ESPNETV2_INPUT if input_size is None else input_size
     net_input = NetworkInput(short_side=size) if isinstance(size, int) else NetworkInput(size=size)
@@ -198,8 +223,8 @@ SEGMENTERS: Registry[SegmenterEntry] = Registry("segmenter", [
                    dataset_classes=True),
     SegmenterEntry("precomputed", _precomputed, "per-frame label PNGs or .npy/.npz probabilities from a folder "
                    "(--weights FOLDER)", needs_weights=True, dataset_classes=True),
-    SegmenterEntry(ESPNETV2, _espnetv2, "ESPNetv2 trained on PASCAL VOC, 21 classes (--weights "
-                   "espnetv2_s_2.0_pascal_384x384.pth)", needs_weights=True),
+    SegmenterEntry(ESPNETV2, _espnetv2, "ESPNetv2 trained on PASCAL VOC, 21 classes (shipped "
+                   "weights/espnetv2/, or --weights espnetv2_s_1.0_pascal_384x384.pth)"),
     SegmenterEntry(ONNX, _user_model(ONNX), "your ONNX segmentation model: onnx:MODEL.onnx, described by "
                    "MODEL.json or --segmenter-config (docs/segmenters.md)", takes_model=True),
     SegmenterEntry(HUGGING_FACE, _user_model(HUGGING_FACE), "a Hugging Face transformers segmentation model: "

@@ -3,8 +3,8 @@ built network (same name after renaming, same shape) and report what was loaded 
 
 * ``espnetv2-pascal-s1`` / ``-s2`` (``espnetv2-pascal`` = s2, the segmenter's default): the ESPNetv2 encoder
   trained on ImageNet then PASCAL VOC (``espnetv2_s_{1.0,2.0}_pascal_384x384.pth``, MIT licence) from
-  ``$SEMMAP_PRETRAINED_DIR`` or ``../shared/weights/espnetv2`` beside the repository; its ``base_net.`` tensors
-  go to the network's encoder, the PASCAL decoder is left out.
+  ``$SEMMAP_PRETRAINED_DIR``, the shipped ``weights/espnetv2`` or ``../shared/weights/espnetv2``; its
+  ``base_net.`` tensors go to the network's encoder, the PASCAL decoder is left out.
 * ``torchvision:resnet18|34|50`` and ``torchvision:vgg16``: torchvision's ImageNet weights (downloaded, where
   the machine can) into the full-width (``--width 1``) ResNet or VGG-16 backbones.  VGG-16 has no BatchNorm:
   each conv's bias moves into the BN that follows it here, with unit scale and zero mean (the same function).
@@ -114,9 +114,15 @@ def load_matching(model: nn.Module, source: Mapping[str, torch.Tensor], rename: 
 
 
 def espnet_dir() -> Path:
-    """Folder of the ESPNetv2 PASCAL files: ``$SEMMAP_PRETRAINED_DIR``, else ``../shared/weights/espnetv2``."""
+    """Folder of the ESPNetv2 PASCAL files: ``$SEMMAP_PRETRAINED_DIR``, else the shipped ``weights/espnetv2``,
+    else ``../shared/weights/espnetv2`` beside the repository."""
+    from semmap.perception.registry import ESPNETV2_FOLDER, shipped_weights_dir
+
     env = os.environ.get(PRETRAINED_ENV)
-    return Path(env) if env else Path(__file__).resolve().parents[4].parent / ESPNET_SHARED_DIR
+    if env:
+        return Path(env)
+    shipped = shipped_weights_dir() / ESPNETV2_FOLDER
+    return shipped if shipped.is_dir() else Path(__file__).resolve().parents[4].parent / ESPNET_SHARED_DIR
 
 
 def load_espnet_encoder(model: nn.Module, name: str, folder: Path | None = None) -> LoadSummary:
