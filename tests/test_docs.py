@@ -40,7 +40,7 @@ def top_modules() -> list[str]:
 
 def test_the_inventory_is_not_empty() -> None:
     assert "maps/" in packages(top_only=True) and "perception/instances/" in packages(top_only=False)
-    assert "cli.py" in top_modules() and "__init__.py" not in top_modules()
+    assert "runner.py" in top_modules() and "__init__.py" not in top_modules()
 
 
 def test_named_matches_whole_paths_only() -> None:

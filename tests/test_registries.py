@@ -55,7 +55,7 @@ ALLOWED: dict[tuple[str, str], str] = {
                                        "folder), not the segmenter onnx:MODEL",
     ("runner.py", "onnx"): "--backend onnx for the demo's network (the runtime, not the segmenter onnx:MODEL)",
     ("localization/sequence.py", "odometry"): "--motion odometry: a localization motion source (MOTION_SOURCES)",
-    ("cli.py", "odometry"): "the default of localize --motion (a localization motion source)",
+    ("cli/localize.py", "odometry"): "the default of localize --motion (a localization motion source)",
     ("eval/report_md.py", "points"): "the 'points' count of a report entry",
     ("io/map_info.py", "points"): "the 'points' count of a .ply file's description",
     ("io/objects.py", "points"): "the 'points' field of objects.json / objects.ply",

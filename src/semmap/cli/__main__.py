@@ -1,0 +1,5 @@
+"""``python -m semmap.cli``: the ``semmap`` command."""
+
+from semmap.cli import main
+
+main()
