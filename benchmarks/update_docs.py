@@ -27,6 +27,8 @@ import sys
 import time
 from pathlib import Path
 
+from semmap.eval import headline
+
 ROOT = Path(__file__).resolve().parents[1]
 START, END = "<!-- headline:start (written by benchmarks/update_docs.py) -->", "<!-- headline:end -->"
 KEPT_START = "<!-- kept:start (copied from the named scripts' output; update_docs.py keeps it as it is) -->"
@@ -274,16 +276,21 @@ def networks_section(bench: dict | None) -> list[str]:
 
 
 def demo_lines(report: dict) -> list[str]:
+    """The demo's lines: the map against its network at the same pixels first, then the 3D map against the
+    ground-truth voxels on its own (a voxel mIoU and a pixel MIoU are different units, never one comparison)."""
     sizes = report["bytes_on_disk"]
     ms = report["ms_per_frame"]
     mapping_ms = sum(v for k, v in ms.items() if k not in ("load", "segment", "total"))
     seg = report.get("segmenter", "oracle")
     what = ("cnn-like oracle, ~75 % pixel accuracy" if seg == "oracle"
             else f"the shipped {seg} network, trained by semmap on other simulated scenes")
+    realism = report.get("realism", "clean")
     return [
-        f"- 3D semantic mIoU of the fused map **{report['miou_3d']:.3f}** against ground-truth voxels, versus "
-        f"**{report[f'{seg}_miou_2d']:.3f}** for the single-frame segmentation ({what}) "
-        f"it was built from; geometric precision {report['geometric_precision_3d']:.3f}.",
+        f"- {headline.SAME_PIXELS[0].upper()}{headline.SAME_PIXELS[1:]}: {headline.same_pixels(report)} "
+        f"(segmenter: {what}; realism `{realism}`).",
+        f"- {headline.VOXELS_3D}: {headline.voxels_3d(report)} (every voxel counts once: not comparable with a "
+        "per-pixel MIoU).",
+        f"- {headline.NETWORK_ALONE[0].upper()}{headline.NETWORK_ALONE[1:]}: {headline.network_alone(report)}.",
         f"- {report['frames_used']} frames, {ms['total']:.0f} ms per frame in all (rendering {ms['load']:.0f} ms, "
         f"segmentation {ms['segment']:.0f} ms, mapping {mapping_ms:.0f} ms).",
         f"- Storage: dense coloured point cloud {report['dense_point_cloud_bytes'] / 2**20:,.0f} MiB, `map.bt` "
@@ -306,6 +313,23 @@ def end_to_end_section(bench: dict | None, heading: bool = True) -> list[str]:
             *end_to_end_table(bench), ""]
 
 
+def demo_headline_rows(demo: dict | None) -> list[tuple[str, str, str, str]]:
+    """The demo's headline rows: the map against its network at the same pixels (one unit in the row), then the 3D
+    map against the ground-truth voxels with its geometry and storage beside it, on a row of its own."""
+    if not demo:
+        return []
+    seg, sizes = demo.get("segmenter", "oracle"), demo["bytes_on_disk"]
+    return [(f"`make demo` ({demo['frames_used']} frames, realism `{demo.get('realism', 'clean')}`): "
+             f"{headline.SAME_PIXELS}",
+             f"map MIoU **{demo['pixel_miou_map']:.3f}**; {demo['ms_per_frame']['total']:.0f} ms per frame in all",
+             f"shipped {seg} {demo['pixel_miou_network']:.3f} ({100 * demo['pixel_gain']:+.1f} points), "
+             f"{100 * demo['pixel_coverage']:.0f} % of labelled pixels", "update_docs.py"),
+            (f"`make demo`: {headline.VOXELS_3D}", f"mIoU {demo['miou_3d']:.3f}; `map.bt` "
+             f"{sizes['map.bt'] / 1024:,.0f} KiB, `map.semmap` {sizes['map.semmap'] / 1024:,.0f} KiB",
+             f"geometric precision {demo['geometric_precision_3d']:.3f}, coverage {demo['gt_coverage_3d']:.3f}; "
+             f"dense cloud {demo['dense_point_cloud_bytes'] / 2**20:,.0f} MiB", "update_docs.py")]
+
+
 def headline_rows(results: dict) -> list[str]:
     """The README's one table: a row per claim (what, semmap's number, the peer or truth in the same run, the
     script), from the same results as docs/BENCHMARKS.md; rows whose part has no results are left out."""
@@ -320,15 +344,7 @@ def headline_rows(results: dict) -> list[str]:
         r = octree["results"][0]
         rows.append((f"Memory per leaf, {r['resolution']} m", f"{r['semmap_bytes_per_leaf']} B",
                      f"OctoMap {r['octomap_bytes_per_leaf']} B", "bench_octree_vs_octomap.py"))
-    demo = results.get("demo")
-    if demo:
-        seg, sizes = demo.get("segmenter", "oracle"), demo["bytes_on_disk"]
-        rows.append((f"`make demo`: {demo['frames_used']} simulated frames, shipped {seg} network",
-                     f"3D mIoU of the map {demo['miou_3d']:.3f}; {demo['ms_per_frame']['total']:.0f} ms per frame "
-                     "in all", f"2D mIoU of the single frames {demo[f'{seg}_miou_2d']:.3f}", "update_docs.py"))
-        rows.append(("Storage of the demo map", f"`map.bt` {sizes['map.bt'] / 1024:,.0f} KiB, `map.semmap` "
-                     f"{sizes['map.semmap'] / 1024:,.0f} KiB", "dense coloured point cloud "
-                     f"{demo['dense_point_cloud_bytes'] / 2**20:,.0f} MiB", "update_docs.py"))
+    rows += demo_headline_rows(results.get("demo"))
     tracking = results.get("tracking")
     if tracking:
         by = {(r["sequence"], r["method"]): r for r in tracking["results"]}
@@ -412,8 +428,9 @@ PARTS = {"octree": ("octree_vs_octomap", "benchmarks/bench_octree_vs_octomap.py"
 #: parts the docs can do without when an earlier run did not have them yet
 OPTIONAL = {"end_to_end", "localization", "networks", "products"}
 #: What the docs use of the demo's report (kept in the JSON block so ``--only`` can reuse it).
-DEMO_KEYS = ("segmenter", "miou_3d", "geometric_precision_3d", "frames_used", "ms_per_frame", "bytes_on_disk",
-             "dense_point_cloud_bytes")
+DEMO_KEYS = ("segmenter", "realism", "frames_segmented", "pixel_miou_map", "pixel_miou_network", "pixel_gain",
+             "pixel_coverage", "pixel_every", "miou_3d", "geometric_precision_3d", "gt_coverage_3d", "frames_used",
+             "ms_per_frame", "bytes_on_disk", "dense_point_cloud_bytes")
 
 
 def previous_results() -> dict:
@@ -529,8 +546,8 @@ def write_readme_headline(results: dict, stamp: str, where: str) -> None:
     if START not in readme or END not in readme:
         return
     block = [START, "", *headline_rows(results), "",
-             f"Measured on {stamp} ({where}) by `benchmarks/update_docs.py`; every other number, with how it "
-             "was measured, is in [docs/BENCHMARKS.md](docs/BENCHMARKS.md).", END]
+             f"Measured on {stamp} ({where}) by `benchmarks/update_docs.py`; every other number and how it was "
+             "measured: [docs/BENCHMARKS.md](docs/BENCHMARKS.md).", END]
     head, rest = readme.split(START, 1)
     (ROOT / "README.md").write_text(head + "\n".join(block) + rest.split(END, 1)[1])
 

@@ -115,10 +115,13 @@ def test_report_md_without_a_segmenter_says_what_the_scores_measure_instead_of_a
     md = render_report_md(_scored_report(semantics=GROUND_TRUTH_LABELS))
     assert "(None)" not in md and "nan" not in md
     assert f"No segmenter ran (semantics: {GROUND_TRUTH_LABELS})" in md
-    assert "| measure | fused 3D map |" in md and "| class | IoU 3D |" in md
+    assert "| measure | 3D map vs ground-truth voxels |" in md
+    assert "| class | IoU, 3D map vs ground-truth voxels |" in md
+    assert "The network alone" not in md
     with_segmenter = render_report_md(_scored_report(semantics="segmenter oracle", oracle_miou_2d=0.6,
                                                      oracle_pixel_accuracy_2d=0.7, oracle_mpa_2d=0.65))
-    assert "single-frame segmentation (oracle)" in with_segmenter and "| mIoU | **0.900** | 0.600 |" in with_segmenter
+    assert "| mIoU | **0.900** |" in with_segmenter and "No segmenter ran" not in with_segmenter
+    assert "## The network alone (oracle)" in with_segmenter and "| MIoU | 0.600 |" in with_segmenter
 
 
 # ---------------------------------------------------------------------------------------------- the objects rule

@@ -254,4 +254,4 @@ def test_demo_segments_with_the_shipped_network(tmp_path) -> None:
     report = json.loads((tmp_path / "demo" / "report.json").read_text())
     assert report["segmenter"] == name and report["frames_segmented"] == 6
     assert f"{name}_miou_2d" in report and "miou_3d" in report
-    assert f"single-frame segmentation ({name})" in (tmp_path / "demo" / "report.md").read_text()
+    assert f"## The network alone ({name})" in (tmp_path / "demo" / "report.md").read_text()

@@ -129,12 +129,13 @@ def sim3_scale(value: float | None) -> str:
 
 
 def print_summary(report: dict, out_dir: Path) -> None:
+    from semmap.eval.headline import accuracy_rows
+
     rows = [(key, str(report[key])) for key in ("frames_used", "frames_skipped", "occupied_voxels", "free_voxels",
                                                 "occupied_leaves", "free_leaves", "bytes_in_memory", "semantics",
-                                                "miou_3d",
-                                                *(k for k in report if k.endswith("_miou_2d")), "frames_segmented",
-                                                "pixel_miou_map", "pixel_miou_network", "pixel_coverage")
+                                                "frames_segmented")
             if key in report]
+    rows += accuracy_rows(report)  # the map vs its network at the same pixels first, the 3D map apart
     if "trajectory_vs_ground_truth" in report:
         ate = report["trajectory_vs_ground_truth"]["ate_rmse_m"]
         rows.append(("ATE of the poses used", f"{100 * ate:.2f} cm"))

@@ -21,7 +21,7 @@ from semmap.eval.semantic import confusion, scores
 from semmap.geometry import DEFAULT_MAX_DEPTH, DEFAULT_MIN_DEPTH, backproject_world
 from semmap.keys import coords_to_keys, pack_keys
 from semmap.maps.base import SemanticMap
-from semmap.types import EMPTY_LABEL, Frame, TopKProbs
+from semmap.types import EMPTY_LABEL, Frame, LabelSet, TopKProbs
 
 #: Every how many mapped frames one is evaluated (the field's usual sampling of a sequence).
 EVERY = 10
@@ -96,6 +96,14 @@ class PixelScores:
         self.scored += int(both.sum())
         self.frames += 1
 
+    def per_class(self, label_set: LabelSet) -> dict:
+        """IoU per class of the map (``pixel_per_class_iou_map``) and the network (``..._network``) at the same
+        pixels, classes present in the truth there."""
+        out = {"pixel_per_class_iou_map": scores(self.conf_map).per_class(label_set)}
+        if self.has_network:
+            out["pixel_per_class_iou_network"] = scores(self.conf_net).per_class(label_set)
+        return out
+
     def summary(self, suffix: str = "") -> dict:
         """``pixel_miou_map``, ``pixel_miou_network``, accuracy and MPA of both, their ``pixel_gain`` (map minus
         network mIoU) and ``pixel_coverage``; keys end in ``suffix`` (``_causal``)."""
@@ -156,9 +164,10 @@ class PixelRecord:
         if not self.samples or m.label_set is None or m.kind.value not in self.samples[0].causal:
             return {}
         k = len(m.label_set)
+        final = score_samples(self.samples, m, k)
         out = {"pixel_frames": len(self.samples), "pixel_every": self.every, "pixel_stride": self.stride,
-               **score_samples(self.samples, m, k).summary(),
-               **score_samples(self.samples, m, k, causal=True).summary("_causal")}
+               **final.summary(), **score_samples(self.samples, m, k, causal=True).summary("_causal"),
+               **final.per_class(m.label_set)}
         if any((s.net != _EMPTY).any() for s in self.samples):
             out.update(fusion_ceiling(np.concatenate([s.points for s in self.samples]),
                                       np.concatenate([s.gt for s in self.samples]),

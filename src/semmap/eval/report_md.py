@@ -6,6 +6,8 @@ from pathlib import Path
 
 import numpy as np
 
+from semmap.eval.headline import SAME_PIXELS, VOXELS_3D, segmenter_of
+from semmap.eval.report_plots import iou_at_pixels
 from semmap.files.atomic import write_text_atomic
 
 
@@ -41,23 +43,19 @@ def _plot(plots: dict[str, str] | None, section: str, caption: str) -> list[str]
 def render_report_md(report: dict, *, title: str = "semmap run", plots: dict[str, str] | None = None) -> str:
     """Markdown for a report dict as written by the pipeline; ``plots`` names the pictures of
     :func:`semmap.eval.report_plots.write_report_plots` by section."""
-    lines = [f"# {title}", "", f"Dataset: `{report.get('dataset', '?')}`  ", f"Resolution: {report['resolution']} m  ",
+    lines = [f"# {title}", "", f"Dataset: `{report.get('dataset', '?')}`  ", *_realism_line(report),
+             f"Resolution: {report['resolution']} m  ",
              *([f"Semantics: {report['semantics']}  "] if "semantics" in report else []),
              f"Frames used: {report['frames_used']} (skipped: {report['frames_skipped']})", ""]
     lines += _continued_lines(report.get("continued"))
+    # the map against its network at the same pixels first; the 3D map and the network alone each on their own
+    at_pixels = iou_at_pixels(report)  # what the IoU plot shows
     lines += _pixel_summary(report)
-    if "miou_3d" in report:
-        seg = next((k[: -len("_miou_2d")] for k in report if k.endswith("_miou_2d")), None)
-        measures, per_class = _accuracy_tables(report, seg)
-        lines += ["## Semantic accuracy", "", *measures, "",
-                  f"3D: occupied voxels matched to ground-truth surface voxels within one voxel; "
-                  f"geometric precision {report['geometric_precision_3d']:.3f} (occupied voxels on a true surface), "
-                  f"coverage {report['gt_coverage_3d']:.3f} of the {report['gt_voxels']:,} ground-truth surface "
-                  f"voxels.", "", *_alignment_lines(report), *per_class, ""]
-    else:
-        lines += _alignment_lines(report)
     lines += _pixel_section(report)
-    lines += _plot(plots, "iou", "IoU per class")
+    lines += _plot(plots, "iou", "IoU per class, map vs network at the same pixels") if at_pixels else []
+    lines += _voxel_section(report)
+    lines += [] if at_pixels else _plot(plots, "iou", f"IoU per class, {VOXELS_3D}")
+    lines += _network_section(report)
     sizes = report["bytes_on_disk"]
     lines += ["## Storage", "", "| representation | size | bytes |", "|---|---|---|"]
     if "dense_point_cloud_bytes" in report:
@@ -92,29 +90,55 @@ def render_report_md(report: dict, *, title: str = "semmap run", plots: dict[str
     return "\n".join(lines)
 
 
-def _accuracy_tables(report: dict, seg: str | None) -> tuple[list[str], list[str]]:
-    """The fused map's accuracy and its IoU per class, beside the single-frame segmentation's; without a segmenter
-    the map's column alone, after what its classes were (ground-truth labels score fusion and geometry only)."""
-    rows = (("mIoU", "miou_3d", "miou_2d"), ("accuracy (voxels / pixels)", "voxel_accuracy_3d", "pixel_accuracy_2d"),
-            ("MPA", "mpa_3d", "mpa_2d"))
+def _realism_line(report: dict) -> list[str]:
+    """Simulated frames: the realism preset they were rendered with, in words."""
+    if "realism" not in report:
+        return []
+    from semmap.sim.realism import SUMMARIES
+
+    what = SUMMARIES.get(report["realism"])
+    return [f"Realism: `{report['realism']}`" + (f" ({what})" if what else "") + "  "]
+
+
+def _voxel_section(report: dict) -> list[str]:
+    """The 3D map scored on its own against the ground-truth voxels, geometry beside it, and its IoU per class;
+    without a segmenter, what its classes came from (ground-truth labels score fusion and geometry only)."""
+    if "miou_3d" not in report:
+        return _alignment_lines(report)
+    lines = [f"## {VOXELS_3D}", ""]
+    if segmenter_of(report) is None and "semantics" in report:
+        lines += [f"No segmenter ran (semantics: {report['semantics']}): these scores measure the fusion and the "
+                  "geometry, not a segmenter.", ""]
+    rows = (("mIoU", "miou_3d"), ("voxel accuracy", "voxel_accuracy_3d"), ("MPA", "mpa_3d"),
+            ("geometric precision", "geometric_precision_3d"), ("coverage", "gt_coverage_3d"))
+    lines += [f"| measure | {VOXELS_3D} |", "|---|---|",
+              *(f"| {name} | {_cell(report[key], key)} |" for name, key in rows if key in report), "",
+              f"Occupied voxels matched to ground-truth surface voxels within one voxel; geometric precision: the "
+              f"share of occupied voxels on a true surface; coverage: the share of the {report['gt_voxels']:,} "
+              "ground-truth surface voxels the map holds. Every voxel counts once, however often it was seen: this "
+              "is not comparable with a per-pixel MIoU.", "", *_alignment_lines(report)]
     per3 = report.get("per_class_iou_3d", {})
+    lines += ["| class | IoU, 3D map vs ground-truth voxels |", "|---|---|",
+              *(f"| {name} | {iou:.3f} |" for name, iou in sorted(per3.items(), key=lambda kv: -kv[1]))]
+    return [*lines, ""]
+
+
+def _network_section(report: dict) -> list[str]:
+    """The network's own per-frame scores over every labelled pixel it segmented, and its IoU per class."""
+    seg = segmenter_of(report)
     if seg is None:
-        measures = ([f"No segmenter ran (semantics: {report['semantics']}): these scores measure the fusion and the "
-                     "geometry, not a segmenter.", ""] if "semantics" in report else [])
-        measures += ["| measure | fused 3D map |", "|---|---|",
-                     *(f"| {name} | {_cell(report[k3], k3)} |" for name, k3, _ in rows)]
-        return measures, ["| class | IoU 3D |", "|---|---|",
-                          *(f"| {name} | {iou:.3f} |" for name, iou in sorted(per3.items(), key=lambda kv: -kv[1]))]
-    measures = [f"| measure | fused 3D map | single-frame segmentation ({seg}) |", "|---|---|---|",
-                *(f"| {name} | {_cell(report[k3], k3)} | {report.get(f'{seg}_{k2}', float('nan')):.3f} |"
-                  for name, k3, k2 in rows)]
+        return []
+    rows = (("MIoU", "miou_2d"), ("pixel accuracy", "pixel_accuracy_2d"), ("MPA", "mpa_2d"))
+    lines = [f"## The network alone ({seg}), every labelled pixel", "",
+             f"Each frame's segmentation against its true labels over every labelled pixel of the "
+             f"{report.get('frames_segmented', '?')} frames segmented (for the map against it, see the same pixels "
+             "above).", "", f"| measure | {seg}, every labelled pixel |", "|---|---|",
+             *(f"| {name} | {report[f'{seg}_{key}']:.3f} |" for name, key in rows if f"{seg}_{key}" in report), ""]
     per2 = report.get(f"{seg}_per_class_iou_2d", {})
-    per_class = ["| class | IoU 3D | IoU 2D |", "|---|---|---|"]
-    for name in sorted(set(per3) | set(per2), key=lambda n: -per3.get(n, 0.0)):
-        a = f"{per3[name]:.3f}" if name in per3 else "–"
-        b = f"{per2[name]:.3f}" if name in per2 else "–"
-        per_class.append(f"| {name} | {a} | {b} |")
-    return measures, per_class
+    if per2:
+        lines += [f"| class | IoU, {seg} per frame |", "|---|---|",
+                  *(f"| {name} | {iou:.3f} |" for name, iou in sorted(per2.items(), key=lambda kv: -kv[1])), ""]
+    return lines
 
 
 def _cell(value: float, key: str) -> str:
@@ -156,7 +180,7 @@ def _pixel_section(report: dict) -> list[str]:
         return f"| {name} | " + " | ".join(cells) + f" | {report.get(f'pixel_coverage{suffix}', float('nan')):.3f} |"
 
     head = "| map | mIoU | accuracy | MPA |" + (" network mIoU | accuracy | MPA | gain (points) |" if net else "")
-    lines = ["## Network vs map at the same pixels", "", head + " coverage |",
+    lines = [f"## {SAME_PIXELS[0].upper()}{SAME_PIXELS[1:]}", "", head + " coverage |",
              "|---" * head.count("|") + "|", row("final", ""), row("causal (as the frame arrived)", "_causal"),
              "", f"Every {report['pixel_every']}th frame ({report['pixel_frames']} frames, every "
              f"{report['pixel_stride']}th pixel row and column): each pixel's depth back-projected with the frame's "
@@ -226,8 +250,9 @@ def _objects_section(o: dict) -> list[str]:
 def _maps_section(maps: dict) -> list[str]:
     """The maps of the run side by side: fusion, size, accuracy (before / after the CRF), storage."""
     lines = ["## Maps side by side", "",
-             "| map | fusion | elements | mIoU 3D | before CRF | accuracy | MPA | precision | coverage | "
-             "B per element in memory | files |", "|---|---|---|---|---|---|---|---|---|---|---|"]
+             "| map | fusion | elements | MIoU at the same pixels | 3D mIoU vs ground-truth voxels | before CRF | "
+             "voxel accuracy | MPA | geometric precision | coverage | B per element in memory | files |",
+             "|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for kind, m in maps.items():
         size = m.get("points", m.get("voxels", m.get("occupied_voxels", 0) + (m.get("free_voxels") or 0)))
         before = m.get("crf", {}).get("miou_3d_before")
@@ -236,11 +261,12 @@ def _maps_section(maps: dict) -> list[str]:
         def fmt(key: str, m: dict = m) -> str:
             return f"{m[key]:.3f}" if key in m else "–"
 
-        lines.append(f"| {kind} | {m.get('fusion', '–')} | {size:,} | {fmt('miou_3d')} | "
+        lines.append(f"| {kind} | {m.get('fusion', '–')} | {size:,} | {fmt('pixel_miou_map')} | {fmt('miou_3d')} | "
                      f"{'–' if before is None else f'{before:.3f}'} | {fmt('voxel_accuracy_3d')} | {fmt('mpa_3d')} | "
                      f"{fmt('geometric_precision_3d')} | {fmt('gt_coverage_3d')} | "
                      f"{m['bytes_per_voxel_in_memory']} | {files} |")
-    return [*lines, "", "All maps are scored on the same ground-truth voxels (a finer point map votes per voxel).", ""]
+    return [*lines, "", "All maps are scored at the same pixels and on the same ground-truth voxels (a finer point "
+            "map votes per voxel).", ""]
 
 
 def write_report_md(path: str | Path, report: dict, *, title: str = "semmap run",

@@ -88,25 +88,42 @@ def plot_trajectory(path: Path, used: Trajectory, ground_truth: Trajectory | Non
     return _save(fig, path)
 
 
-def plot_iou(path: Path, per_class_3d: dict[str, float], per_class_2d: dict[str, float], *,
-             label_2d: str = "single-frame segmentation") -> Path:
-    """Horizontal bars of IoU per class, the fused 3D map beside the single-frame segmentation it came from."""
-    names = sorted(set(per_class_3d) | set(per_class_2d), key=lambda n: (per_class_3d.get(n, -1.0), n))
+def plot_iou(path: Path, series: dict[str, dict[str, float]], *, title: str) -> Path:
+    """Horizontal bars of IoU per class, one bar per series (e.g. the map and its network at the same pixels)."""
+    first = next(iter(series.values()), {})
+    names = sorted(set().union(*series.values()), key=lambda n: (first.get(n, -1.0), n))
     y = np.arange(len(names))
     fig = _figure(7.5, 1.2 + 0.28 * max(len(names), 1))
     ax = fig.add_subplot(1, 1, 1)
-    h = 0.4
-    if per_class_3d:
-        ax.barh(y + h / 2, [per_class_3d.get(n, 0.0) for n in names], h, color="tab:blue", label="fused 3D map")
-    if per_class_2d:
-        ax.barh(y - h / 2, [per_class_2d.get(n, 0.0) for n in names], h, color="tab:gray", label=label_2d)
+    h = 0.8 / max(len(series), 1)
+    for i, ((label, per_class), colour) in enumerate(zip(series.items(), ("tab:blue", "tab:gray"), strict=False)):
+        ax.barh(y + (len(series) - 1) * h / 2 - i * h, [per_class.get(n, 0.0) for n in names], h, color=colour,
+                label=label)
     ax.set_yticks(y, names, fontsize=8)
     ax.set_xlim(0, 1)
     ax.set_xlabel("IoU")
-    ax.set_title("intersection over union per class")
+    ax.set_title(title)
     ax.grid(axis="x", alpha=0.3)
     ax.legend(fontsize=8, loc="lower right")
     return _save(fig, path)
+
+
+def iou_at_pixels(report: dict) -> bool:
+    """Whether the IoU plot compares the map with a segmenter at the same pixels (label images as semantics are no
+    network to compare with)."""
+    return bool(report.get("segmenter") and report.get("pixel_per_class_iou_map")
+                and report.get("pixel_per_class_iou_network"))
+
+
+def iou_series(report: dict) -> tuple[dict[str, dict[str, float]], str] | None:
+    """What the IoU plot shows: the map against its network at the same pixels where the run has it, else the 3D
+    map against the ground-truth voxels alone (never a voxel IoU beside a pixel IoU); None without either."""
+    if iou_at_pixels(report):
+        return ({"map": report["pixel_per_class_iou_map"], report["segmenter"]: report["pixel_per_class_iou_network"]},
+                "IoU per class, map vs network at the same pixels")
+    if report.get("per_class_iou_3d"):
+        return {"3D map": report["per_class_iou_3d"]}, "IoU per class, 3D map vs ground-truth voxels"
+    return None
 
 
 def _human_bytes(n: float) -> str:
@@ -198,11 +215,9 @@ def write_report_plots(out_dir: str | Path, report: dict, *, used: Trajectory | 
         plot_trajectory(out_dir / PLOT_FILES["trajectory"], **_trajectory_in_one_frame(report, used, ground_truth,
                                                                                          cloud))
         plots["trajectory"] = PLOT_FILES["trajectory"]
-    per3 = report.get("per_class_iou_3d", {})
-    seg = next((k[: -len("_per_class_iou_2d")] for k in report if k.endswith("_per_class_iou_2d")), None)
-    per2 = report.get(f"{seg}_per_class_iou_2d", {}) if seg else {}
-    if per3 or per2:
-        plot_iou(out_dir / PLOT_FILES["iou"], per3, per2, label_2d=f"single-frame segmentation ({seg})")
+    iou = iou_series(report)
+    if iou is not None:
+        plot_iou(out_dir / PLOT_FILES["iou"], iou[0], title=iou[1])
         plots["iou"] = PLOT_FILES["iou"]
     sizes = storage_sizes(report)
     if sizes:

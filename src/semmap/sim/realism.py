@@ -24,6 +24,12 @@ from semmap.sim.noise import KinectNoise
 #: The presets, in order of difficulty; the first is the default.
 REALISMS: tuple[str, ...] = ("clean", "kinect", "hard")
 DEFAULT_REALISM = REALISMS[0]
+#: What each preset simulates, in words (reports name the preset of their frames with it).
+SUMMARIES: dict[str, str] = {
+    "clean": "exact geometry, colour and poses, light Kinect-like depth noise",
+    "kinect": "a Kinect v1 calibrated on 7-Scenes: structured-light depth, colour camera, hand-held motion",
+    "hard": "the Kinect v1 preset on a worse day: more depth noise, wider edges, more holes",
+}
 
 #: A Kinect v1 unit's systematic errors, from the literature (docs/realism.md, "Systematic depth errors"), not tuned
 #: on any tracking number: a disparity distortion of 0.1 px at the image corners (r^2; 2 cm at 3 m, 3.6 cm at 4 m)
