@@ -14,6 +14,7 @@ from typing import ClassVar
 from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 
 from semmap.datasets import AUTO, FORMATS, DatasetFormat
+from semmap.errors import ConfigError
 from semmap.fusion.crf import CRF_KEYS, CrfParams
 from semmap.fusion.rules import FusionRule
 from semmap.fusion.topk_bayes import DEFAULT_LAMBDA, DEFAULT_MAX_CONFIDENCE
@@ -22,7 +23,7 @@ from semmap.limits import check, field_bounds
 from semmap.maps.registry import MAPS, MapKind, own_rules
 from semmap.maps.semantic_octomap import CellEvidence
 from semmap.perception.instances.registry import INSTANCE_SOURCES, InstanceSourceName
-from semmap.perception.registry import SEGMENTERS, SegmenterName, split_segmenter
+from semmap.perception.registry import SEGMENTERS, SegmenterName, split_segmenter, split_structure
 from semmap.poses.track import GROUND_TRUTH, POSE_SOURCES, PoseSource
 from semmap.registry import check_name
 
@@ -197,6 +198,10 @@ class SemanticsConfig(_Section):
     oracle_preset: str = "cnn-like"
     seed: int = Field(0, **field_bounds("seed"))
     segmenter: SegmenterName | None = Field(None, description=f"{SEGMENTERS.choices()} (None: from source)")
+    add_structure: bool = Field(False, description="add wall, floor and ceiling from depth and gravity to the "
+                                               "segmenter's classes (--segmenter NAME+structure)")
+    up: str | None = Field(None, description="the world frame is gravity-aligned with this axis up (+z, -y, or "
+                                             "x,y,z): the structure segmenter's up direction, carried by the poses")
     model: str | None = Field(None, description="the user's own model of --segmenter NAME:MODEL (an ONNX file, a "
                                                 "Hugging Face model id or folder)")
     segmenter_config: Path | None = Field(None, description="JSON sidecar of an ONNX model (None: MODEL.json beside "
@@ -231,8 +236,12 @@ class SemanticsConfig(_Section):
     @model_validator(mode="before")
     @classmethod
     def _model_after_colon(cls, data: object) -> object:
-        """``segmenter = "onnx:MODEL.onnx"`` is read as the segmenter ``onnx`` and its ``model``."""
+        """``segmenter = "onnx:MODEL.onnx"`` is read as the segmenter ``onnx`` and its ``model``; a ``+structure``
+        suffix (``espnetv2+structure``) sets ``structure``."""
         if isinstance(data, dict) and isinstance(data.get("segmenter"), str):
+            base, suffixed = split_structure(data["segmenter"])
+            if suffixed:
+                data = {**data, "segmenter": base, "add_structure": True}
             name, model = split_segmenter(data["segmenter"])
             if model is not None:
                 if data.get("model") not in (None, model):
@@ -244,6 +253,26 @@ class SemanticsConfig(_Section):
     @classmethod
     def _known_segmenter(cls, v: object) -> object:
         return check_name(SEGMENTERS, v)
+
+    @field_validator("up", mode="before")
+    @classmethod
+    def _up_axis(cls, v: object) -> object:
+        if v is not None:
+            from semmap.perception.structure.gravity import parse_up
+
+            try:
+                parse_up(str(v))
+            except ConfigError as exc:
+                raise ValueError(str(exc)) from None
+        return v
+
+    @model_validator(mode="after")
+    def _structure_needs_a_segmenter(self) -> SemanticsConfig:
+        if self.add_structure and self.segmenter is None:
+            raise ValueError("structure (+structure) needs a segmenter to add wall, floor and ceiling to")
+        if self.add_structure and self.segmenter == SegmenterName.STRUCTURE:
+            raise ValueError("structure+structure: name a network before +structure (espnetv2+structure)")
+        return self
 
     @field_validator("fusion", mode="before")
     @classmethod

@@ -84,6 +84,7 @@ def segmenter_for(config: RunConfig, dataset: Dataset | None = None):
     """The segmenter the configuration names (``--segmenter``, or ``--semantics oracle``), or None; ``dataset``
     (when already open) gives a segmenter that predicts the dataset's classes its label set."""
     from semmap.perception.registry import SEGMENTERS, SegmenterName, make_segmenter
+    from semmap.perception.structure.gravity import parse_up
 
     s = config.semantics
     name = s.segmenter or (SegmenterName.ORACLE if s.source == SemanticSource.ORACLE else None)
@@ -97,7 +98,8 @@ def segmenter_for(config: RunConfig, dataset: Dataset | None = None):
     return make_segmenter(name, weights=s.weights, label_set=label_set, k=s.k, label_confidence=s.label_confidence,
                           oracle_preset=s.oracle_preset, seed=s.seed, backend=s.backend, batch_size=s.batch_size,
                           input_size=s.input_size, threads=threads, trust_weights=s.trust_weights, model=s.model,
-                          model_config=s.segmenter_config, class_map=s.class_map, calibration=s.calibration)
+                          model_config=s.segmenter_config, class_map=s.class_map, calibration=s.calibration,
+                          structure=s.add_structure, up_world=None if s.up is None else parse_up(s.up))
 
 
 def instance_source_for(config: RunConfig, segmenter, dataset: Dataset | None = None):

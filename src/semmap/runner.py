@@ -20,6 +20,7 @@ from semmap.limits import check
 from semmap.pipeline import Pipeline, RunResult
 from semmap.poses.base import Progress
 from semmap.run.paths import check_run_paths
+from semmap.run.real_default import with_real_default
 from semmap.types import Trajectory
 
 log = logging.getLogger("semmap")
@@ -78,6 +79,7 @@ def run_config(config: RunConfig, *, dataset: Dataset | None = None, progress: P
         from semmap.run.continuation import open_prior
 
         prior = open_prior(continue_from, config, checkpoint_every=checkpoint_every, resume=resume)
+    config = with_real_default(config, dataset)
     segmenter = segmenter_for(config, dataset)
     return Pipeline(config, segmenter=segmenter, dataset=dataset, progress=progress, track_progress=track_progress,
                     ground_truth=simulated_ground_truth(dataset if dataset is not None else config.input.dataset),

@@ -308,6 +308,7 @@ class Frame:
     semantics: TopKProbs | None = None  # (H, W, k) per-pixel class distribution
     name: str = ""
     raw_color: RawColor | None = None  # the colour camera's own image, where rgb was registered onto depth
+    up_cam: np.ndarray | None = None  # (3,) unit up direction in the camera frame, from the sensor's accelerometer
 
     def __post_init__(self) -> None:
         h, w = self.intrinsics.height, self.intrinsics.width
@@ -326,6 +327,10 @@ class Frame:
                                f"expected ({h}, {w})")
         if self.T_world_cam is not None:
             check_pose(self.T_world_cam, where)
+        if self.up_cam is not None:
+            up = np.asarray(self.up_cam, np.float64)
+            if up.shape != (3,) or not np.isfinite(up).all() or not 0.5 < float(np.linalg.norm(up)) < 1.5:
+                raise DatasetError(f"{where}: up direction {up.tolist()} is not a unit 3-vector")
         if self.raw_color is not None and (self.raw_color.image.ndim != 3 or self.raw_color.image.shape[2] != 3
                                            or self.raw_color.image.dtype != np.uint8):
             raise DatasetError(f"{where}: raw colour image is {self.raw_color.image.shape} "

@@ -49,6 +49,7 @@ class _TumRef:
     rgb: Path
     depth: Path
     T_world_cam: np.ndarray | None
+    up_cam: np.ndarray | None = None
 
 
 class TumDataset(SequenceReader[_TumRef]):
@@ -86,6 +87,7 @@ class TumDataset(SequenceReader[_TumRef]):
         gt_stamps, gt_rows = (_read_groundtruth(gt_path, strict) if gt_path.is_file()
                               else (np.empty(0), np.empty((0, 7))))
 
+        gravity = read_accelerometer(root / ACCELEROMETER) if (root / ACCELEROMETER).is_file() else None
         refs = []
         for index, (i, j) in enumerate(pairs):
             stamp, rgb_rel = rgb[i]
@@ -93,7 +95,8 @@ class TumDataset(SequenceReader[_TumRef]):
             pose = pose_at(gt_stamps, gt_rows, stamp, max_time_diff)
             if pose is not None:
                 check_pose(pose, f"{gt_path} at t={stamp:.6f}")
-            refs.append(_TumRef(index, stamp, rgb_path.stem, rgb_path, root / depth[j][1], pose))
+            up = None if gravity is None else up_at(*gravity, stamp)
+            refs.append(_TumRef(index, stamp, rgb_path.stem, rgb_path, root / depth[j][1], pose, up))
 
         if intrinsics is None:
             intrinsics = _find_intrinsics(root, [r.rgb for r in refs])
@@ -123,6 +126,7 @@ class TumDataset(SequenceReader[_TumRef]):
             labels=labels,
             instances=None if instances is None else instances.astype(np.int32),
             name=ref.name,
+            up_cam=ref.up_cam,
         )
 
 
@@ -187,6 +191,47 @@ def _stamp(path: Path, number: int, field: str) -> float:
     if not np.isfinite(value):
         raise DatasetError(f"{path}:{number}: timestamp {field!r} is not finite")
     return value
+
+
+#: The Kinect's accelerometer readings TUM records beside the images: ``timestamp ax ay az`` (m/s²), axes those of
+#: the camera (x right, y down, z forward); at rest the reading is the specific force, which points up.
+ACCELEROMETER = "accelerometer.txt"
+#: Readings this close in time (seconds) to a frame are averaged for its up direction (hand motion averages out).
+ACCEL_WINDOW_S = 0.05
+#: Readings whose magnitude is this far from 9.81 m/s² are the hand's acceleration, not gravity: left out.
+ACCEL_TOLERANCE = 2.5
+
+
+def read_accelerometer(path: Path) -> tuple[np.ndarray, np.ndarray]:
+    """Timestamps (N,) and readings (N, 3) of ``accelerometer.txt``, sorted by time; DatasetError naming the
+    line for a malformed row."""
+    stamps, rows = [], []
+    for number, fields in _data_lines(path):
+        if len(fields) < 4:
+            raise DatasetError(f"{path}:{number}: expected 'timestamp ax ay az', got {len(fields)} fields")
+        stamps.append(_stamp(path, number, fields[0]))
+        try:
+            a = [float(f) for f in fields[1:4]]
+        except ValueError:
+            raise DatasetError(f"{path}:{number}: acceleration {fields[1:4]} is not three numbers") from None
+        if not np.isfinite(a).all():
+            raise DatasetError(f"{path}:{number}: acceleration {fields[1:4]} is not finite")
+        rows.append(a)
+    order = np.argsort(stamps, kind="stable")
+    return np.asarray(stamps, np.float64)[order], np.asarray(rows, np.float64).reshape(-1, 3)[order]
+
+
+def up_at(stamps: np.ndarray, readings: np.ndarray, t: float) -> np.ndarray | None:
+    """The unit up direction in the camera frame at time ``t``: the mean of the readings within ACCEL_WINDOW_S
+    whose magnitude is near gravity's, or None where there are none."""
+    lo, hi = np.searchsorted(stamps, [t - ACCEL_WINDOW_S, t + ACCEL_WINDOW_S], side="left")
+    near = readings[lo:hi]
+    near = near[np.abs(np.linalg.norm(near, axis=1) - 9.81) < ACCEL_TOLERANCE]
+    if len(near) == 0:
+        return None
+    mean = near.mean(axis=0)
+    norm = float(np.linalg.norm(mean))
+    return mean / norm if norm > 1e-6 else None
 
 
 def _read_groundtruth(path: Path, strict: bool) -> tuple[np.ndarray, np.ndarray]:

@@ -183,6 +183,12 @@ def _trained(name: str) -> Callable[..., Segmenter]:
     return make
 
 
+def _structure(*, k: int, up_world=None, **_) -> Segmenter:
+    from semmap.perception.structure.segmenter import StructureSegmenter
+
+    return StructureSegmenter(k=k, up_world=up_world)
+
+
 def _user_model(name: str) -> Callable[..., Segmenter]:
     """The factory of a segmenter around the user's own model (``onnx:MODEL.onnx``, ``hf:MODEL_ID``)."""
 
@@ -214,6 +220,9 @@ def _user_model(name: str) -> Callable[..., Segmenter]:
 
 #: The PASCAL VOC network loaded from its authors' weights.
 ESPNETV2 = "espnetv2"
+#: Wall, floor and ceiling from depth and gravity; ``NAME+structure`` adds them to any segmenter.
+STRUCTURE = "structure"
+STRUCTURE_SUFFIX = "+structure"
 #: A user's ONNX model with a JSON sidecar, and a Hugging Face transformers model.
 ONNX, HUGGING_FACE = "onnx", "hf"
 #: Every segmenter ``--segmenter`` can name: three of their own, then semmap's trained networks
@@ -225,6 +234,8 @@ SEGMENTERS: Registry[SegmenterEntry] = Registry("segmenter", [
                    "(--weights FOLDER)", needs_weights=True, dataset_classes=True),
     SegmenterEntry(ESPNETV2, _espnetv2, "ESPNetv2 trained on PASCAL VOC, 21 classes (shipped "
                    "weights/espnetv2/, or --weights espnetv2_s_1.0_pascal_384x384.pth)"),
+    SegmenterEntry(STRUCTURE, _structure, "wall, floor and ceiling from depth and gravity, any recording (NAME+"
+                   "structure: with a network's classes, e.g. espnetv2+structure)"),
     SegmenterEntry(ONNX, _user_model(ONNX), "your ONNX segmentation model: onnx:MODEL.onnx, described by "
                    "MODEL.json or --segmenter-config (docs/segmenters.md)", takes_model=True),
     SegmenterEntry(HUGGING_FACE, _user_model(HUGGING_FACE), "a Hugging Face transformers segmentation model: "
@@ -238,8 +249,17 @@ TRAINED_NETWORKS: tuple[str, ...] = SEGMENTERS.where(trained=True)
 SegmenterName = SEGMENTERS.enum("SegmenterName", __name__)
 
 
+def split_structure(text: str) -> tuple[str, bool]:
+    """``"espnetv2+structure"`` -> ("espnetv2", True); a name without the suffix -> (name, False)."""
+    text = str(text)
+    if text.endswith(STRUCTURE_SUFFIX) and len(text) > len(STRUCTURE_SUFFIX):
+        return text[: -len(STRUCTURE_SUFFIX)], True
+    return text, False
+
+
 def split_segmenter(text: str) -> tuple[str, str | None]:
     """``"onnx:model.onnx"`` -> ("onnx", "model.onnx"); a name without a model -> (name, None)."""
+    text, _ = split_structure(text)
     name, sep, model = str(text).partition(":")
     if sep and name in SEGMENTERS and SEGMENTERS[name].takes_model:
         return name, model
@@ -251,21 +271,33 @@ def make_segmenter(name: str, *, weights: Path | None = None, label_set: LabelSe
                    backend: str = "torch", batch_size: int = 1, input_size: tuple[int, int] | int | None = None,
                    threads: int | None = None, trust_weights: bool = False, model: str | None = None,
                    model_config: Path | None = None, class_map: Path | None = None,
-                   calibration: bool = True) -> Segmenter:
+                   calibration: bool = True, structure: bool = False, up_world=None) -> Segmenter:
     """Build the segmenter ``name`` (``NAME:MODEL`` for the user's own model, or ``model``); ``label_set`` is the
     dataset's (the oracle predicts its classes); ``trust_weights`` uses shipped weights whose sha256 differs from
     the manifest (with a warning); ``model_config`` is an ONNX model's sidecar and ``class_map`` folds a user
-    model's classes into the map's; ``calibration=False`` ignores a trained network's temperature."""
+    model's classes into the map's; ``calibration=False`` ignores a trained network's temperature.
+    ``structure`` (or ``NAME+structure``) adds wall, floor and ceiling from geometry to the segmenter's classes,
+    ``up_world`` is a gravity-aligned world frame's up axis for the structure segmenter (``--up``)."""
+    name, suffixed = split_structure(name)
+    structure = structure or suffixed
     name, named_model = split_segmenter(name)
     entry = SEGMENTERS[name]
+    if structure and name == STRUCTURE:
+        raise ConfigError("--segmenter structure+structure: name a network before +structure (espnetv2+structure)")
     if not entry.takes_model and (model or model_config is not None or class_map is not None):
         raise ConfigError(f"--segmenter {name}: a model, --segmenter-config and --class-map are for the user's own "
                           f"model ({', '.join(n + ':MODEL' for n in SEGMENTERS.where(takes_model=True))})")
-    return entry.factory(weights=weights, label_set=label_set, k=k, label_confidence=label_confidence,
-                         oracle_preset=oracle_preset, seed=seed, backend=backend, batch_size=batch_size,
-                         input_size=input_size, threads=threads, trust_weights=trust_weights,
-                         model=named_model or model, model_config=model_config, class_map=class_map,
-                         calibration=calibration)
+    segmenter = entry.factory(weights=weights, label_set=label_set, k=k, label_confidence=label_confidence,
+                              oracle_preset=oracle_preset, seed=seed, backend=backend, batch_size=batch_size,
+                              input_size=input_size, threads=threads, trust_weights=trust_weights,
+                              model=named_model or model, model_config=model_config, class_map=class_map,
+                              calibration=calibration, up_world=up_world)
+    if not structure:
+        return segmenter
+    from semmap.perception.structure.compose import WithStructure
+    from semmap.perception.structure.segmenter import StructureSegmenter
+
+    return WithStructure(segmenter, StructureSegmenter(k=k, up_world=up_world), k=k)
 
 
 def trained_network_segmenter(name: str, *, weights: Path | None = None, k: int = 3, backend: str = "torch",

@@ -76,6 +76,14 @@ class Scheduler:
         return dt >= self.schedule.min_translation or angle >= self.schedule.min_rotation_deg
 
 
+def as_posed(frame: Frame, T_world_cam: np.ndarray | None, segmenter: Segmenter) -> Frame:
+    """The frame as ``segmenter`` wants it: with the run's pose for one that uses poses (the structure segmenter
+    carries gravity and the floor between frames by them), else as it is."""
+    if T_world_cam is None or not getattr(segmenter, "uses_pose", False) or frame.T_world_cam is T_world_cam:
+        return frame
+    return frame.with_(T_world_cam=np.asarray(T_world_cam, np.float64))
+
+
 def segment_many(segmenter: Segmenter, frames: Sequence[Frame]) -> list[TopKProbs | None]:
     """Segment frames in one batch when the segmenter can (networks), else one by one."""
     batch = getattr(segmenter, "segment_batch", None)
@@ -93,7 +101,7 @@ def with_semantics(posed: Iterable[tuple[Frame, np.ndarray]], segmenter: Segment
 
     def flush() -> Iterator[tuple[Frame, np.ndarray, TopKProbs | None]]:
         t0 = time.perf_counter()
-        results = iter(segment_many(segmenter, [f for f, _, due in pending if due]))
+        results = iter(segment_many(segmenter, [as_posed(f, T, segmenter) for f, T, due in pending if due]))
         if timings is not None:
             timings["segment"] = timings.get("segment", 0.0) + (time.perf_counter() - t0) * 1e3
         for frame, T, due in pending:
@@ -193,7 +201,7 @@ def with_semantics_beside(posed: Iterable[tuple[Frame, np.ndarray]], worker: Seg
 
     for frame, T in posed:
         due = frame.semantics is None and scheduler.due(T)
-        pending.append((frame, T, worker.submit(frame) if due else None))
+        pending.append((frame, T, worker.submit(as_posed(frame, T, worker.segmenter)) if due else None))
         yield from ready(block=False)
         while len(pending) >= max_pending:
             yield from _first(ready(block=True))
