@@ -132,7 +132,7 @@ def test_semmap_run_maps_a_bag(frames, tmp_path):
     path = write_bag(tmp_path / "rec", frames, kind="sqlite3", depth="compressedDepth")
     out = tmp_path / "out"
     r = run_cli("run", str(path), "--out", str(out), "--resolution", "0.1", "--depth-topic",
-                DEPTH + "/compressedDepth")
+                DEPTH + "/compressedDepth", "--semantics", "none")  # (a real recording's default segments)
     assert r.returncode == 0, r.stderr
     report = json.loads((out / "report.json").read_text())
     assert report["frames_used"] == len(frames) and report["occupied_voxels"] > 100
