@@ -37,6 +37,8 @@ TEXT_OPTIONS = frozenset({
     # key=value text: each number is checked by its own field of the configuration (crf.*), which names the option
     # (tests/test_crf_params.py)
     "--crf-params",
+    # an axis name or a direction x,y,z: parse_up refuses a non-finite or zero vector (tests/test_structure.py)
+    "--up",
 })
 #: The required arguments of each command: paths that are never opened (the numbers are checked first).
 NOWHERE = "/nonexistent/semmap-fuzz"

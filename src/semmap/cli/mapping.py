@@ -89,10 +89,16 @@ def run(
     lam: Annotated[float, typer.Option("--lambda", help="penalty λ of the top-k fusion (Algorithm 1)",
                                        rich_help_panel=_SEMANTICS)] = default(SemanticsConfig, "lam"),
     segmenter: Annotated[str | None, typer.Option(help=f"{SEGMENTERS.choices()} (onnx:MODEL.onnx, hf:MODEL_ID; "
-                                                       "default: from --semantics)",
+                                                       "NAME+structure adds wall, floor and ceiling from depth; "
+                                                       "default: from --semantics, and espnetv2+structure for a "
+                                                       "real recording without label images)",
                                                   rich_help_panel=_SEMANTICS)] = None,
-    weights: Annotated[Path | None, typer.Option(help="network weights (espnetv2; semmap's networks default to the "
-                                                 "shipped weights/), or the predictions folder (precomputed)",
+    up: Annotated[str | None, typer.Option(help="the world frame's up axis (+z, -y, ... or x,y,z) when it is "
+                                                "gravity-aligned: the structure segmenter's up (default: the "
+                                                "recording's accelerometer, else estimated from depth)",
+                                           rich_help_panel=_SEMANTICS)] = None,
+    weights: Annotated[Path | None, typer.Option(help="network weights (default: the shipped weights/ of espnetv2 "
+                                                 "and semmap's networks), or the predictions folder (precomputed)",
                                                  rich_help_panel=_SEMANTICS)] = None,
     trust_weights: Annotated[bool, typer.Option("--trust-weights", help="use shipped weights whose sha256 differs "
                                                 "from weights/manifest.json (with a warning)",
@@ -216,7 +222,7 @@ def run(
                               tsdf_truncation=tsdf_truncation, dynamic=dynamic, decay=decay),
         semantics=SemanticsConfig(source=semantics, label_confidence=label_confidence, lam=lam, k=top_k,
                                   temperature=temperature,
-                                  max_confidence=max_confidence, segmenter=segmenter,
+                                  max_confidence=max_confidence, segmenter=segmenter, up=up,
                                   weights=weights, trust_weights=trust_weights, segmenter_config=segmenter_config,
                                   class_map=class_map, calibration=calibration, segment_every=segment_every,
                                   keyframes=keyframes,
