@@ -4,7 +4,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed-stamp
 
-.PHONY: demo test bench lint api-docs clean
+.PHONY: demo test test-quick bench lint api-docs clean
 
 $(STAMP): pyproject.toml
 	@if command -v apt-get >/dev/null 2>&1 && ! ldconfig -p 2>/dev/null | grep -q libusb-1.0.so.0; then \
@@ -20,8 +20,14 @@ $(STAMP): pyproject.toml
 demo: $(STAMP)
 	$(BIN)/semmap demo --out outputs/demo
 
+# The whole suite on two cores (pytest-xdist; a file's tests stay on one worker, so its module fixtures are built
+# once), the 15 slowest tests listed at the end. CI runs this.
 test: $(STAMP)
-	$(BIN)/pytest
+	$(BIN)/pytest -n 2 --dist loadfile --durations=15
+
+# The fast core for the edit-test loop: every test not marked slow.
+test-quick: $(STAMP)
+	$(BIN)/pytest -n 2 --dist loadfile -m "not slow" --durations=15
 
 bench: $(STAMP)
 	$(BIN)/python benchmarks/bench_octree_vs_octomap.py

@@ -265,7 +265,7 @@ def export_onnx(model, path: Path, shape: tuple[int, ...], *, with_depth: bool =
     args = (torch.zeros(n, 3, h, w),) + ((torch.ones(n, 1, h, w),) if with_depth else ())
     names = ["image", "depth"] if with_depth else ["image"]
     path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_suffix(".onnx.tmp")
+    tmp = path.with_name(f"{path.name}.{os.getpid()}.tmp")  # (two processes may export the same graph at once)
     with torch.inference_mode(), warnings.catch_warnings():
         warnings.simplefilter("ignore", DeprecationWarning)  # the TorchScript exporter needs no onnxscript
         # one graph per input shape is the intent: the tracer's notes on shapes read as constants are noise
