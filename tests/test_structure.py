@@ -271,3 +271,37 @@ def test_a_simulator_network_on_a_real_recording_warns_once_naming_the_default(t
         assert with_real_default(config) is config
     warned = [r.getMessage() for r in caplog.records if r.levelno == logging.WARNING]
     assert len(warned) == 1 and "fcn" in warned[0] and REAL_DEFAULT in warned[0]
+
+
+# ------------------------------------------------------------------ the room yardstick (real frames, no hand labels)
+def test_the_room_yardstick_finds_a_simulated_rooms_shell_and_labels_its_frames() -> None:
+    """Fitted on a posed walk through a clean simulated room, the yardstick's labels agree with the simulator's
+    own wall and floor labels (wall-mounted things left out: they lie on the wall plane)."""
+    from semmap.datasets.simulated import SimulatedDataset
+    from semmap.eval.room_yardstick import FLOOR_ID, WALL_ID, fit_room, label_frame
+
+    walk = SimulatedDataset.default(scene_seed=3, kind="bedroom", frames=96)
+    frames = list(SimulatedDataset(walk.scene, walk.poses[::8], seed=3))
+    room = fit_room(frames)
+    assert np.degrees(np.arccos(abs(room.up @ WORLD_UP))) < 1.0
+    assert room.floor is not None and abs(room.floor.offset) < 0.03  # the simulator's floor is z = 0
+    assert len(room.walls) >= 2
+    agree = {WALL: [0, 0], FLOOR: [0, 0]}
+    for f in frames:
+        lab = label_frame(f, room)
+        scored = (f.depth > 0) & ~np.isin(f.labels, ON_WALL) & (f.labels > 0)
+        for ours, theirs in ((WALL_ID, WALL), (FLOOR_ID, FLOOR)):
+            a, b = (lab == ours) & scored, (f.labels == theirs) & scored
+            agree[theirs][0] += int(np.sum(a & b))
+            agree[theirs][1] += int(np.sum(a | b))
+    assert agree[FLOOR][0] / agree[FLOOR][1] > 0.9 and agree[WALL][0] / agree[WALL][1] > 0.85, agree
+
+
+def test_structure_confusion_counts_against_the_yardstick() -> None:
+    from semmap.eval.room_yardstick import iou_of, structure_confusion
+
+    yard = np.array([[0, 1, 1, 2], [2, 4, 4, 3]], np.uint8)
+    pred = np.array([[1, 1, 4, 2], [2, 1, 4, 4]], np.uint8)
+    conf = structure_confusion(pred, yard)
+    assert conf.tolist() == [[1, 1, 1], [2, 0, 0], [0, 0, 1]]  # the no-depth pixel (0) is not scored
+    assert iou_of(conf) == {"wall": 1 / 3, "floor": 1.0, "ceiling": 0.0}

@@ -18,7 +18,7 @@ from semmap.perception.structure.surface import Surface
 UPRIGHT = np.array([0.0, -np.cos(np.radians(10.0)), -np.sin(np.radians(10.0))])
 #: Angles (degrees) of the rounds: a normal within this of the up direction is a floor/ceiling/table surface,
 #: within this of the horizontal a wall.
-ROUND_ANGLES = (45.0, 30.0, 20.0, 15.0)
+ROUND_ANGLES = (45.0, 30.0, 20.0, 15.0, 8.0, 5.0)
 #: Weight of the prior direction against the surfaces (a share of their total area): it decides only what the
 #: surfaces leave open (a lone wall fixes up only to a circle of directions).
 PRIOR_WEIGHT = 0.05
@@ -81,7 +81,7 @@ def estimate_up(surface: Surface, prior: np.ndarray = UPRIGHT) -> UpEstimate:
 
 def _refine(n: np.ndarray, w: np.ndarray, start: np.ndarray) -> np.ndarray:
     """Gupta et al.'s rounds from ``start``: the eigenvector most parallel to the aligned normals and most
-    perpendicular to the others, a little of ``start`` added for what they leave open."""
+    perpendicular to the others, a little of the round's own start added for what they leave open."""
     up = start
     total = float(w.sum())
     for angle in ROUND_ANGLES:
@@ -89,7 +89,7 @@ def _refine(n: np.ndarray, w: np.ndarray, start: np.ndarray) -> np.ndarray:
         aligned = c > np.cos(np.radians(angle))
         across = c < np.sin(np.radians(angle))
         m = ((n[aligned] * w[aligned, None]).T @ n[aligned] - (n[across] * w[across, None]).T @ n[across]
-             + PRIOR_WEIGHT * total * np.outer(start, start))
+             + PRIOR_WEIGHT * total * np.outer(up, up))
         vals, vecs = np.linalg.eigh(m)
         new = vecs[:, int(np.argmax(vals))]
         up = new if new @ up >= 0 else -new

@@ -11,7 +11,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from semmap.perception.structure.surface import Surface, plane_tolerance
+from semmap.perception.structure.surface import Surface
 
 FLOOR, CEILING, WALL = "floor", "ceiling", "wall"
 #: A surface within this of the up direction faces up or down; within this of the horizontal it is vertical.
@@ -30,6 +30,10 @@ MAX_BEHIND_SHARE = {FLOOR: 0.2, CEILING: 0.2, WALL: 0.3}
 #: Only what lies this close behind a plane counts against it: furniture stands a few tens of centimetres from the
 #: wall behind it (a table top 0.7 m over the floor), while the next room seen through a doorway lies further.
 BEHIND_REACH_M = 0.9
+#: A wall shows higher than furniture fronts: sure once it reaches this far over the floor (counters are 0.9 m),
+#: or, with no floor in view, this far below the camera; half as sure a ramp's width lower (a camera looking down
+#: sees a wall only to its own height).
+REACH_OVER_FLOOR_M, REACH_BELOW_CAMERA_M, REACH_RAMP_M = 1.0, 0.6, 0.4
 #: Up to this many walls per frame.
 MAX_WALLS = 8
 
@@ -62,7 +66,7 @@ def _behind(surface: Surface, plane_normal: np.ndarray, offset: float, inlier_ar
     valid = surface.valid
     p = surface.points[valid]
     sd = p @ plane_normal + offset
-    far = (sd < -(0.05 + 2 * plane_tolerance(p[:, 2]))) & (sd > -BEHIND_REACH_M)
+    far = (sd < -(0.05 + 2 * surface.tolerance[valid])) & (sd > -BEHIND_REACH_M)
     behind = float(surface.area[valid][far].sum())
     return behind / max(behind + inlier_area, 1e-9)
 
@@ -100,7 +104,7 @@ def horizontal_plane(surface: Surface, up: np.ndarray, kind: str, *, near: float
     peaks = _peaks(h, w, float(h.min()) - HEIGHT_BIN_M, float(h.max()) + HEIGHT_BIN_M, HEIGHT_BIN_M)
     peaks.sort(key=lambda pw: sign * pw[0])  # the floor's lowest first, the ceiling's highest first
     for centre, _ in peaks:
-        tol = plane_tolerance(p[..., 2])
+        tol = surface.tolerance
         band = pick & (np.abs(height - centre) < 2 * HEIGHT_BIN_M)
         level = float(np.median(height[band]))
         inl = surface.valid & facing & (np.abs(height - level) < tol)
@@ -154,7 +158,7 @@ def wall_planes(surface: Surface, up: np.ndarray, *, floor_height: float | None 
     azimuth = np.degrees(np.arctan2(horiz @ e2, horiz @ e1))
     offset = -np.sum(horiz * p, axis=-1)  # distance of the camera from the cell's vertical plane
     height = p @ up
-    tol = plane_tolerance(p[..., 2])
+    tol = surface.tolerance
     free = vertical & surface.valid
     walls: list[Plane] = []
     a_bins = np.arange(-180.0, 180.0 + WALL_ANGLE_BIN_DEG, WALL_ANGLE_BIN_DEG)
@@ -197,8 +201,8 @@ def wall_planes(surface: Surface, up: np.ndarray, *, floor_height: float | None 
             continue
         tops = height[inl]
         reach = float(np.percentile(tops, 95))  # how high the wall shows, relative to the camera
-        low = -0.8 if floor_height is None else floor_height + 0.9  # a wall reaches well over counter height
-        reach_sure = float(np.clip((reach - low) / 0.8, 0.0, 1.0))
+        low = -REACH_BELOW_CAMERA_M if floor_height is None else floor_height + REACH_OVER_FLOOR_M
+        reach_sure = 0.5 + 0.5 * float(np.clip((reach - low) / REACH_RAMP_M, 0.0, 1.0))
         sure = (_area_sure(WALL, area) * _fit_sure(sd[inl], tol[inl]) * (1.0 - behind / MAX_BEHIND_SHARE[WALL]) ** 0.5
                 * reach_sure)
         if sure > 0.05:

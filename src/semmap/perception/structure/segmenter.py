@@ -9,7 +9,7 @@ frame, so a floor seen in a corner of the image is still the floor."""
 from __future__ import annotations
 
 import logging
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -39,6 +39,10 @@ MAX_SURE = 0.95
 NORMAL_FULL_DEG, NORMAL_NONE_DEG = 30.0, 60.0
 #: Agreement given to a pixel whose cell has no normal (a depth edge, a hole next to it).
 NO_NORMAL_AGREEMENT = 0.8
+#: A posed frame's wall at least this sure is remembered for later frames of the sequence.
+REMEMBER_WALL_SURE = 0.7
+#: Two walls closer than this in direction (degrees) and offset (metres) are one.
+SAME_WALL_DEG, SAME_WALL_M = 6.0, 0.1
 #: An up direction from depth is kept for the sequence's world estimate only with this much surface support.
 MIN_UP_SUPPORT = 0.5
 
@@ -63,6 +67,24 @@ class _WorldMemory:
 
     up_sum: np.ndarray = field(default_factory=lambda: np.zeros(3))
     levels: dict[str, list[tuple[float, float]]] = field(default_factory=lambda: {FLOOR: [], CEILING: []})
+    walls: list[tuple[np.ndarray, float, float]] = field(default_factory=list)  #: (normal, offset, sure), world
+
+    def wall_sure(self, normal: np.ndarray, offset: float) -> float:
+        """How sure earlier frames were of a wall on this world plane (0 for none)."""
+        best = 0.0
+        for n, o, sure in self.walls:
+            if n @ normal > np.cos(np.radians(SAME_WALL_DEG)) and abs(o - offset) < SAME_WALL_M:
+                best = max(best, sure)
+        return best
+
+    def add_wall(self, normal: np.ndarray, offset: float, sure: float) -> None:
+        """Remember a wall a frame was sure of (the surest of the planes that coincide)."""
+        for i, (n, o, s) in enumerate(self.walls):
+            if n @ normal > np.cos(np.radians(SAME_WALL_DEG)) and abs(o - offset) < SAME_WALL_M:
+                if sure > s:
+                    self.walls[i] = (normal, offset, sure)
+                return
+        self.walls.append((normal, offset, sure))
 
     @property
     def up(self) -> np.ndarray | None:
@@ -139,9 +161,21 @@ class StructureSegmenter:
                     level = -plane.offset if kind == FLOOR else plane.offset
                     self.memory.levels[kind].append((level + lift, plane.area))
         floor = next((p for p in planes if p.kind == FLOOR), None)
-        planes += wall_planes(surface, up.up, floor_height=None if floor is None else -floor.offset)
+        walls = wall_planes(surface, up.up, floor_height=None if floor is None else -floor.offset)
+        planes += walls if T is None else [self._remembered(w, T) for w in walls]
         probs = self._pixel_probabilities(frame, surface, planes)
         return StructureView(tuple(planes), up, probs)
+
+    def _remembered(self, wall: Plane, T: np.ndarray) -> Plane:
+        """A frame's wall made as sure as earlier frames were of the same world plane, and remembered when sure:
+        a wall seen whole once is a wall when a later view shows only its lower part."""
+        R, t = np.asarray(T, np.float64)[:3, :3], np.asarray(T, np.float64)[:3, 3]
+        normal = R @ wall.normal
+        offset = float(wall.offset - normal @ t)
+        if wall.sure >= REMEMBER_WALL_SURE:
+            self.memory.add_wall(normal, offset, wall.sure)
+        known = self.memory.wall_sure(normal, offset)
+        return wall if known <= wall.sure else replace(wall, sure=known)
 
     def _pixel_probabilities(self, frame: Frame, surface: Surface, planes: list[Plane]) -> np.ndarray:
         """(H, W, 3) float32: for each class the best of its planes at each pixel, by the pixel's distance to the

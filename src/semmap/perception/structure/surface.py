@@ -39,6 +39,13 @@ class Surface:
     normals: np.ndarray
     area: np.ndarray
     cell: int
+    depth: np.ndarray | None = None  #: each cell's depth from its camera, where the points are not camera-frame
+
+    @property
+    def tolerance(self) -> np.ndarray:
+        """:func:`plane_tolerance` of each cell, from its depth."""
+        z = np.nan_to_num(self.points[..., 2]) if self.depth is None else self.depth
+        return plane_tolerance(z)
 
     @property
     def valid(self) -> np.ndarray:
