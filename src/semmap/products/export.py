@@ -31,7 +31,17 @@ from semmap.products.navgrid import GridOptions, NavigationGrid, navigation_grid
 from semmap.products.occupancy import occupancy_volume
 from semmap.types import EMPTY_LABEL
 
-SUMMARIES = ("grid.json", "esdf.json", "graph.json", "diff.json", "mesh.json")
+#: Each kind of export: the command that writes it, its summary file (first) and every file it writes. An export
+#: replaces an earlier export of its own kind only: a folder holding anything else is refused.
+PRODUCTS = {
+    "grid": ("semmap export grid", ("grid.json", "map.pgm", "map.yaml", "costmap.png", "costmap.yaml",
+                                    "costmap.npy")),
+    "esdf": ("semmap export esdf", ("esdf.json", "esdf.npz", "esdf_slice.png")),
+    "scene-graph": ("semmap export scene-graph", ("graph.json", "scene_graph.json")),
+    "diff": ("semmap diff", ("diff.json", "diff.ply", "diff.png")),
+    "mesh": ("semmap export mesh", ("mesh.json", "mesh.ply")),
+}
+SUMMARIES = tuple(files[0] for _, files in PRODUCTS.values())
 
 
 def load_product_map(path: Path) -> tuple[SemanticMap, Path]:
@@ -49,12 +59,28 @@ def load_product_map(path: Path) -> tuple[SemanticMap, Path]:
     return load_map(path), path
 
 
-def _staged(out: Path, inputs: Path | list[tuple[str, Path]], write: Callable[[Path], dict]) -> dict:
+def check_replaceable(out: Path, product: str) -> None:
+    """``out`` is new, empty or an earlier export of the same kind (its summary file and none but its files);
+    anything else, another kind of export included, would be lost by replacing the folder: one OutputError line."""
+    if not out.is_dir() or not any(out.iterdir()):
+        return
+    command, files = PRODUCTS[product]
+    present = sorted(p.name for p in out.iterdir())
+    if (out / files[0]).is_file() and set(present) <= set(files):
+        return
+    other = next(((cmd, fs[0]) for kind, (cmd, fs) in PRODUCTS.items() if kind != product and (out / fs[0]).is_file()),
+                 None)
+    what = (f"holds the output of {other[0]} ({other[1]})" if other is not None
+            else "holds other files (not an export of semmap)" if not (out / files[0]).is_file()
+            else f"holds files {command} did not write ({', '.join(n for n in present if n not in files)})")
+    raise OutputError(f"--out {out}: {what}, which {command} would replace; choose a new or empty folder (nothing was "
+                      f"written)")
+
+
+def _staged(out: Path, inputs: Path | list[tuple[str, Path]], write: Callable[[Path], dict], product: str) -> dict:
     named = [("MAP", inputs)] if isinstance(inputs, Path) else inputs
     check_outputs([("--out", out, OutputKind.FOLDER)], named)
-    if out.is_dir() and any(out.iterdir()) and not any((out / s).is_file() for s in SUMMARIES):
-        raise OutputError(f"--out {out}: holds other files (not an export of semmap); choose a new or empty folder "
-                          f"(nothing was written)")
+    check_replaceable(out, product)
     return run_staged(out, write)
 
 
@@ -87,7 +113,7 @@ def export_grid(map_path: Path, out: Path, options: GridOptions,
         write_text_atomic(stage / "grid.json", json.dumps(summary, indent=2) + "\n")
         return summary
 
-    return _staged(Path(out), Path(map_path), write)
+    return _staged(Path(out), Path(map_path), write, "grid")
 
 
 def slice_picture(e: Esdf, z: float | None) -> tuple[bytes, float]:
@@ -137,7 +163,7 @@ def export_esdf(map_path: Path, out: Path, region: tuple[float, ...] | None = No
         write_text_atomic(stage / "esdf.json", json.dumps(summary, indent=2) + "\n")
         return summary
 
-    return _staged(Path(out), Path(map_path), write)
+    return _staged(Path(out), Path(map_path), write, "esdf")
 
 
 def load_esdf(path: Path) -> Esdf:
@@ -199,7 +225,7 @@ def export_scene_graph(run: Path, out: Path, *, sequence: Path | None = None, ne
         return summary
 
     inputs = [("RUN", run)] + ([("--sequence", sequence)] if sequence is not None else [])
-    return _staged(Path(out), inputs, write)
+    return _staged(Path(out), inputs, write, "scene-graph")
 
 
 def _objects_of(path: Path) -> list[dict] | None:
@@ -217,6 +243,8 @@ def _object_points_of(path: Path) -> dict[int, np.ndarray]:
     if not (folder / "objects.ply").is_file():
         return {}
     ply = read_objects_ply(folder / "objects.ply")
+    if not len(ply["object"]):  # a run whose instances found nothing
+        return {}
     order = np.argsort(ply["object"], kind="stable")
     ids, starts = np.unique(ply["object"][order], return_index=True)
     return {int(i): p for i, p in zip(ids, np.split(ply["points"][order], starts[1:]), strict=True)}
@@ -280,7 +308,7 @@ def export_diff(before: Path, after: Path, out: Path, *, match_radius: float = 1
         write_text_atomic(stage / "diff.json", json.dumps(summary, indent=1) + "\n")
         return summary
 
-    return _staged(Path(out), [("BEFORE", Path(before)), ("AFTER", Path(after))], write)
+    return _staged(Path(out), [("BEFORE", Path(before)), ("AFTER", Path(after))], write, "diff")
 
 
 def _tsdf_and_labels(path: Path) -> tuple[SemanticMap, SemanticMap | None, Path]:
@@ -323,4 +351,4 @@ def export_mesh(map_path: Path, out: Path, *, min_weight: int = 1) -> dict:
         write_text_atomic(stage / "mesh.json", json.dumps(summary, indent=2) + "\n")
         return summary
 
-    return _staged(Path(out), Path(map_path), write)
+    return _staged(Path(out), Path(map_path), write, "mesh")
