@@ -41,8 +41,9 @@ def merge(
                                       "merge.json) or a .semmap file; never A or B")],
     transform: Annotated[Path | None, typer.Option(help="text file of the 4x4 transform taking B's coordinates into "
                                                    "A's frame (default: estimated from the occupied voxels)")] = None,
-    min_overlap: Annotated[float, typer.Option(help="refuse an estimated alignment unless this share of the smaller "
-                                               "map's occupied voxels meets the other map")] = 0.3,
+    min_overlap: Annotated[float, typer.Option(help="refuse an alignment (estimated or given) unless this share of "
+                                               "the smaller map's occupied voxels meets the other map (0: merge "
+                                               "maps that share no space)")] = 0.3,
     as_json: Json = False,
 ) -> None:
     """Merge two maps of one place: B aligned to A (a given transform, or FPFH + RANSAC then ICP, checked for a
@@ -54,7 +55,7 @@ def merge(
     al, occ = s["alignment"], s["occupied"]
     rows = [("alignment", f"{al['source']}" + (f" (from the {al['start']})" if al["start"] else "")),
             ("overlap", f"{100 * al['overlap']:.1f} % of the smaller map's occupied voxels, RMSE "
-                        f"{100 * al['rmse_m']:.2f} cm"),
+                        + ("-" if al["rmse_m"] is None else f"{100 * al['rmse_m']:.2f} cm")),
             ("occupied voxels", f"A {occ['a']:,}, B {occ['b']:,}, merged {occ['merged']:,}"),
             ("written", str(out))]
     summary_out(s, as_json, f"semmap merge: {s['kind']} at {s['resolution']} m", rows)

@@ -63,7 +63,8 @@ class Alignment:
 
     def to_dict(self) -> dict:
         return {"transform": [[round(float(v), 9) for v in row] for row in self.transform], "source": self.source,
-                "overlap": round(self.overlap, 4), "rmse_m": round(self.rmse_m, 5), "start": self.start,
+                "overlap": round(self.overlap, 4),
+                "rmse_m": round(self.rmse_m, 5) if np.isfinite(self.rmse_m) else None, "start": self.start,
                 "global_overlap": None if self.global_overlap is None else round(self.global_overlap, 4)}
 
 
@@ -112,11 +113,16 @@ def read_transform(path: str | Path) -> np.ndarray:
             .splitlines()]
     rows = [r for r in rows if r]
     try:
-        T = np.array([[float(v) for v in r] for r in rows], np.float64)
+        values = [[float(v) for v in r] for r in rows]
     except ValueError:
         raise FormatError(f"{path}: a transform is 4 rows of 4 numbers") from None
-    if T.shape != (4, 4) or not np.isfinite(T).all():
-        raise FormatError(f"{path}: a transform is 4 rows of 4 finite numbers, got {len(rows)} rows")
+    if [len(r) for r in values] != [4] * 4:
+        raise FormatError(f"{path}: a transform is 4 rows of 4 finite numbers, got "
+                          f"{' + '.join(str(len(r)) for r in rows) or 'no'} numbers in {len(rows)} rows")
+    T = np.array(values, np.float64)
+    if not np.isfinite(T).all():
+        i, j = np.argwhere(~np.isfinite(T))[0]
+        raise FormatError(f"{path}: a transform is 4 rows of 4 finite numbers; row {i + 1} holds {rows[i][j]!r}")
     R = T[:3, :3]
     if not (np.allclose(T[3], [0, 0, 0, 1], atol=1e-6) and np.allclose(R @ R.T, np.eye(3), atol=1e-4)
             and np.linalg.det(R) > 0):
@@ -302,6 +308,8 @@ def _union(a_packed: np.ndarray, b_packed: np.ndarray, b_index: np.ndarray) -> t
     """(every key of either, its row in A or -1, its row in B or -1); ``b_packed`` sorted, ``b_index`` B's rows."""
     keys = np.union1d(a_packed, b_packed)
     ia = index_in(a_packed, keys)
+    if not len(b_packed):  # nothing of B on A's lattice
+        return keys, ia, np.full(len(keys), -1, np.int64)
     pos = index_in(b_packed, keys)
     return keys, ia, np.where(pos >= 0, b_index[np.maximum(pos, 0)], -1)
 
@@ -459,8 +467,14 @@ def merge_map_files(a_path: Path, b_path: Path, out: Path, *, transform: Path | 
     t0 = time.perf_counter()
     if transform is not None:
         T = read_transform(transform)
+        check_in_key_range(b, T, transform)
         alignment = Alignment(T, "given", *overlap_of(occupied_centers(b)[0], occupied_centers(a)[0], T,
                                                       a.resolution))
+        if alignment.overlap < min_overlap:
+            raise ConfigError(f"--transform {transform}: it leaves {100 * alignment.overlap:.1f} % of the smaller "
+                              f"map's occupied voxels with a partner within a voxel (--min-overlap {min_overlap:g}); "
+                              f"check that it takes B's coordinates into A's frame, or give --min-overlap 0 to merge "
+                              f"maps that share no space")
     else:
         alignment = estimate_alignment(a, b, min_overlap=min_overlap)
     t1 = time.perf_counter()
@@ -471,6 +485,17 @@ def merge_map_files(a_path: Path, b_path: Path, out: Path, *, transform: Path | 
                "seconds": {"alignment": round(t1 - t0, 3), "merge": round(time.perf_counter() - t1, 3)}}
     _write(merged, Path(out), kind, summary)
     return summary
+
+
+def check_in_key_range(b: SemanticMap, T: np.ndarray, source: Path) -> None:
+    """One ConfigError line when ``T`` moves any occupied voxel of ``b`` out of the space a map's keys address."""
+    half = KEY_LIMIT / 2 * float(b.resolution)
+    centers = occupied_centers(b)[0]
+    moved = centers @ T[:3, :3].T + T[:3, 3]
+    outside = int((np.abs(moved) >= 0.999 * half).any(axis=1).sum())
+    if outside:
+        raise ConfigError(f"--transform {source}: moves {outside:,} of B's {len(centers):,} occupied voxels out of the "
+                          f"space a map at {float(b.resolution):g} m holds (|x|, |y|, |z| under {half:,.0f} m)")
 
 
 def _occupied(m: SemanticMap) -> int:

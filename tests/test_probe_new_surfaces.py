@@ -1,0 +1,152 @@
+"""The findings of the probe of the new commands (2026-11-28, issue 48: ../shared/probes/new-surfaces-2026-11-28.md),
+each rebuilt from its row on a small fixture: D1 (data loss), S1-S6 (silent wrong results), T1-T2 (tracebacks),
+M1 (memory), U1-U9 (unclear messages) and the frictions of `info` / `view` with the products semmap writes.
+
+Commands run in-process through ``semmap.cli.main`` (its one-line errors and exit codes)."""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+
+def semmap(capsys, monkeypatch, *args: str | Path) -> tuple[int, str, str]:
+    """``semmap ARGS`` as the console script runs it: (exit code, stdout, stderr); never a traceback."""
+    from semmap.cli import main
+
+    monkeypatch.setattr(sys, "argv", ["semmap", *(os.fspath(a) for a in args)])
+    try:
+        main()
+        code = 0
+    except SystemExit as exc:
+        code = exc.code or 0
+    out, err = capsys.readouterr()
+    assert "Traceback" not in err, err
+    return code, out, err
+
+
+def one_error(code: int, err: str) -> str:
+    """The one ``semmap: error:`` line of a refused command (exit code 1), as the output policy asks."""
+    lines = [line for line in err.splitlines() if line.strip()]
+    errors = [line for line in lines if line.startswith("semmap: error:")]
+    assert code == 1 and len(errors) == 1 and lines[-1] == errors[0], err
+    return errors[0]
+
+
+def tree(root: Path) -> dict[str, bytes]:
+    return {str(p.relative_to(root)): p.read_bytes() for p in sorted(root.rglob("*")) if p.is_file()}
+
+
+@pytest.fixture(scope="module")
+def world(tmp_path_factory) -> Path:
+    """A small simulated office (``seq``, 4 frames at 80x60) and one run over it, ``run``: an OctoMap, a point map
+    and a TSDF at 10 cm, with the simulator's object instances (objects.json)."""
+    from semmap.config import InputConfig, MappingConfig, ObjectsConfig, OutputConfig, RunConfig
+    from semmap.maps.registry import MapKind
+    from semmap.runner import run_config
+    from semmap.sim.export import simulate_sequence
+
+    root = tmp_path_factory.mktemp("probe48")
+    simulate_sequence(root / "seq", frames=4, size="small", image_size=(80, 60), scene_seed=0)
+    run_config(RunConfig(input=InputConfig(dataset=root / "seq"),
+                         mapping=MappingConfig(resolution=0.1, maps=(MapKind.OCTOMAP, MapKind.POINTS, MapKind.TSDF)),
+                         objects=ObjectsConfig(instances="oracle"),
+                         output=OutputConfig(out=root / "run", cloud=False)))
+    return root
+
+
+# ------------------------------------------------------------------ D1: an export never replaces another kind's
+@pytest.mark.parametrize(("first", "second"), [
+    (["export", "grid", "{run}", "--out", "{out}"], ["diff", "{run}", "{run}", "--out", "{out}"]),  # df_out_overgrid
+    (["diff", "{run}", "{run}", "--out", "{out}"], ["export", "grid", "{run}", "--out", "{out}"]),  # gr_out_diffdir
+    (["export", "grid", "{run}", "--out", "{out}"], ["export", "esdf", "{run}", "--out", "{out}"]),  # es_out_grid
+])
+def test_d1_an_export_does_not_replace_an_export_of_another_kind(world, tmp_path, capsys, monkeypatch, first,
+                                                                  second):
+    fill = {"run": world / "run", "out": tmp_path / "victim"}
+    assert semmap(capsys, monkeypatch, *(a.format(**fill) for a in first))[0] == 0
+    before = tree(tmp_path / "victim")
+    line = one_error(*semmap(capsys, monkeypatch, *(a.format(**fill) for a in second))[::2])
+    assert f"--out {tmp_path / 'victim'}: holds the output of semmap " in line and "nothing was written" in line
+    assert tree(tmp_path / "victim") == before
+
+
+def test_d1_an_export_replaces_its_own_kind_but_not_a_file_added_to_it(world, tmp_path, capsys, monkeypatch):
+    out = tmp_path / "grid"
+    for _ in range(2):  # the same export again: replaced whole
+        assert semmap(capsys, monkeypatch, "export", "grid", world / "run", "--out", out)[0] == 0
+    (out / "notes.txt").write_text("mine")
+    line = one_error(*semmap(capsys, monkeypatch, "export", "grid", world / "run", "--out", out)[::2])
+    assert "holds files semmap export grid did not write (notes.txt)" in line
+    assert (out / "notes.txt").read_text() == "mine" and (out / "grid.json").is_file()
+
+
+# ------------------------------------------------------------------ S1, T1, U1: merge --transform
+def transform_file(folder: Path, name: str, rows: list[str]) -> Path:
+    path = folder / name
+    path.write_text("\n".join(rows) + "\n")
+    return path
+
+
+def translation(t: str) -> list[str]:
+    return [f"1 0 0 {t}", "0 1 0 0", "0 0 1 0", "0 0 0 1"]
+
+
+def strict_json(text: str):
+    """JSON as a strict parser reads it: NaN and Infinity are no numbers."""
+    def refuse(name: str):
+        raise ValueError(f"not JSON: {name}")
+
+    return json.loads(text, parse_constant=refuse)
+
+
+def test_s1_a_given_transform_that_meets_nothing_is_refused(world, tmp_path, capsys, monkeypatch):
+    far = transform_file(tmp_path, "T_far.txt", translation("50"))  # mg_T_far
+    line = one_error(*semmap(capsys, monkeypatch, "merge", world / "run", world / "run", "--out", tmp_path / "m",
+                             "--transform", far)[::2])
+    assert f"--transform {far}: it leaves 0.0 % of the smaller map's occupied voxels" in line
+    assert "--min-overlap 0" in line and not (tmp_path / "m").exists()
+
+
+def test_s1_min_overlap_0_merges_side_by_side_into_valid_json(world, tmp_path, capsys, monkeypatch):
+    far = transform_file(tmp_path, "T_far.txt", translation("50"))
+    code, _, err = semmap(capsys, monkeypatch, "merge", world / "run", world / "run", "--out", tmp_path / "m",
+                          "--transform", far, "--min-overlap", "0")
+    assert code == 0 and "RMSE -" in err
+    summary = strict_json((tmp_path / "m" / "merge.json").read_text())
+    assert summary["alignment"]["rmse_m"] is None and summary["alignment"]["overlap"] == 0.0
+    occupied = summary["occupied"]
+    assert occupied["merged"] == occupied["a"] + occupied["b"]
+
+
+def test_t1_a_transform_out_of_the_maps_space_is_one_line(world, tmp_path, capsys, monkeypatch):
+    huge = transform_file(tmp_path, "T_huge.txt", translation("1e12"))  # mg_T_huge
+    for extra in ([], ["--min-overlap", "0"]):
+        line = one_error(*semmap(capsys, monkeypatch, "merge", world / "run", world / "run", "--out", tmp_path / "m",
+                                 "--transform", huge, *extra)[::2])
+        assert f"--transform {huge}: moves " in line and "out of the space a map at 0.1 m holds" in line
+
+
+def test_t1_merging_with_nothing_of_b_on_a_lattice_keeps_a():
+    from semmap.products.merge import _union
+
+    keys, ia, ib = _union(np.array([3, 5], np.int64), np.zeros(0, np.int64), np.zeros(0, np.int64))
+    assert keys.tolist() == [3, 5] and ia.tolist() == [0, 1] and ib.tolist() == [-1, -1]
+
+
+@pytest.mark.parametrize(("value", "shown"), [("nan", "'nan'"), ("inf", "'inf'"), ("-Infinity", "'-Infinity'")])
+def test_u1_a_non_finite_transform_value_is_named(tmp_path, value, shown):
+    from semmap.errors import FormatError
+    from semmap.products.merge import read_transform
+
+    path = transform_file(tmp_path, "T.txt", ["1 0 0 0", f"0 1 0 {value}", "0 0 1 0", "0 0 0 1"])  # mg_T_nan
+    with pytest.raises(FormatError, match=f"row 2 holds {shown}$"):
+        read_transform(path)
+    with pytest.raises(FormatError, match=r"got 4 \+ 4 \+ 3 numbers in 3 rows"):
+        read_transform(transform_file(tmp_path, "T3.txt", ["1 0 0 0", "0 1 0 0", "0 0 1"]))
