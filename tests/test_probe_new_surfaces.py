@@ -150,3 +150,93 @@ def test_u1_a_non_finite_transform_value_is_named(tmp_path, value, shown):
         read_transform(path)
     with pytest.raises(FormatError, match=r"got 4 \+ 4 \+ 3 numbers in 3 rows"):
         read_transform(transform_file(tmp_path, "T3.txt", ["1 0 0 0", "0 1 0 0", "0 0 1"]))
+
+
+# ------------------------------------------------------------------ S2: eval-map --gt-ply in another frame
+def labelled_ply(path: Path, points: np.ndarray, labels: np.ndarray) -> Path:
+    """Binary PLY of labelled vertices (x y z float, label ushort), as ScanNet's ground truth keeps them."""
+    rows = np.zeros(len(points), [("x", "<f4"), ("y", "<f4"), ("z", "<f4"), ("label", "<u2")])
+    rows["x"], rows["y"], rows["z"] = np.asarray(points).T
+    rows["label"] = labels
+    header = ["ply", "format binary_little_endian 1.0", f"element vertex {len(points)}", "property float x",
+              "property float y", "property float z", "property ushort label", "end_header"]
+    path.write_bytes(("\n".join(header) + "\n").encode() + rows.tobytes())
+    return path
+
+
+@pytest.fixture(scope="module")
+def truth(world) -> tuple[np.ndarray, np.ndarray]:
+    """The map's own occupied voxel centres and classes (a ground truth the map meets everywhere)."""
+    from semmap.io.map_files import load_map
+    from semmap.types import EMPTY_LABEL
+
+    cloud = load_map(world / "run" / "map.semmap").cloud()
+    keep = (cloud.labels != EMPTY_LABEL) & (cloud.labels != 0)
+    return cloud.centers[keep], cloud.labels[keep]
+
+
+def test_s2_ground_truth_in_another_frame_is_refused(world, truth, tmp_path, capsys, monkeypatch):
+    far = labelled_ply(tmp_path / "gt_far.ply", truth[0] + [100.0, 0.0, 0.0], truth[1])  # em_far
+    line = one_error(*semmap(capsys, monkeypatch, "eval-map", world / "run", "--gt-ply", far)[::2])
+    assert f"{far}: 100.0 % of its labelled points lie farther than a voxel diagonal" in line
+    assert "ground truth x 10" in line and "is it in the map's frame and in metres?" in line
+
+
+def test_s2_ground_truth_the_map_meets_is_scored_and_half_of_it_warned(world, truth, tmp_path, capsys,
+                                                                        monkeypatch):
+    same = labelled_ply(tmp_path / "gt.ply", *truth)
+    code, out, err = semmap(capsys, monkeypatch, "eval-map", world / "run", "--gt-ply", same)
+    assert code == 0 and json.loads(out)["points_miou"] > 0.9 and "warning" not in err
+    n = len(truth[0])
+    shifted = truth[0] + np.where(np.arange(n)[:, None] < 0.7 * n, [100.0, 0.0, 0.0], 0.0)
+    code, out, err = semmap(capsys, monkeypatch, "eval-map", world / "run", "--gt-ply",
+                            labelled_ply(tmp_path / "gt_part.ply", shifted, truth[1]))
+    assert code == 0 and "% of the labelled points lie farther than a voxel diagonal from the map" in err
+
+
+# ------------------------------------------------------------------ S3: scene-graph and the run's sequence
+def run_copy(world: Path, where: Path, config_text: str | None) -> Path:
+    """A copy of the run folder whose config.json is ``config_text`` (None: as it is)."""
+    shutil.copytree(world / "run", where)
+    if config_text is not None:
+        (where / "config.json").write_text(config_text)
+    return where
+
+
+def relative_config(world: Path, dataset: str, out: str) -> str:
+    config = json.loads((world / "run" / "config.json").read_text())
+    config["input"]["dataset"], config["output"]["out"] = dataset, out
+    return json.dumps(config)
+
+
+def test_s3_a_relative_sequence_is_found_from_another_folder(world, tmp_path, capsys, monkeypatch):
+    (tmp_path / "proj").mkdir()
+    (tmp_path / "proj" / "sim").mkdir()
+    (tmp_path / "proj" / "sim" / "a").symlink_to(world / "seq")
+    run_copy(world, tmp_path / "proj" / "runs" / "a", relative_config(world, "sim/a", "runs/a"))
+    (tmp_path / "proj" / "o").mkdir()
+    monkeypatch.chdir(tmp_path / "proj" / "o")  # sg_from_cwd: cd o && semmap export scene-graph ../runs/a
+    code, out, err = semmap(capsys, monkeypatch, "export", "scene-graph", "../runs/a", "--out", "sg_cwd")
+    assert code == 0 and "(from the layout)" in out and "warning" not in err.lower(), out + err
+
+
+@pytest.mark.parametrize(("case", "config_text", "said"), [
+    ("sg_cfg_missing", "missing", "names the sequence /nowhere/seq, which is not there"),
+    ("sg_badcfg", "{garbage", "names no sequence (JSONDecodeError"),
+])
+def test_s3_a_sequence_that_cannot_be_found_is_said(world, tmp_path, capsys, monkeypatch, case, config_text, said):
+    text = relative_config(world, "/nowhere/seq", "/nowhere/run") if config_text == "missing" else config_text
+    run = run_copy(world, tmp_path / case, text)
+    code, out, err = semmap(capsys, monkeypatch, "export", "scene-graph", run, "--out", tmp_path / "sg")
+    assert code == 0 and "(from the grid)" in out
+    assert f"{run / 'config.json'} {said}" in err and "rooms come from a segmentation of the map's grid" in err
+
+
+def test_s3_a_grid_without_rooms_is_said(world, tmp_path, capsys, monkeypatch):
+    plain = tmp_path / "plain"  # sg_nosim: --sequence of a recording that is not simulated
+    shutil.copytree(world / "seq", plain)
+    (plain / "scene.json").unlink()
+    code, out, err = semmap(capsys, monkeypatch, "export", "scene-graph", world / "run", "--out", tmp_path / "sg",
+                            "--sequence", plain, "--door-width", "9")
+    assert code == 0 and "0 rooms (from the grid)" in out
+    assert "found no room (no free cell lies 4.5 m, half of --door-width, from every obstacle" in err

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import io
 import json
+import logging
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -30,6 +31,8 @@ from semmap.products.map_server import write_costmap, write_map
 from semmap.products.navgrid import GridOptions, NavigationGrid, navigation_grid
 from semmap.products.occupancy import occupancy_volume
 from semmap.types import EMPTY_LABEL
+
+LOG = logging.getLogger("semmap")
 
 #: Each kind of export: the command that writes it, its summary file (first) and every file it writes. An export
 #: replaces an earlier export of its own kind only: a folder holding anything else is refused.
@@ -178,29 +181,45 @@ def load_esdf(path: Path) -> Esdf:
         raise FormatError(f"{path}: not an esdf.npz written by semmap export esdf ({exc})") from None
 
 
-def _sequence_of_run(run: Path) -> Path | None:
-    """The dataset a run folder was made from (its config.json), when that path still exists."""
+def _sequence_of_run(run: Path) -> tuple[Path | None, str]:
+    """The dataset a run folder was made from (its config.json), when that path can be found, else None and why.
+    A relative path is taken from where ``semmap run`` ran: the run folder less its relative ``output.out``."""
     try:
         config = json.loads((run / "config.json").read_text())
-        path = Path(config["input"]["dataset"])
-    except (OSError, ValueError, KeyError, TypeError):
-        return None
-    return path if path.exists() else None
+        path, out = Path(config["input"]["dataset"]), Path(config["output"]["out"])
+    except (OSError, ValueError, KeyError, TypeError) as exc:
+        return None, f"{run / 'config.json'} names no sequence ({type(exc).__name__}: {exc})"
+    candidates = [path]
+    here = run.resolve()
+    if not path.is_absolute() and not out.is_absolute() and here.parts[-len(out.parts):] == out.parts:
+        candidates.append(here.parents[len(out.parts) - 1] / path)  # the folder semmap run ran in
+    found = next((c for c in candidates if c.exists()), None)
+    return found, "" if found is not None else f"{run / 'config.json'} names the sequence {path}, which is not there"
 
 
 def _rooms(run: Path, sequence: Path | None, door_width: float):
-    """Rooms from the simulator's layout when the sequence is simulated, else a segmentation of the map's grid."""
+    """Rooms from the simulator's layout when the sequence is simulated, else a segmentation of the map's grid
+    (with a warning when the run's own sequence cannot be found, or the grid holds no room)."""
     from semmap.datasets.simulated import scene_of_folder
     from semmap.products.rooms import rooms_from_boxes, rooms_from_grid
 
     if sequence is not None and not Path(sequence).is_dir():
         raise ConfigError(f"--sequence {sequence}: not a sequence folder")
-    seq = sequence or _sequence_of_run(run)
+    seq, missing = (Path(sequence), "") if sequence is not None else _sequence_of_run(run)
     scene = scene_of_folder(seq) if seq is not None and seq.is_dir() else None
     if scene is not None:
         return rooms_from_boxes([(r.name, r.bounds_min, r.bounds_max) for r in scene.rooms])
+    if missing:
+        LOG.warning(f"{missing}: rooms come from a segmentation of the map's grid (give --sequence SEQ for a "
+                    f"simulated sequence's true rooms)")
     m, _ = load_product_map(run)
-    return rooms_from_grid(navigation_grid(occupancy_volume(m)), door_width=door_width)
+    rooms = rooms_from_grid(navigation_grid(occupancy_volume(m)), door_width=door_width)
+    if not rooms.names:
+        LOG.warning(f"{run}: the room segmentation of the map's grid found no room (no free cell lies "
+                    f"{door_width / 2:g} m, half of --door-width, from every obstacle and unknown cell): the graph "
+                    f"has objects but no rooms; a smaller --door-width, or a map that saw more of the floor, may "
+                    f"find them")
+    return rooms
 
 
 def export_scene_graph(run: Path, out: Path, *, sequence: Path | None = None, near: float = 1.0,
