@@ -240,3 +240,87 @@ def test_s3_a_grid_without_rooms_is_said(world, tmp_path, capsys, monkeypatch):
                             "--sequence", plain, "--door-width", "9")
     assert code == 0 and "0 rooms (from the grid)" in out
     assert "found no room (no free cell lies 4.5 m, half of --door-width, from every obstacle" in err
+
+
+# ------------------------------------------------------------------ S4: a grid of a map without free space
+@pytest.mark.parametrize("name", ["points.semmap", "tsdf.semmap"])  # gr_points, gr_tsdf
+def test_s4_a_grid_without_free_space_is_said(world, tmp_path, capsys, monkeypatch, name):
+    code, out, err = semmap(capsys, monkeypatch, "export", "grid", world / "run" / name, "--out", tmp_path / "g")
+    assert code == 0 and "free 0," in out
+    assert "map keeps no free space, so the grid has no free cell" in err and "--free-space" in err
+
+
+def test_s4_an_octomap_grid_has_free_cells_and_no_warning(world, tmp_path, capsys, monkeypatch):
+    code, out, err = semmap(capsys, monkeypatch, "export", "grid", world / "run", "--out", tmp_path / "g")
+    assert code == 0 and "free 0," not in out and "warning" not in err.lower()
+
+
+# ------------------------------------------------------------------ S5, U5: options that would do nothing
+@pytest.mark.parametrize(("case", "args", "said"), [
+    ("sg_cm_no_seg", ["--class-map", "nyu40"],
+     "--class-map acts on the user's own model (onnx:MODEL, hf:MODEL); no --segmenter is given"),
+    ("crfp_nocrf", ["--crf-params", "iterations=3"], "--crf-params sets the dense CRF, which runs only with --crf"),
+    ("crf_every_nocrf", ["--crf-every", "3"], "--crf-every sets the dense CRF, which runs only with --crf"),
+    ("dyn_semnone", ["--semantics", "none", "--dynamic", "chair"],
+     "--dynamic chair: the run has no classes (--semantics none), so no point is of a dynamic class"),
+    ("decay_pts", ["--maps", "points", "--decay", "0.5"],
+     "--decay acts on the OctoMap and a voxel grid's free space (--free-space); --maps points has neither"),
+])
+def test_s5_an_option_that_would_be_ignored_is_refused(world, tmp_path, capsys, monkeypatch, case, args, said):
+    line = one_error(*semmap(capsys, monkeypatch, "run", world / "seq", "--out", tmp_path / "o", "--max-frames", "1",
+                             "--no-cloud", *args)[::2])
+    assert line == f"semmap: error: {said}" or line.startswith(f"semmap: error: {said}")
+    assert not (tmp_path / "o").exists()
+
+
+def test_s5_the_rules_leave_what_they_do_not_name_alone():
+    from semmap.config import MappingConfig, SemanticsConfig
+    from semmap.maps.registry import MapKind
+
+    MappingConfig(maps=(MapKind.VOXELGRID,), free_space=True, decay=0.5)
+    MappingConfig(maps=(MapKind.POINTS, MapKind.OCTOMAP), decay=0.5)
+    SemanticsConfig(segmenter="onnx:model.onnx", class_map=Path("nyu40"))
+
+
+def test_s5_train_refuses_an_architecture_init_replaces(tmp_path):
+    from semmap.errors import ConfigError
+    from semmap.train.trainer import TrainSettings
+
+    def settings(**kw) -> TrainSettings:
+        return TrainSettings(model="fcn", data=(tmp_path,), out=tmp_path / "o", **kw)
+
+    with pytest.raises(ConfigError, match="^--backbone vgg16 conflicts with --init espnetv2-pascal-s2, which sets "
+                                          "--backbone espnetv2-s2; leave --backbone out$"):  # tr_init_backbone_conflict
+        settings(init="espnetv2-pascal-s2", backbone="vgg16").with_init()
+    with pytest.raises(ConfigError, match="^--resnet-depth 34 conflicts with --init torchvision:resnet18"):
+        settings(init="torchvision:resnet18", depth=34).with_init()
+    assert settings(init="espnetv2-pascal-s2", backbone="espnetv2-s2").with_init().backbone == "espnetv2-s2"
+    assert settings(init="torchvision:resnet18").with_init().width == 1.0
+
+
+def test_u5_every_class_dynamic_is_refused_naming_dynamic(world, tmp_path, capsys, monkeypatch):
+    from semmap.labels import INDOOR_LABELS
+
+    every = ",".join(INDOOR_LABELS.names[1:])  # dyn_all
+    line = one_error(*semmap(capsys, monkeypatch, "run", world / "seq", "--out", tmp_path / "o", "--max-frames", "1",
+                             "--no-cloud", "--dynamic", every)[::2])
+    assert "--dynamic names every class of the run's label set" in line and "poses" not in line
+    assert not (tmp_path / "o").exists()
+
+
+# ------------------------------------------------------------------ S6, U6: the ESDF's slice and empty regions
+def test_s6_a_slice_height_outside_the_field_is_refused(world, tmp_path, capsys, monkeypatch):
+    line = one_error(*semmap(capsys, monkeypatch, "export", "esdf", world / "run", "--out", tmp_path / "e",
+                             "--slice-z", "1000")[::2])  # es_slice_far
+    assert "--slice-z 1000: outside the field, which spans z " in line and not (tmp_path / "e").exists()
+    code, out, _ = semmap(capsys, monkeypatch, "export", "esdf", world / "run", "--out", tmp_path / "e",
+                          "--slice-z", "0.5")
+    assert code == 0 and json.loads((tmp_path / "e" / "esdf.json").read_text())["slice_z"] == pytest.approx(0.5,
+                                                                                                           abs=0.1)
+
+
+def test_u6_a_region_without_obstacles_says_so(world, tmp_path, capsys, monkeypatch):
+    code, out, _ = semmap(capsys, monkeypatch, "export", "esdf", world / "run", "--out", tmp_path / "e",
+                          "--region", "50 50 0 51 51 1")  # es_region_empty
+    assert code == 0 and "largest distance none: the region holds no obstacle or no free voxel" in out
+    assert "None" not in out

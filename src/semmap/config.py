@@ -182,6 +182,15 @@ class MappingConfig(_Section):
             raise ValueError(f"max_depth ({v}) must exceed min_depth ({lo})")
         return v
 
+    @model_validator(mode="after")
+    def _decay_needs_free_space(self) -> MappingConfig:
+        """``--decay`` fades free and occupied evidence: a map without an occupancy model has none to fade."""
+        decays = MapKind.OCTOMAP in self.maps or (MapKind.VOXELGRID in self.maps and self.free_space)
+        if self.decay > 0 and not decays:
+            raise ValueError(f"--decay acts on the OctoMap and a voxel grid's free space (--free-space); --maps "
+                             f"{','.join(m.value for m in self.maps)} has neither")
+        return self
+
 
 class SemanticsConfig(_Section):
     section: ClassVar[str] = "semantics"
@@ -272,6 +281,18 @@ class SemanticsConfig(_Section):
             raise ValueError("structure (+structure) needs a segmenter to add wall, floor and ceiling to")
         if self.add_structure and self.segmenter == SegmenterName.STRUCTURE:
             raise ValueError("structure+structure: name a network before +structure (espnetv2+structure)")
+        return self
+
+    @model_validator(mode="after")
+    def _own_model_options(self) -> SemanticsConfig:
+        """``--class-map`` and ``--segmenter-config`` act on the user's own model only: refused without one."""
+        own = SEGMENTERS.where(takes_model=True)
+        given = [o for o, v in (("--class-map", self.class_map), ("--segmenter-config", self.segmenter_config))
+                 if v is not None]
+        if given and (self.segmenter is None or self.segmenter not in own):
+            named = "no --segmenter is given" if self.segmenter is None else f"--segmenter {self.segmenter} has none"
+            raise ValueError(f"{' and '.join(given)} act{'s' if len(given) == 1 else ''} on the user's own model "
+                             f"({', '.join(n + ':MODEL' for n in own)}); {named}")
         return self
 
     @field_validator("fusion", mode="before")

@@ -209,6 +209,9 @@ def run(
     from semmap.runner import run_config
 
     kinds = tuple(map_kind(name.strip()) for name in maps.split(",") if name.strip())
+    if not crf and (crf_params is not None or crf_every != default(CrfConfig, "every")):
+        raise SemmapError(f"{'--crf-params' if crf_params is not None else '--crf-every'} sets the dense CRF, which "
+                          f"runs only with --crf")
 
     config = validated(lambda: RunConfig(
         input=InputConfig(dataset=dataset, format=format, labels=labels, stride=stride, max_frames=max_frames,

@@ -155,8 +155,10 @@ def export_esdf_command(
 
     s = export_esdf(map_path, out, _region(region), slice_z)
     n = s["size_voxels"]
+    largest = ("none: the region holds no obstacle or no free voxel (every distance unbounded)"
+               if s["max_distance_m"] is None else f"{s['max_distance_m']} m")
     typer.echo(f"{out}: {n[0]}x{n[1]}x{n[2]} voxels at {s['resolution']} m in {s['ms']:.0f} ms; largest distance "
-               f"{s['max_distance_m']} m")
+               f"{largest}")
 @export_app.command("mesh")
 def export_mesh_command(
     map_path: Annotated[Path, typer.Argument(help="a run folder of 'semmap run --maps ...,tsdf', or its tsdf.semmap")],

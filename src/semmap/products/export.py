@@ -29,7 +29,7 @@ from semmap.maps.registry import MapKind
 from semmap.products.esdf import Esdf, esdf_of
 from semmap.products.map_server import write_costmap, write_map
 from semmap.products.navgrid import GridOptions, NavigationGrid, navigation_grid
-from semmap.products.occupancy import occupancy_volume
+from semmap.products.occupancy import map_keys, occupancy_volume
 from semmap.types import EMPTY_LABEL
 
 LOG = logging.getLogger("semmap")
@@ -105,6 +105,10 @@ def export_grid(map_path: Path, out: Path, options: GridOptions,
                 region: tuple[float, ...] | None = None) -> dict:
     """Write the navigation grid and costmap of the map at ``map_path`` into the folder ``out``."""
     m, found = load_product_map(map_path)
+    if not len(map_keys(m)[2]):
+        LOG.warning(f"{found}: a {m.kind.value} map keeps no free space, so the grid has no free cell (occupied and "
+                    f"unknown only) and a planner finds no path in it; export an OctoMap (map.semmap) or a voxel grid "
+                    f"mapped with --free-space for a grid to plan in")
 
     def write(stage: Path) -> dict:
         t = time.perf_counter()
@@ -126,8 +130,12 @@ def slice_picture(e: Esdf, z: float | None) -> tuple[bytes, float]:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    k = e.distance.shape[2] // 2 if z is None else int(np.clip(round((z - e.origin[2]) / e.resolution), 0,
-                                                                e.distance.shape[2] - 1))
+    nz = e.distance.shape[2]
+    lo, hi = e.origin[2] - e.resolution / 2, e.origin[2] + (nz - 0.5) * e.resolution
+    if z is not None and not lo <= z <= hi:
+        raise ConfigError(f"--slice-z {z:g}: outside the field, which spans z {lo:.2f}..{hi:.2f} m (nothing was "
+                          f"written)")
+    k = nz // 2 if z is None else int(np.clip(round((z - e.origin[2]) / e.resolution), 0, nz - 1))
     zk = float(e.origin[2] + k * e.resolution)
     d = np.where(np.isfinite(e.distance[:, :, k]), e.distance[:, :, k], np.nan).T
     ext = [e.origin[0] - e.resolution / 2, e.origin[0] + (d.shape[1] - 0.5) * e.resolution,

@@ -50,6 +50,11 @@ def label_set_for(config: RunConfig, dataset: Dataset, segmenter: Segmenter | No
 def dynamic_classes(config: RunConfig, label_set: LabelSet | None) -> tuple[int, ...]:
     """Ids of the dynamic classes (``mapping.dynamic``) in the maps' label set: a name the set lacks is refused
     in one line, except a default one (a label set without people has none to leave out); none without classes."""
+    named = [n for n in config.mapping.dynamic if n not in DEFAULT_DYNAMIC]
+    if named and (label_set is None or config.semantics.source == SemanticSource.NONE):
+        raise ConfigError(f"--dynamic {','.join(named)}: the run has no classes (--semantics "
+                          f"{config.semantics.source.value}), so no point is of a dynamic class; map with a "
+                          f"segmenter or label images, or leave --dynamic out")
     if label_set is None:
         return ()
     ids = []
@@ -59,6 +64,9 @@ def dynamic_classes(config: RunConfig, label_set: LabelSet | None) -> tuple[int,
         elif name not in DEFAULT_DYNAMIC:
             raise ConfigError(f"--dynamic: class {name!r} is not in the run's label set "
                               f"({', '.join(label_set.names[:12])}{', ...' if len(label_set) > 12 else ''})")
+    if len(label_set) > 1 and set(range(1, len(label_set))) <= set(ids):
+        raise ConfigError(f"--dynamic names every class of the run's label set ({len(label_set) - 1} classes): no "
+                          f"point could occupy a voxel and the map would stay empty; name only the classes that move")
     return tuple(ids)
 
 

@@ -127,6 +127,13 @@ class TrainSettings:
                 "vgg16": entry.chooses_backbone or entry.backbone == "vgg16"}.get(plan.backbone, True)
         if not fits:
             raise ConfigError(f"--init {self.init}: --model {self.model} has no {plan.backbone} backbone")
+        defaults = TrainSettings.__dataclass_fields__
+        for option, name, wanted in (("--backbone", "backbone", plan.backbone), ("--resnet-depth", "depth", plan.depth),
+                                     ("--width", "width", plan.width)):
+            given = getattr(self, name)
+            if wanted is not None and given != defaults[name].default and given != wanted:
+                raise ConfigError(f"{option} {given} conflicts with --init {self.init}, which sets {option} {wanted}; "
+                                  f"leave {option} out")
         return replace(self, backbone=plan.backbone, depth=plan.depth or self.depth, width=plan.width or self.width)
 
     def spec(self, num_classes: int) -> NetworkSpec:
