@@ -99,4 +99,6 @@ def main(argv: list[str] | None = None) -> None:
 
 
 if __name__ == "__main__":
-    main()
+    from semmap.cli.terminal import exit_on_errors
+
+    exit_on_errors(main, "calibrate_weights")  # a bad file or option: one line, not a traceback

@@ -98,4 +98,6 @@ def main(argv: list[str] | None = None) -> None:
 
 
 if __name__ == "__main__":
-    main()
+    from semmap.cli.terminal import exit_on_errors
+
+    exit_on_errors(main, "make_training_data")  # a bad file or option: one line, not a traceback

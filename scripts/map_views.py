@@ -74,4 +74,6 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    main()
+    from semmap.cli.terminal import exit_on_errors
+
+    exit_on_errors(main, "map_views")  # a bad file or option: one line, not a traceback

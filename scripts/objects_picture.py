@@ -77,4 +77,6 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    main()
+    from semmap.cli.terminal import exit_on_errors
+
+    exit_on_errors(main, "objects_picture")  # a bad file or option: one line, not a traceback

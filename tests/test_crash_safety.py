@@ -66,7 +66,8 @@ def test_ctrl_c_prints_one_line_exits_130_and_writes_nothing(sim, tmp_path):
     r = _interrupt("INT", 5, str(sim), "--out", str(out), *OPTIONS)
     assert r.returncode == 130
     lines = [line for line in r.stderr.splitlines() if line.startswith("semmap:") and "WARNING" not in line]
-    assert lines == [f"semmap: interrupted after frame {4 / 30:.6f} (5 frames mapped); nothing written"]
+    assert lines == [f"semmap: interrupted after frame 5 of the sequence ({4 / 30:.6f}), 5 frames mapped; nothing "
+                     "written"]
     assert "Traceback" not in r.stderr and "SystemError" not in r.stderr
     assert not out.exists() and not staging_folder(out).exists()
     r = _interrupt("INT", 5, str(sim), "--out", str(out), *OPTIONS, "--checkpoint-every", "3")

@@ -289,10 +289,11 @@ def test_s5_train_refuses_an_architecture_init_replaces(tmp_path):
     def settings(**kw) -> TrainSettings:
         return TrainSettings(model="fcn", data=(tmp_path,), out=tmp_path / "o", **kw)
 
-    with pytest.raises(ConfigError, match="^--backbone vgg16 conflicts with --init espnetv2-pascal-s2, which sets "
-                                          "--backbone espnetv2-s2; leave --backbone out$"):  # tr_init_backbone_conflict
+    # tr_init_backbone_conflict
+    with pytest.raises(ConfigError, match=r"^--backbone vgg16 conflicts with --init espnetv2-pascal-s2, which sets "
+                                          r"--backbone espnetv2-s2; leave --backbone out$"):
         settings(init="espnetv2-pascal-s2", backbone="vgg16").with_init()
-    with pytest.raises(ConfigError, match="^--resnet-depth 34 conflicts with --init torchvision:resnet18"):
+    with pytest.raises(ConfigError, match=r"^--resnet-depth 34 conflicts with --init torchvision:resnet18"):
         settings(init="torchvision:resnet18", depth=34).with_init()
     assert settings(init="espnetv2-pascal-s2", backbone="espnetv2-s2").with_init().backbone == "espnetv2-s2"
     assert settings(init="torchvision:resnet18").with_init().width == 1.0
@@ -313,8 +314,8 @@ def test_s6_a_slice_height_outside_the_field_is_refused(world, tmp_path, capsys,
     line = one_error(*semmap(capsys, monkeypatch, "export", "esdf", world / "run", "--out", tmp_path / "e",
                              "--slice-z", "1000")[::2])  # es_slice_far
     assert "--slice-z 1000: outside the field, which spans z " in line and not (tmp_path / "e").exists()
-    code, out, _ = semmap(capsys, monkeypatch, "export", "esdf", world / "run", "--out", tmp_path / "e",
-                          "--slice-z", "0.5")
+    code, _, _ = semmap(capsys, monkeypatch, "export", "esdf", world / "run", "--out", tmp_path / "e",
+                        "--slice-z", "0.5")
     assert code == 0 and json.loads((tmp_path / "e" / "esdf.json").read_text())["slice_z"] == pytest.approx(0.5,
                                                                                                            abs=0.1)
 
@@ -324,3 +325,65 @@ def test_u6_a_region_without_obstacles_says_so(world, tmp_path, capsys, monkeypa
                           "--region", "50 50 0 51 51 1")  # es_region_empty
     assert code == 0 and "largest distance none: the region holds no obstacle or no free voxel" in out
     assert "None" not in out
+
+
+# ------------------------------------------------------------------ T2: scripts/calibrate_weights.py
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def script_main(capsys, name: str, argv: list[str | Path]) -> tuple[int, str]:
+    """``scripts/NAME.py ARGV`` in-process, under the wrapper its ``__main__`` uses: (exit code, stderr)."""
+    from script_modules import load_script
+    from semmap.cli.terminal import exit_on_errors
+
+    module = load_script(f"scripts/{name}.py")
+    with pytest.raises(SystemExit) as caught:
+        exit_on_errors(lambda: module.main([os.fspath(a) for a in argv]), name)
+    err = capsys.readouterr().err
+    assert "Traceback" not in err, err
+    return caught.value.code, err
+
+
+@pytest.mark.parametrize(("case", "argv", "said"), [
+    ("cal_out_eq_in", ["--weights", "{w}", "--val", "{seq}", "--out", "{w}"], "--out {w}: is the input --weights"),
+    ("cal_garbage", ["--weights", "{txt}", "--val", "{seq}", "--out", "{tmp}/c.pt"], "{txt}: "),
+    ("cal_emptyval", ["--weights", "{w}", "--val", "{empty}", "--out", "{tmp}/c.pt"], "{empty}: "),
+    ("cal_devfull", ["--weights", "{w}", "--val", "{seq}", "--out", "/dev/full"], "--out /dev/full: is a device"),
+])
+def test_t2_calibrate_weights_errors_are_one_line(world, tmp_path, capsys, case, argv, said):
+    (tmp_path / "empty").mkdir()
+    (tmp_path / "T.txt").write_text("1 0 0 0\n")
+    fill = {"w": ROOT / "weights" / "fcn.pt", "seq": world / "seq", "txt": tmp_path / "T.txt",
+            "empty": tmp_path / "empty", "tmp": tmp_path}
+    code, err = script_main(capsys, "calibrate_weights", [a.format(**fill) for a in argv])
+    lines = [line for line in err.splitlines() if line.strip()]
+    assert code == 1 and len(lines) == 1 and lines[0].startswith(f"calibrate_weights: error: {said.format(**fill)}")
+    assert not (tmp_path / "c.pt").exists()
+
+
+def test_t2_the_user_scripts_run_under_the_wrapper():
+    for name in ("calibrate_7scenes_color", "calibrate_weights", "make_training_data", "map_views", "objects_picture",
+                 "segmentation_grid", "ship_weights"):
+        tail = (ROOT / "scripts" / f"{name}.py").read_text().rsplit('if __name__ == "__main__":', 1)[1]
+        assert f'exit_on_errors(main, "{name}")' in tail, name
+
+
+# ------------------------------------------------------------------ U8: Ctrl-C in any command is one line
+def test_u8_ctrl_c_in_a_command_without_its_own_handler_says_so(world, tmp_path, capsys, monkeypatch):
+    def interrupted(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr("semmap.products.merge.merge_map_files", interrupted)  # int_merge
+    code, _, err = semmap(capsys, monkeypatch, "merge", world / "run", world / "run", "--out", tmp_path / "m")
+    assert code == 130 and err.strip().splitlines()[-1] == "semmap: interrupted"
+    monkeypatch.setattr("semmap.products.export.export_esdf", interrupted)  # int_esdf
+    code, _, err = semmap(capsys, monkeypatch, "export", "esdf", world / "run", "--out", tmp_path / "e")
+    assert code == 130 and err.strip().splitlines()[-1] == "semmap: interrupted"
+
+
+# ------------------------------------------------------------------ U7: Ctrl-C names the frame by its place
+def test_u7_a_frame_is_named_by_its_place_and_its_timestamp():
+    from semmap.pipeline import frame_words
+
+    assert frame_words(40, "1.333333") == "frame 41 of the sequence (1.333333)"  # ct_doc_ctrlc
+    assert frame_words(3, "3") == frame_words(3, None) == "frame 4 of the sequence"

@@ -274,6 +274,11 @@ def build_mapper(c: RunConfig, label_set, prior) -> Mapper:
                   cloud_resolution=c.mapping.point_resolution if c.output.cloud else None,
                   dynamic=dynamic_classes(c, label_set))
 
+def frame_words(index: int, name: str | None) -> str:
+    """``frame 41 of the sequence (1.333333)``: a frame by its place in the sequence, counted from 1, and by its
+    name (a TUM frame's timestamp) when it has one."""
+    return f"frame {index + 1} of the sequence" + (f" ({name})" if name and name != str(index) else "")
+
 
 class Pipeline:
     """One mapping run from a dataset to ``map.ot``, ``map.bt``, ``map.semmap``, previews and the report.
@@ -482,7 +487,8 @@ class Pipeline:
         interrupted = stop_requested()
         self._checkpoints.after_frame(frame, mapper, pose_of, record, interrupted=interrupted)
         if interrupted:
-            raise RunInterrupted(f"interrupted after frame {frame.name} ({len(record.poses)} frames mapped)")
+            raise RunInterrupted(f"interrupted after {frame_words(frame.index, frame.name)}, {len(record.poses)} "
+                                 f"frames mapped")
 
     def _posed_frames(self, dataset: Dataset, pose_of: FramePoses, record: RunRecord):
         """``(frame, T_world_cam)`` for every readable frame with a pose, behind the progress bar; frames
@@ -493,8 +499,9 @@ class Pipeline:
             t_wait = time.perf_counter()
             for frame, arrived in self.progress(arrivals, len(dataset)):
                 if stop_requested():
-                    raise RunInterrupted(f"interrupted after frame {record.last_name or '(none)'} "
-                                         f"({len(record.poses)} frames mapped)")
+                    last = ("no frame" if record.last_index is None
+                            else frame_words(record.last_index, record.last_name))
+                    raise RunInterrupted(f"interrupted after {last}, {len(record.poses)} frames mapped")
                 if after is not None and frame.index <= after:
                     t_wait = time.perf_counter()
                     continue

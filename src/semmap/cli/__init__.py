@@ -9,13 +9,12 @@ for bugs.
 from __future__ import annotations
 
 import functools
-import sys
 
 import typer
 
 from semmap.cli import evaluate, localize, mapping, products, simulate, train
+from semmap.cli.terminal import exit_on_errors, interruptible
 from semmap.cli.terminal import setup_logging as _setup_logging  # noqa: F401  (the CLI's logging, for tests)
-from semmap.errors import SemmapError
 
 app = typer.Typer(add_completion=False, no_args_is_help=True, pretty_exceptions_enable=False,
                   help="RGB-D sequences to 3D semantic maps (semantic OctoMap, .ot/.bt/native files, reports).")
@@ -29,9 +28,10 @@ for _command in COMMANDS:
 app.add_typer(products.export_app, name="export")
 
 
-def _numbers_checked(command: str, callback):
+def _checked(command: str, callback):
     """``callback`` of ``command`` with every numeric option checked against ``semmap.limits`` first, so a bad
-    number is refused in one line naming the option before any work (the library checks them again)."""
+    number is refused in one line naming the option before any work (the library checks them again), and Ctrl-C
+    said in one line (typer would exit 130 without a word)."""
 
     @functools.wraps(callback)
     def checked(**kwargs):
@@ -39,7 +39,8 @@ def _numbers_checked(command: str, callback):
 
         names = _long_options(command)
         limits.check_options(command, {names.get(name, name): value for name, value in kwargs.items()})
-        return callback(**kwargs)
+        with interruptible():
+            return callback(**kwargs)
 
     return checked
 
@@ -58,34 +59,12 @@ def _command_name(info) -> str:
 
 
 for _info in app.registered_commands:  # every command, present and future
-    _info.callback = _numbers_checked(_command_name(_info), _info.callback)
+    _info.callback = _checked(_command_name(_info), _info.callback)
 for _group in app.registered_groups:  # and every command of a sub-app (semmap export ...)
     for _info in _group.typer_instance.registered_commands:
-        _info.callback = _numbers_checked(f"{_group.name} {_command_name(_info)}", _info.callback)
+        _info.callback = _checked(f"{_group.name} {_command_name(_info)}", _info.callback)
 
 
 def main() -> None:
-    """Entry point: known errors become one line on stderr and exit code 1."""
-    try:
-        app()
-    except SemmapError as exc:
-        print(f"semmap: error: {exc}", file=sys.stderr)
-        sys.exit(1)
-    except OSError as exc:  # a full disk, a read-only file system, a refused name: one line, not a traceback
-        from semmap.files.outputs import write_failure
-
-        if (error := write_failure(exc)) is None:
-            raise
-        print(f"semmap: error: {error}", file=sys.stderr)
-        sys.exit(1)
-    except KeyboardInterrupt as exc:
-        from semmap.interrupt import RunInterrupted
-
-        print(f"semmap: {exc}" if isinstance(exc, RunInterrupted) else "semmap: interrupted", file=sys.stderr)
-        sys.exit(130)
-    except SystemError as exc:  # a second Ctrl-C inside a numba kernel surfaces as SystemError
-        if not isinstance(exc.__cause__ or exc.__context__, KeyboardInterrupt):
-            raise
-        print("semmap: interrupted", file=sys.stderr)
-        sys.exit(130)
-
+    """Entry point: known errors become one line on stderr and exit code 1, Ctrl-C one line and 130."""
+    exit_on_errors(app)

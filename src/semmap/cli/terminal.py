@@ -7,7 +7,7 @@ import contextlib
 import json
 import logging
 import sys
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import typer
@@ -153,3 +153,33 @@ def print_summary(report: dict, out_dir: Path) -> None:
     rows += [(f"size of {name}", f"{size:,} B") for name, size in report.get("bytes_on_disk", {}).items()]
     rows.append(("ms per frame", f"{report['ms_per_frame']['total']:.1f}"))
     print_table(f"semmap: {out_dir}", rows)
+
+
+def exit_on_errors(call: Callable[[], object], prog: str = "semmap") -> None:
+    """``call()`` as a command line runs it: a known error (``SemmapError``, a failed write) becomes one line
+    ``PROG: error: ...`` on stderr and exit code 1, Ctrl-C one line and 130; tracebacks are left for bugs (the
+    ``semmap`` entry point and the user scripts in ``scripts/``)."""
+    from semmap.errors import SemmapError
+
+    try:
+        call()
+    except SemmapError as exc:
+        print(f"{prog}: error: {exc}", file=sys.stderr)
+        sys.exit(1)
+    except OSError as exc:  # a full disk, a read-only file system, a refused name: one line, not a traceback
+        from semmap.files.outputs import write_failure
+
+        if (error := write_failure(exc)) is None:
+            raise
+        print(f"{prog}: error: {error}", file=sys.stderr)
+        sys.exit(1)
+    except KeyboardInterrupt as exc:
+        from semmap.interrupt import RunInterrupted
+
+        print(f"{prog}: {exc}" if isinstance(exc, RunInterrupted) else f"{prog}: interrupted", file=sys.stderr)
+        sys.exit(130)
+    except SystemError as exc:  # a second Ctrl-C inside a numba kernel surfaces as SystemError
+        if not isinstance(exc.__cause__ or exc.__context__, KeyboardInterrupt):
+            raise
+        print(f"{prog}: interrupted", file=sys.stderr)
+        sys.exit(130)
