@@ -387,3 +387,40 @@ def test_u7_a_frame_is_named_by_its_place_and_its_timestamp():
 
     assert frame_words(40, "1.333333") == "frame 41 of the sequence (1.333333)"  # ct_doc_ctrlc
     assert frame_words(3, "3") == frame_words(3, None) == "frame 4 of the sequence"
+
+
+# ------------------------------------------------------------------ U2: --min-weight has one range
+@pytest.mark.parametrize("value", ["0", "1000000"])  # me_minw_0, me_minw_huge
+def test_u2_min_weight_is_refused_with_one_range(world, tmp_path, capsys, monkeypatch, value):
+    line = one_error(*semmap(capsys, monkeypatch, "export", "mesh", world / "run", "--out", tmp_path / "m",
+                             "--min-weight", value)[::2])
+    assert line.startswith("semmap: error: --min-weight must be a whole number from 1 to 10,000")
+
+
+def test_u2_the_limit_is_where_a_voxel_weight_stops():
+    from semmap.errors import ConfigError
+    from semmap.limits import LIMITS
+    from semmap.maps.tsdf import MAX_WEIGHT
+    from semmap.products.export import export_mesh
+
+    assert LIMITS["tsdf_weight"].hi == MAX_WEIGHT
+    with pytest.raises(ConfigError, match="--min-weight must be a whole number from 1 to 10,000"):
+        export_mesh(Path("/nonexistent"), Path("/nonexistent/out"), min_weight=10_001)
+
+
+# ------------------------------------------------------------------ U3: eval-map with an .ot or a mesh
+@pytest.mark.parametrize("name", ["map.ot", "mesh.ply"])  # em_map_ot, em_map_mesh
+def test_u3_eval_map_says_which_file_to_give(world, truth, tmp_path, capsys, monkeypatch, name):
+    gt = labelled_ply(tmp_path / "gt.ply", *truth)
+    line = one_error(*semmap(capsys, monkeypatch, "eval-map", world / "run" / name, "--gt-ply", gt)[::2])
+    assert f"{world / 'run' / name}: a {Path(name).suffix} file is not one of semmap's lossless maps" in line
+    assert "give the .semmap file beside it" in line and "corrupt" not in line
+
+
+# ------------------------------------------------------------------ U4: onnx:MODEL that is no model
+def test_u4_a_missing_or_foreign_onnx_model_is_named_as_the_model(world, tmp_path, capsys, monkeypatch):
+    for model, said in ((tmp_path / "nothere.onnx", "does not exist"),  # sg_onnx_missing
+                        (world / "run" / "map.semmap", "ONNX Runtime cannot open it as a model")):  # sg_onnx_semmapfile
+        line = one_error(*semmap(capsys, monkeypatch, "run", world / "seq", "--out", tmp_path / "o", "--max-frames",
+                                 "1", "--no-cloud", "--segmenter", f"onnx:{model}")[::2])
+        assert line.startswith(f"semmap: error: {model}: ") and said in line and "sidecar" not in line, line

@@ -91,7 +91,7 @@ LIMITS: dict[str, Limit] = {
     "coordinate": Limit(-1e4, 1e4, "coordinate (m)"),
     "inflation": Limit(0.0, 10.0, "radius (m)"),
     "tsdf_truncation": Limit(1.0, 64.0, "voxels"),
-    "tsdf_weight": Limit(1, 1_000_000, "observations", integer=True),
+    "tsdf_weight": Limit(1, 10_000, "observations", integer=True),  # a voxel's weight stops there (tsdf.MAX_WEIGHT)
     "temperature": Limit(0.01, 100.0, "softmax temperature, 1 = as the segmenter gives them"),
     "crf_weight": Limit(0.0, 1000.0, "Potts weight"),
     "crf_position_std": Limit(0.001, 100.0, "kernel width (m)"),

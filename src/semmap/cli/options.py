@@ -10,7 +10,7 @@ import typer
 
 from semmap.config import SemanticSource
 from semmap.datasets import AUTO, FORMATS
-from semmap.errors import SemmapError
+from semmap.errors import ConfigError, SemmapError
 
 #: ``--memory-budget`` of the commands that allocate in proportion to an option (see ``semmap.limits``).
 MemoryBudget = Annotated[str | None, typer.Option(help="refuse options whose memory estimate exceeds this (e.g. "
@@ -57,7 +57,8 @@ def parse_size(text: str | None) -> tuple[int, int] | int | None:
 
 
 def validated(make, source: Path | None = None):
-    """``make()``, its first validation error as one line (naming ``source``, the file the values came from)."""
+    """``make()``, its first validation error as one ConfigError line (naming ``source``, the file the values came
+    from)."""
     from pydantic import ValidationError
 
     try:
@@ -65,18 +66,18 @@ def validated(make, source: Path | None = None):
     except SemmapError as exc:  # a limits check inside a validator: say which file the value came from
         if source is None or str(source) in str(exc):
             raise
-        raise SemmapError(f"{source}: {exc}") from None
+        raise ConfigError(f"{source}: {exc}") from None
     except ValidationError as exc:
         first = exc.errors()[0]
         where = ".".join(str(p) for p in first["loc"])
         msg = str(first["msg"]).removeprefix("Value error, ")
         if source is not None:
-            raise SemmapError(f"{source}: {f'field {where}: ' if where else ''}{msg}"
+            raise ConfigError(f"{source}: {f'field {where}: ' if where else ''}{msg}"
                               f"{'' if where else ' (expected a JSON object like a run folder config.json)'}"
                               ) from None
         if not where:  # a rule across options
-            raise SemmapError(msg) from None
-        raise SemmapError(f"invalid {option_of(exc.title, first['loc'])}: {msg}") from None
+            raise ConfigError(msg) from None
+        raise ConfigError(f"invalid {option_of(exc.title, first['loc'])}: {msg}") from None
 
 
 #: configuration fields whose command-line option is not ``--`` + the field's name (section.field -> option)

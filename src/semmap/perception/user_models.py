@@ -361,8 +361,8 @@ def onnx_segmenter(name: str, model: Path, *, config: Path | None = None, class_
                    input_size: tuple[int, int] | int | None = None) -> ModelSegmenter:
     """A segmenter running the user's ONNX ``model`` as its sidecar (``config``, else ``MODEL.json``) says."""
     model = Path(model)
+    session = open_onnx_session(model, threads)  # (first: a missing or foreign file is named as the model)
     side = read_sidecar(sidecar_path(model, config))
-    session = open_onnx_session(model, threads)
     inp = _pick(session.get_inputs(), side.input_name, "input", model, side.path, "input.name")
     out = _pick(session.get_outputs(), side.output_name, "output", model, side.path, "output.name")
     net_input = _model_input(inp, side, model, input_size)

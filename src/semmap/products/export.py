@@ -57,8 +57,8 @@ def load_product_map(path: Path) -> tuple[SemanticMap, Path]:
             raise FormatError(f"{path}: folder has none of {', '.join(names)} (map a sequence first with semmap run)")
         path = found
     elif path.suffix in (".ot", ".bt", ".ply"):
-        raise FormatError(f"{path}: export reads semmap's lossless maps; give the .semmap file beside it (or the "
-                          f"run folder)")
+        raise FormatError(f"{path}: a {path.suffix} file is not one of semmap's lossless maps (.semmap, with every "
+                          f"voxel's class evidence); give the .semmap file beside it (or the run folder)")
     return load_map(path), path
 
 
@@ -360,10 +360,10 @@ def _tsdf_and_labels(path: Path) -> tuple[SemanticMap, SemanticMap | None, Path]
 def export_mesh(map_path: Path, out: Path, *, min_weight: int = 1) -> dict:
     """Write the semantic mesh of the TSDF at ``map_path`` (a run folder or ``tsdf.semmap``) into ``out``."""
     from semmap.io.mesh_ply import write_mesh_ply
+    from semmap.limits import check
     from semmap.maps.mesh import semantic_mesh
 
-    if not 1 <= int(min_weight) <= 10_000:
-        raise ConfigError(f"--min-weight must be 1..10000, got {min_weight}")
+    check("tsdf_weight", min_weight, "--min-weight")
     tsdf, source, found = _tsdf_and_labels(map_path)
 
     def write(stage: Path) -> dict:

@@ -29,13 +29,12 @@ def evaluate_map_file(map_path: Path, sequence: Path, *, format: str = "auto", s
     from semmap.datasets import open_dataset
     from semmap.files.atomic import write_text_atomic
     from semmap.files.outputs import OutputKind, check_outputs
-    from semmap.io.map_files import load_map
+    from semmap.products.export import load_product_map
 
     check_outputs([("--out", out, OutputKind.FILE)], [("MAP", map_path), ("SEQ", sequence)])
     if every < 1 or stride < 1:
         raise ConfigError(f"--every and --pixel-stride must be at least 1, got {every} and {stride}")
-    path = Path(map_path) / "map.semmap" if Path(map_path).is_dir() else Path(map_path)
-    m = load_map(path)
+    m, path = load_product_map(Path(map_path))
     if m.label_set is None:
         raise ConfigError(f"{path}: the map holds no classes; a map built with semantics is needed")
     dataset = open_dataset(sequence, format, max_frames=max_frames)
@@ -85,11 +84,10 @@ def evaluate_map_points(map_path: Path, gt_ply: Path, *, label_property: str = "
     from semmap.files.atomic import write_text_atomic
     from semmap.files.outputs import OutputKind, check_outputs
     from semmap.io.labelled_ply import read_labelled_vertices
-    from semmap.io.map_files import load_map
+    from semmap.products.export import load_product_map
 
     check_outputs([("--out", out, OutputKind.FILE)], [("MAP", map_path), ("--gt-ply", gt_ply)])
-    path = Path(map_path) / "map.semmap" if Path(map_path).is_dir() else Path(map_path)
-    m = load_map(path)
+    m, path = load_product_map(Path(map_path))
     points, labels = read_labelled_vertices(gt_ply, label_property)
     result = {"map": str(path), "kind": m.kind.value, "gt_ply": str(gt_ply), "gt_label_property": label_property,
               **point_scores(m, points, labels, source=str(gt_ply))}
