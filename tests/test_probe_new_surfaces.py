@@ -424,3 +424,27 @@ def test_u4_a_missing_or_foreign_onnx_model_is_named_as_the_model(world, tmp_pat
         line = one_error(*semmap(capsys, monkeypatch, "run", world / "seq", "--out", tmp_path / "o", "--max-frames",
                                  "1", "--no-cloud", "--segmenter", f"onnx:{model}")[::2])
         assert line.startswith(f"semmap: error: {model}: ") and said in line and "sidecar" not in line, line
+
+
+# ------------------------------------------------------------------ M1: localize in a point map
+def test_m1_a_point_map_prior_pools_its_points_into_coarser_cells(world):
+    from semmap.io.map_files import load_map
+    from semmap.localization.prior import POINT_PRIOR_CELL_M, load_prior
+
+    points = load_prior(world / "run" / "points.semmap")  # lo_points: its lookup grids at 5 cm, not at 1 cm
+    octomap = load_prior(world / "run" / "map.semmap")
+    assert load_map(world / "run" / "points.semmap").resolution < POINT_PRIOR_CELL_M == points.resolution
+    cells = int(np.prod(points.shape))
+    assert cells < 2 * int(np.prod(octomap.shape)) * (octomap.resolution / points.resolution) ** 3
+    assert points.class_probs is not None and np.allclose(points.class_probs.sum(axis=1), 1.0, atol=1e-3)
+
+
+def test_m1_pooled_cells_average_the_points_classes():
+    from semmap.localization.prior import pooled_cells
+
+    pts = np.array([[0.01, 0.01, 0.01], [0.04, 0.02, 0.03], [0.06, 0.0, 0.0]])
+    probs = np.array([[1.0, 0.0], [0.0, 1.0], [0.25, 0.75]], np.float32)
+    centers, pooled = pooled_cells(pts, probs, 0.05)
+    assert np.allclose(centers, [[0.025, 0.025, 0.025], [0.075, 0.025, 0.025]])
+    assert np.allclose(pooled, [[0.5, 0.5], [0.25, 0.75]])
+    assert pooled_cells(np.zeros((0, 3)), None, 0.05)[0].shape == (0, 3)
