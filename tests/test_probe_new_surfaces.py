@@ -448,3 +448,92 @@ def test_m1_pooled_cells_average_the_points_classes():
     assert np.allclose(centers, [[0.025, 0.025, 0.025], [0.075, 0.025, 0.025]])
     assert np.allclose(pooled, [[0.5, 0.5], [0.25, 0.75]])
     assert pooled_cells(np.zeros((0, 3)), None, 0.05)[0].shape == (0, 3)
+
+
+# ------------------------------------------------------------------ U9 and the frictions: info and view of products
+@pytest.fixture(scope="module")
+def products(world, tmp_path_factory) -> Path:
+    """Every product semmap writes from the fixture run: grid, ESDF, mesh, scene graph, diff, merge."""
+    from semmap.products.export import export_diff, export_esdf, export_grid, export_mesh, export_scene_graph
+    from semmap.products.merge import merge_map_files
+    from semmap.products.navgrid import GridOptions
+
+    root = tmp_path_factory.mktemp("products")
+    run = world / "run"
+    export_grid(run, root / "grid", GridOptions(costs={"wall": 50}))
+    export_esdf(run, root / "esdf")
+    export_mesh(run, root / "mesh")
+    export_scene_graph(run, root / "sg")
+    export_diff(run, run, root / "diff")
+    merge_map_files(run, run, root / "merge")
+    return root
+
+
+#: file -> (kind `info` says, what `view` counts, an entity `view` logs)
+PRODUCT_FILES = {
+    "mesh/mesh.ply": ("mesh", "mesh vertices", "/world/mesh"),  # info_mesh, view_mesh (U9)
+    "grid/map.yaml": ("map_server grid", "grid cells", "/world/grid"),
+    "grid/map.pgm": ("map_server grid", "grid cells", "/grid"),
+    "grid/costmap.png": ("map_server grid", "grid cells", "/world/grid"),
+    "grid/costmap.npy": ("costmap", "grid cells", "/world/grid"),
+    "grid/grid.json": ("grid summary", "grid cells", "/world/grid"),
+    "esdf/esdf.npz": ("esdf", "ESDF voxels", "/world/esdf"),
+    "esdf/esdf.json": ("esdf summary", "ESDF voxels", "/world/esdf"),
+    "esdf/esdf_slice.png": ("image", "pixels", "/image"),
+    "sg/scene_graph.json": ("scene graph", "scene graph nodes", "/world/rooms"),
+    "sg/graph.json": ("scene graph summary", "scene graph nodes", "/world/rooms"),
+    "diff/diff.json": ("diff", "changed voxels", "/world/diff"),
+    "mesh/mesh.json": ("mesh summary", "mesh vertices", "/world/mesh"),
+}
+
+
+def _entities(path: Path) -> set[str]:
+    from rerun.chunk import RrdReader
+
+    return {str(chunk.entity_path) for chunk in RrdReader(path).stream()}
+
+
+@pytest.mark.parametrize("name", sorted(PRODUCT_FILES))
+def test_info_and_view_open_every_product(products, tmp_path, capsys, monkeypatch, name):
+    kind, counted, entity = PRODUCT_FILES[name]
+    code, out, err = semmap(capsys, monkeypatch, "info", products / name)
+    assert code == 0 and json.loads(out)["kind"] == kind, err
+    code, _, err = semmap(capsys, monkeypatch, "view", products / name, "--save", tmp_path / "v.rrd")
+    assert code == 0 and f" {counted} written to " in " ".join(err.split()), err  # (rich wraps the line)
+    assert entity in _entities(tmp_path / "v.rrd")
+
+
+def test_info_reads_the_mesh_it_wrote(world, products):
+    from semmap.io.map_info import describe_map_file
+    from semmap.io.mesh_ply import read_mesh_ply
+
+    mesh = read_mesh_ply(products / "mesh" / "mesh.ply")
+    summary = json.loads((products / "mesh" / "mesh.json").read_text())
+    assert (len(mesh), len(mesh.faces)) == (summary["vertices"], summary["faces"])
+    assert mesh.faces.max() < len(mesh) and mesh.label_set is not None
+    info = describe_map_file(products / "mesh" / "mesh.ply")
+    assert info["triangles"] == summary["faces"] and sum(info["vertices_per_class"].values()) <= len(mesh)
+
+
+@pytest.mark.parametrize(("name", "kind"), [("run/objects.json", "objects"), ("run/trajectory.txt", "trajectory"),
+                                            ("run/report.json", "run report"), ("run/config.json",
+                                                                                "run configuration")])
+def test_info_describes_a_runs_records(world, capsys, monkeypatch, name, kind):
+    code, out, err = semmap(capsys, monkeypatch, "info", world / name)
+    assert code == 0 and json.loads(out)["kind"] == kind, err
+
+
+def test_info_of_a_merge_and_its_transform(products, capsys, monkeypatch):
+    code, out, _ = semmap(capsys, monkeypatch, "info", products / "merge" / "merge.json")
+    assert code == 0 and json.loads(out)["kind"] == "merge summary" and json.loads(out)["map_kind"] == "octomap"
+    code, out, _ = semmap(capsys, monkeypatch, "info", products / "merge" / "transform.txt")
+    assert code == 0 and json.loads(out) == {"kind": "transform", "translation_m": [0.0, 0.0, 0.0],
+                                             "rotation_deg": 0.0}
+
+
+def test_info_refuses_what_semmap_does_not_write_in_one_line(tmp_path, capsys, monkeypatch):
+    (tmp_path / "notes.json").write_text("{}")
+    (tmp_path / "x.docx").write_text("x")
+    for name in ("notes.json", "x.docx"):
+        line = one_error(*semmap(capsys, monkeypatch, "info", tmp_path / name)[::2])
+        assert f"{tmp_path / name}: " in line and "semmap info opens" in line

@@ -275,8 +275,11 @@ def demo(
     print_summary(result.report, result.out_dir)
 
 
-def info(path: Annotated[Path, typer.Argument(help="a map file: .ot, .bt, .semmap (any map) or .ply")]) -> None:
-    """Describe a map file: kind, resolution, voxels or points, occupied and free, classes, fusion rule."""
+def info(path: Annotated[Path, typer.Argument(help="a map file (.ot, .bt, .semmap, .ply) or any file semmap writes "
+                                                  "beside it (mesh, grid, costmap, ESDF, scene graph, diff, their "
+                                                  "summaries, objects, trajectories, pictures)")]) -> None:
+    """Describe a map file (kind, resolution, voxels or points, occupied and free, classes, fusion rule) or a
+    product of export, diff and merge."""
     setup_logging(False)
     from semmap.io.map_info import describe_map_file
 
@@ -343,14 +346,19 @@ def batch(
 
 
 def view(
-    path: Annotated[Path, typer.Argument(help="a map file: .semmap (any map), .ply, .ot or .bt")],
+    path: Annotated[Path, typer.Argument(help="a map file (.semmap, .ply, .ot, .bt) or a product semmap writes "
+                                              "(mesh.ply, map.yaml, costmap.npy, esdf.npz, scene_graph.json, "
+                                              "diff.json, objects.json, a trajectory, a picture)")],
     save: Annotated[Path | None, typer.Option(help="write a rerun recording (.rrd) instead of opening a viewer")
                     ] = None,
 ) -> None:
-    """Open a finished map in the rerun viewer (voxels in class colours, class names on hover)."""
+    """Open a finished map in the rerun viewer (voxels in class colours, class names on hover), or a product: the
+    mesh, the grid as an image and floor cells, the ESDF as points by distance, the scene graph as boxes and
+    edges."""
     setup_logging(False)
     from semmap.viz.rerun_log import view_map
+    from semmap.viz.rerun_products import is_product_file, shown
 
     n = view_map(path, save=save, spawn=save is None)
-    what = "PLY vertices" if path.suffix == ".ply" else "occupied voxels"
+    what = shown(path) if is_product_file(path) else "PLY vertices" if path.suffix == ".ply" else "occupied voxels"
     stderr_console().print(f"{path}: {n:,} {what}" + (f" written to {save}" if save else " sent to rerun"))

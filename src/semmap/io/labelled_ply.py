@@ -56,10 +56,11 @@ def _header(path: Path, raw) -> tuple[str, list[tuple[str, int, list[tuple[str, 
     return fmt, elements, start
 
 
-def read_labelled_vertices(path: str | Path, label_property: str = "label") -> tuple[np.ndarray, np.ndarray]:
-    """(N, 3) float64 vertex positions and (N,) int64 classes (the ``label_property`` of each vertex) of a PLY."""
+def read_vertex_rows(path: str | Path, *, what: str = "PLY file") -> np.ndarray:
+    """Every property of the vertex element of a PLY (structured array, one field per property), ``x y z``
+    checked finite; FormatError naming the file otherwise."""
     path = Path(path)
-    size = regular_file_size(path, what="ground-truth PLY")
+    size = regular_file_size(path, what=what)
     if size == 0:
         raise FormatError(f"{path}: file is empty")
     with open(path, "rb") as f:
@@ -74,17 +75,26 @@ def read_labelled_vertices(path: str | Path, label_property: str = "label") -> t
     v = names.index("vertex")
     _, count, props = elements[v]
     have = [p for p, _ in props]
-    for needed in ("x", "y", "z", label_property):
+    for needed in ("x", "y", "z"):
         if needed not in have:
-            raise FormatError(f"{path}: the vertices have no {needed!r} property (they have {', '.join(have)}); "
-                              f"name the class property with --gt-label-property")
+            raise FormatError(f"{path}: the vertices have no {needed!r} property (they have {', '.join(have)})")
     if any(code is None for _, code in props) or any(c is None for e in elements[:v] for _, c in e[2]):
         raise FormatError(f"{path}: list properties on or before the vertex element are not supported")
     rows = _ascii_rows(path, raw, offset, elements[:v], count, props) if fmt == "ascii" else \
         _binary_rows(path, raw, offset, elements[:v], count, props, _FORMATS[fmt])
-    points = np.stack([rows[c] for c in ("x", "y", "z")], 1).astype(np.float64)
+    points = np.stack([rows[c] for c in ("x", "y", "z")], 1)
     if not np.isfinite(points).all():
         raise FormatError(f"{path}: {int((~np.isfinite(points)).any(1).sum()):,} vertices with non-finite coordinates")
+    return rows
+
+
+def read_labelled_vertices(path: str | Path, label_property: str = "label") -> tuple[np.ndarray, np.ndarray]:
+    """(N, 3) float64 vertex positions and (N,) int64 classes (the ``label_property`` of each vertex) of a PLY."""
+    rows = read_vertex_rows(path, what="ground-truth PLY")
+    if label_property not in (rows.dtype.names or ()):
+        raise FormatError(f"{path}: the vertices have no {label_property!r} property (they have "
+                          f"{', '.join(rows.dtype.names or ())}); name the class property with --gt-label-property")
+    points = np.stack([rows[c] for c in ("x", "y", "z")], 1).astype(np.float64)
     labels = np.asarray(rows[label_property])
     if labels.dtype.kind == "f" and not (np.isfinite(labels).all() and (labels == np.round(labels)).all()):
         raise FormatError(f"{path}: property {label_property!r} holds non-integer classes")

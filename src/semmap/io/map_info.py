@@ -12,17 +12,23 @@ from semmap.types import EMPTY_LABEL
 
 
 def describe_map_file(path: str | Path) -> dict:
-    """Kind, resolution and counts of a ``.ot`` / ``.bt`` / ``.semmap`` / ``.ply`` map file, or the points, objects
-    and classes of an ``objects.ply`` (FormatError otherwise)."""
+    """Kind, resolution and counts of a ``.ot`` / ``.bt`` / ``.semmap`` / ``.ply`` map file, the points, objects
+    and classes of an ``objects.ply``, the vertices and triangles of a ``mesh.ply``, or what a product file holds
+    (``io.product_info``: grids, costmaps, ESDF, scene graph, summaries, trajectories); FormatError otherwise."""
     path = Path(path)
     if path.suffix == ".semmap":
         return _describe_semmap(path)
     if path.suffix == ".ply":
+        from semmap.io.mesh_ply import is_mesh_ply
         from semmap.io.objects import is_objects_ply
         from semmap.io.ply import read_ply
 
         if is_objects_ply(path):
             return _describe_objects_ply(path)
+        if is_mesh_ply(path):
+            return _describe_mesh(path)
+        if not _is_semmap_cloud(path):
+            return _describe_plain_ply(path)
 
         cloud = read_ply(path)
         labelled = cloud.labels != EMPTY_LABEL
@@ -36,7 +42,47 @@ def describe_map_file(path: str | Path) -> dict:
         occ = leaves.occupied()
         return {"kind": leaves.tree_type, "resolution": leaves.resolution, "nodes": leaves.num_nodes,
                 "occupied_leaves": int(occ.sum()), "free_leaves": int((~occ).sum())}
-    raise FormatError(f"{path}: unknown map file type {path.suffix!r} (expected .ot, .bt, .semmap or .ply)")
+    from semmap.io.product_info import describe_product_file
+
+    return describe_product_file(path)
+
+
+def _is_semmap_cloud(path: Path) -> bool:
+    """Whether a PLY's header has the label and confidence of semmap's map clouds (else it is any point cloud)."""
+    from semmap.io.ply import MAX_PLY_HEADER
+
+    try:
+        with open(path, "rb") as f:
+            head = f.read(MAX_PLY_HEADER)
+    except OSError:
+        return True  # the map PLY reader names the problem
+    names = [line.split()[-1] for line in head.split(b"end_header")[0].decode("ascii", "replace").splitlines()
+             if line.startswith("property")]
+    return not names or {"label", "confidence"} <= set(names)
+
+
+def _describe_mesh(path: Path) -> dict:
+    from semmap.io.mesh_ply import read_mesh_ply
+
+    mesh = read_mesh_ply(path)
+    labelled = mesh.labels != EMPTY_LABEL
+    names = mesh.label_set.names if mesh.label_set is not None else None
+    ids, counts = np.unique(mesh.labels[labelled], return_counts=True)
+    return {"kind": "mesh", "resolution": mesh.resolution, "vertices": len(mesh), "triangles": len(mesh.faces),
+            "labelled_share": round(float(labelled.mean()), 4) if len(mesh) else 0.0,
+            "vertices_per_class": {(names[i] if names is not None and i < len(names) else f"class {i}"): int(n)
+                                   for i, n in zip(ids, counts, strict=True)}}
+
+
+def _describe_plain_ply(path: Path) -> dict:
+    """Any point cloud PLY (``cloud.ply``: points and colours): its vertex count and properties."""
+    from semmap.io.labelled_ply import read_vertex_rows
+
+    rows = read_vertex_rows(path)
+    points = np.stack([rows[c] for c in ("x", "y", "z")], 1).astype(np.float64)
+    lo, hi = (points.min(axis=0), points.max(axis=0)) if len(points) else (np.zeros(3), np.zeros(3))
+    return {"kind": "point cloud", "points": len(points), "properties": list(rows.dtype.names or ()),
+            "bounds_m": [[round(float(v), 3) for v in lo], [round(float(v), 3) for v in hi]]}
 
 
 def _describe_semmap(path: Path) -> dict:

@@ -15,6 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from semmap.files.atomic import write_bytes_atomic, write_text_atomic
+from semmap.io.product_files import read_as_map_server  # noqa: F401  (map_server's reading, beside its writing)
 
 OCCUPIED_THRESH = 0.65
 FREE_THRESH = 0.196  # ROS 1 map_saver's; above 50/255, so its unknown pixel 205 stays unknown
@@ -91,19 +92,3 @@ def write_costmap(out_dir: Path, stem: str, cost: np.ndarray, resolution: float,
     np.save(buf, np.asarray(cost, np.int8))
     write_bytes_atomic(exact, buf.getvalue())
     return [image, yaml_path, exact]
-
-
-def read_as_map_server(image: np.ndarray, alpha: np.ndarray | None, mode: str, occupied_thresh: float,
-                       free_thresh: float, negate: int = 0) -> np.ndarray:
-    """What map_server makes of an image: (nx, ny) int8 cells (-1 unknown, 0..100), x right, y up."""
-    x = np.asarray(image, np.float64)
-    p = x / 255.0 if negate else (255.0 - x) / 255.0
-    out = np.full(x.shape, -1, np.int16)
-    out[p > occupied_thresh] = 100
-    out[p < free_thresh] = 0
-    if mode == "scale":
-        mid = (p >= free_thresh) & (p <= occupied_thresh)
-        out[mid] = np.rint(99.0 * (p[mid] - free_thresh) / (occupied_thresh - free_thresh)).astype(np.int16)
-        if alpha is not None:
-            out[np.asarray(alpha) < 255] = -1
-    return out[::-1].T.astype(np.int8)

@@ -406,29 +406,39 @@ def map_file_cloud(path: str | Path) -> tuple[MapCloud, LabelSet | None]:
 
 
 def view_map(path: str | Path, *, save: str | Path | None = None, spawn: bool = True) -> int:
-    """Log a finished map file to rerun (saved to ``save`` and/or a spawned viewer); returns the voxel count.
+    """Log a finished map file, or a product semmap writes beside maps (``rerun_products``: mesh, ESDF, scene
+    graph, grid, costmap, diff, objects, trajectory), to rerun (saved to ``save`` and/or a spawned viewer); returns
+    the count of voxels (or of what the product shows).
 
     ``save`` is checked against the map before it is read, written beside under a temporary name and renamed into
     place once complete (never the map itself, never a device)."""
     quiet_rerun_log()
     import rerun as rr
 
+    from semmap.viz.rerun_products import is_product_file, log_product
+
     partial = None
     if save is not None:
         check_outputs([("--save", save, OutputKind.FILE)], [("MAP", path)])
         partial = partial_recording(save)
-    cloud, label_set = map_file_cloud(path)
+    product = is_product_file(Path(path))
+    if not product:
+        cloud, label_set = map_file_cloud(path)
     try:
         rec = open_recording(f"semmap view {Path(path).name}", save=partial, spawn=spawn, viewer_for=f"view {path}")
         rec.log("world", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
-        if label_set is not None:
-            log_classes(rec, label_set)
-        log_cloud(rec, "world/map", cloud, label_set)
+        if product:
+            n = log_product(rec, Path(path))
+        else:
+            if label_set is not None:
+                log_classes(rec, label_set)
+            log_cloud(rec, "world/map", cloud, label_set)
+            n = len(cloud)
         close_recording(rec, partial)
         if partial is not None:
             os.replace(partial, save)
     finally:
         if partial is not None:
             partial.unlink(missing_ok=True)
-    return len(cloud)
+    return n
 
