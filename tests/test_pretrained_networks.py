@@ -4,6 +4,7 @@ CBAM and depth fusion leaving the pretrained function unchanged at step 0, shape
 
 from __future__ import annotations
 
+import importlib.util
 from pathlib import Path
 
 import numpy as np
@@ -17,6 +18,10 @@ from semmap.perception.networks import pretrained
 from semmap.perception.networks.registry import MODELS, NetworkSpec, build_network, save_weights
 from semmap.train.calibrate import expected_calibration_error, fit_temperature, nll
 from semmap.types import LabelSet
+
+#: torchvision is the optional extra semmap[maskrcnn]: its tests run where it is installed.
+NEEDS_TORCHVISION = pytest.mark.skipif(importlib.util.find_spec("torchvision") is None,
+                                       reason="torchvision is not installed (pip install 'semmap[maskrcnn]')")
 
 K = 5
 BACKBONE = "espnetv2-s1"
@@ -139,6 +144,7 @@ def test_every_architecture_on_the_espnet_encoder(model: str) -> None:
     assert espnet_spec(model).describe() == f"{model}-{BACKBONE}-w0.125"
 
 
+@NEEDS_TORCHVISION
 def test_torchvision_resnet_and_vgg_layouts_load_without_download() -> None:
     from semmap.perception.instances._torchvision_ops import import_torchvision
 
@@ -159,6 +165,7 @@ def test_torchvision_resnet_and_vgg_layouts_load_without_download() -> None:
         torch.testing.assert_close(colour.color[0](x), vgg.features[:4](x), atol=1e-4, rtol=1e-4)
 
 
+@NEEDS_TORCHVISION
 def test_offline_torchvision_says_so_in_one_line(monkeypatch: pytest.MonkeyPatch, tmp_path: Path) -> None:
     from urllib.error import URLError
 

@@ -537,3 +537,46 @@ def test_info_refuses_what_semmap_does_not_write_in_one_line(tmp_path, capsys, m
     for name in ("notes.json", "x.docx"):
         line = one_error(*semmap(capsys, monkeypatch, "info", tmp_path / name)[::2])
         assert f"{tmp_path / name}: " in line and "semmap info opens" in line
+
+
+# ------------------------------------------------------------------ torchvision: an extra, not a dependency
+def test_torchvision_is_an_extra_so_transformers_models_load():
+    import tomllib
+
+    project = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]
+    assert not any(d.startswith("torchvision") for d in project["dependencies"])
+    assert project["optional-dependencies"]["maskrcnn"] == ["torchvision==0.28.0"]
+    assert "semmap[maskrcnn]" not in project["optional-dependencies"]["dev"]  # the project's own venv has none
+
+
+@pytest.mark.parametrize(("call", "said"), [
+    (lambda: __import__("semmap.perception.instances.maskrcnn", fromlist=["x"]).build_maskrcnn(3),
+     "--instances maskrcnn needs torchvision"),
+    (lambda: __import__("semmap.perception.networks.pretrained", fromlist=["x"]).torchvision_state_dict("resnet18"),
+     "--init torchvision:resnet18 needs torchvision"),
+])
+def test_without_torchvision_its_features_say_what_to_install(monkeypatch, call, said):
+    import importlib.util
+
+    from semmap.errors import ConfigError
+
+    real = importlib.util.find_spec
+    monkeypatch.setattr(importlib.util, "find_spec", lambda name, *a: None if name == "torchvision" else
+                        real(name, *a))
+    monkeypatch.delitem(sys.modules, "torchvision.ops", raising=False)
+    with pytest.raises(ConfigError) as err:
+        call()
+    assert str(err.value).startswith(said) and "pip install 'semmap[maskrcnn]'" in str(err.value)
+    assert "\n" not in str(err.value)
+
+
+def test_hf_segmenters_do_without_torchvision(monkeypatch):
+    import importlib.util
+
+    from semmap.perception import hf_models
+
+    real = importlib.util.find_spec
+    monkeypatch.setattr(importlib.util, "find_spec", lambda name, *a: None if name == "torchvision" else
+                        real(name, *a))
+    monkeypatch.delitem(sys.modules, "torchvision.ops", raising=False)
+    assert hf_models._transformers().__name__ == "transformers"

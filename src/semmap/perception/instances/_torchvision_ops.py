@@ -26,13 +26,20 @@ from semmap.errors import ConfigError
 _LIBRARY: torch.library.Library | None = None
 
 
-def import_torchvision():
-    """The ``torchvision`` module, with working ``nms`` and ``roi_align`` on the CPU (see the module docstring)."""
+#: How to get torchvision, which semmap does not install by default: PyPI's build does not import beside the CPU
+#: torch semmap pins ("operator torchvision::nms does not exist"), and where it is installed transformers imports it,
+#: so that a user's own SegFormer would not load either. semmap supplies the two operators Mask R-CNN needs.
+INSTALL = "pip install 'semmap[maskrcnn]' (torchvision 0.28.0; semmap supplies the compiled operators it lacks)"
+
+
+def import_torchvision(needed_by: str = "--instances maskrcnn"):
+    """The ``torchvision`` module, with working ``nms`` and ``roi_align`` on the CPU (see the module docstring);
+    without torchvision, one ConfigError line saying what ``needed_by`` needs and how to install it."""
     if "torchvision.ops" in sys.modules:
         return sys.modules["torchvision"]
     spec = importlib.util.find_spec("torchvision")
     if spec is None or not spec.submodule_search_locations:
-        raise ConfigError("--instances maskrcnn needs torchvision (pip install torchvision==0.28.0)")
+        raise ConfigError(f"{needed_by} needs torchvision, which semmap does not install by default: {INSTALL}")
     native = _load_native(Path(next(iter(spec.submodule_search_locations))))
     if not native and _LIBRARY is None:
         _define_operators()

@@ -154,7 +154,7 @@ def torchvision_state_dict(arch: str) -> dict:
 
     from semmap.perception.instances._torchvision_ops import import_torchvision
 
-    weights = import_torchvision().models.get_model_weights(arch).IMAGENET1K_V1
+    weights = import_torchvision(f"--init {TORCHVISION}{arch}").models.get_model_weights(arch).IMAGENET1K_V1
     try:
         return dict(weights.get_state_dict(progress=False))
     except (URLError, OSError, RuntimeError) as exc:
