@@ -50,3 +50,20 @@ def test_fingerprint_sees_a_device_replaced_by_a_file(tmp_path: Path) -> None:
     before = rc.snapshot(tmp_path, {"a": True, ".": True})
     f.write_bytes(b"2")
     assert rc.changes(before, rc.snapshot(tmp_path, {"a": True, ".": True})) == ["a", ". (a)"]
+
+
+def test_the_new_surfaces_rows_and_their_classes() -> None:
+    """The new-surfaces probe's rows end in its class; commands name the checkout as CHECKOUT/."""
+    import surfaces
+
+    assert rc.classify(130, 200, False, [], "")[0] == "UNCLEAR"  # Ctrl-C without a word (U8)
+    assert rc.classify(130, 200, False, [], "semmap: interrupted\n")[0] == "GOOD"
+    assert rc.classify(1, 200, False, [], "calibrate_weights: error: --out x: is a device\n")[0] == "GOOD"
+    cases = {c.id: c for c in rc.read_cases(surfaces.TSV)} if surfaces.TSV.is_file() else {}
+    if cases:
+        assert cases["gr_points"].original_class() == "SILENT-WRONG" and cases["mg_T_huge"].probe_class == "TRACEBACK"
+        assert f"{rc.REPO}/scripts/calibrate_weights.py" in cases["cal_garbage"].command
+        assert not cases["gr_points"].output.endswith("SILENT-WRONG")
+    assert surfaces.silent_fixed("gr_points", 0, "semmap: WARNING: a points map keeps no free space")
+    assert not surfaces.silent_fixed("gr_points", 0, "o/g: 3x3 cells; free 0")
+    assert surfaces.silent_fixed("sg_from_cwd", 0, "sg_cwd: 27 objects, 1 rooms (from the layout)")

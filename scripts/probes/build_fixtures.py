@@ -19,6 +19,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import fixture_table
 import fixtures_lib as fx
+import surfaces
 
 REPO = Path(__file__).resolve().parents[2]
 WRAPPER = """#!/bin/sh
@@ -140,19 +141,29 @@ def load_frames(ctx: Ctx, seq: str, n: int) -> list:
 
 
 # ------------------------------------------------------------------------------------------------ building
-def build(root: Path, *, only: str | None, python: str, cap_gb: int, rebuild: bool) -> dict[str, str]:
-    """Build every fixture of ``FIXTURES`` that is missing (all of them with ``rebuild``); {path: error}."""
+def tables(probe: str) -> tuple[dict, set[str]]:
+    """(fixture table, fixtures rebuilt on every build) of the probe ``bad-input`` or ``new-surfaces``."""
+    me = sys.modules[__name__]
+    if probe == "new-surfaces":
+        victims = surfaces.victims()
+        return surfaces.table(me) | victims, {".venv/bin/semmap", *victims}
+    return fixture_table.table(me), fixture_table.ALWAYS
+
+
+def build(root: Path, *, only: str | None, python: str, cap_gb: int, rebuild: bool,
+          probe: str = "bad-input") -> dict[str, str]:
+    """Build every fixture of the probe's table that is missing (all of them with ``rebuild``); {path: error}."""
     import re
 
     ctx = Ctx(root, python, cap_gb)
     root.mkdir(parents=True, exist_ok=True)
     failed: dict[str, str] = {}
-    table = fixture_table.table(sys.modules[__name__])
+    table, always = tables(probe)
     for rel, builder in table.items():
         if only and not re.search(only, rel):
             continue
         path = ctx.p(rel)
-        if os.path.lexists(path) and not rebuild and rel not in fixture_table.ALWAYS:
+        if os.path.lexists(path) and not rebuild and rel not in always:
             continue
         fixture_table.remove(path)
         started = time.time()
@@ -175,11 +186,14 @@ def main() -> None:
                     "ones, plus the victims and mounts, which are always rebuilt)")
     ap.add_argument("--python", default=str(Path(sys.executable)), help="python of the venv that runs semmap")
     ap.add_argument("--cap-gb", type=int, default=4, help="address-space limit of ./capped.sh (GB)")
+    ap.add_argument("--probe", choices=("bad-input", "new-surfaces"), default="bad-input",
+                    help="whose fixtures: the bad-input probe of 2026-11-25 or the new-surfaces one of 2026-11-28")
     args = ap.parse_args()
-    failed = build(args.dir.resolve(), only=args.only, python=args.python, cap_gb=args.cap_gb, rebuild=args.rebuild)
-    notes = fixture_table.NOT_REPRODUCIBLE | failed
+    failed = build(args.dir.resolve(), only=args.only, python=args.python, cap_gb=args.cap_gb, rebuild=args.rebuild,
+                   probe=args.probe)
+    notes = (fixture_table.NOT_REPRODUCIBLE if args.probe == "bad-input" else {}) | failed
     (args.dir / "FIXTURES.json").write_text(json.dumps({"not_built": notes}, indent=1))
-    print(f"{len(fixture_table.table(sys.modules[__name__]))} fixtures in the table; {len(failed)} failed; "
+    print(f"{len(tables(args.probe)[0])} fixtures in the table; {len(failed)} failed; "
           f"notes in {args.dir / 'FIXTURES.json'}")
 
 

@@ -1,5 +1,6 @@
-"""Re-run every case of the bad-input probe (issue 31) in a scratch folder made by build_fixtures.py and classify
-each: ``python scripts/probes/run_cases.py DIR [--cases REGEX] [--jobs N] [--out RESULTS]``. See docs/probes.md.
+"""Re-run every case of the bad-input probe (issue 31), or of the new-surfaces probe (issue 48, ``--probe
+new-surfaces``), in a scratch folder made by build_fixtures.py and classify each: ``python
+scripts/probes/run_cases.py DIR [--cases REGEX] [--jobs N] [--out RESULTS]``. See docs/probes.md.
 
 Per case: exit code, seconds, peak RSS of the process tree (``os.wait4``), a Python traceback or a segfault in the
 output, and the sha256 of every input the command names, before and after (any change is DATA-LOSS)."""
@@ -22,6 +23,9 @@ from concurrent.futures import ThreadPoolExecutor
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+import surfaces
+
 TSV = Path("/work/shared/probes/bad-input-2026-11-25.tsv")
 ROW = re.compile(r"^([^\t]+)\trc=(-?\d+)\t([\d.]+)s\t(\d+)MB\ttb=(\d+)\t([^\t]*)\t?(.*)$")
 SEMMAP = ".venv/bin/semmap"
@@ -42,8 +46,14 @@ UNCLEAR_FAMILY = {"NO-NAME", "MULTI-LINE", "UNCLEAR"}
 MEMORY_MB = 1024
 BIG_FILE = 64 * 2**20
 PAGE = os.sysconf("SC_PAGE_SIZE")
-CLASSES = ("GOOD", "INVALID", "DATA-LOSS", "SEGFAULT", "TRACEBACK", "HANG", "MEMORY", "MULTI-LINE", "NO-NAME",
-           "UNCLEAR", "NOT-REPRODUCED", "SKIPPED")
+CLASSES = ("GOOD", "INVALID", "DATA-LOSS", "SILENT-WRONG", "SEGFAULT", "TRACEBACK", "HANG", "MEMORY", "MULTI-LINE",
+           "NO-NAME", "UNCLEAR", "NOT-REPRODUCED", "SKIPPED")
+#: A TSV whose rows end in the probe's own class (the new-surfaces probe's) gives it here.
+PROBE_CLASS = re.compile(r"\t(GOOD|TRACEBACK|SILENT-WRONG|UNCLEAR|HANG|MEMORY|DATA-LOSS)$")
+#: The checkout in the new-surfaces probe's commands.
+REPO = Path(__file__).resolve().parents[2]
+#: An error line of semmap or of one of its scripts (``calibrate_weights: error: ...``).
+ERROR_LINE = re.compile(r"^[\w.-]+: error:")
 PROGRESS = re.compile(r"━|frames/s|-:--:--|\d+/\d+\s+\d+:\d\d:\d\d")
 ANSI = re.compile(r"\x1b\[[0-9;?]*[a-zA-Z]")
 
@@ -59,6 +69,7 @@ class Case:
     tb: int
     command: str
     output: str
+    probe_class: str = ""  # the probe's own class, where its TSV gives one
 
     @property
     def name(self) -> str:
@@ -66,6 +77,8 @@ class Case:
 
     def original_class(self) -> str:
         """The probe's class of this row, from its rc / traceback flag / peak (DATA-LOSS from the report)."""
+        if self.probe_class:
+            return self.probe_class
         if self.name in REPORTED_DATA_LOSS:
             return "DATA-LOSS"
         if self.rc in (139, -11):
@@ -111,8 +124,11 @@ def read_cases(path: Path) -> list[Case]:
         name = m.group(1)
         seen[name] = seen.get(name, 0) + 1
         cid = name if seen[name] == 1 else f"{name}#{seen[name]}"
-        cases.append(Case(cid, int(m.group(2)), float(m.group(3)), int(m.group(4)), int(m.group(5)), m.group(6),
-                          m.group(7)))
+        output = m.group(7)
+        probe = PROBE_CLASS.search(output)
+        cases.append(Case(cid, int(m.group(2)), float(m.group(3)), int(m.group(4)), int(m.group(5)),
+                          m.group(6).replace("CHECKOUT/", f"{REPO}/"),
+                          output[:probe.start()] if probe else output, probe.group(1) if probe else ""))
     return cases
 
 
@@ -285,9 +301,11 @@ def group_rss_mb(pgid: int) -> int:
     return total // 2**20
 
 
-def run_segment(segment: str, root: Path, log: Path, timeout: float, mem_gb: float) -> tuple[int, float, int, str]:
+def run_segment(segment: str, root: Path, log: Path, timeout: float, mem_gb: float,
+                interrupt_after: float | None = None) -> tuple[int, float, int, str]:
     """Run one bash segment in its own process group: (exit code, seconds, peak RSS MiB, '' or why it was
-    killed: 'timeout' / 'memory'). A watchdog kills the group above ``mem_gb`` GiB resident (0: no watchdog)."""
+    killed: 'timeout' / 'memory'). A watchdog kills the group above ``mem_gb`` GiB resident (0: no watchdog);
+    ``interrupt_after`` seconds in, the group gets SIGINT (Ctrl-C) once."""
     env = dict(os.environ, COLUMNS="120", PYTHONUNBUFFERED="1")
     with open(log, "wb") as out:
         start = time.monotonic()
@@ -300,6 +318,9 @@ def run_segment(segment: str, root: Path, log: Path, timeout: float, mem_gb: flo
                 status, usage = st, ru
                 break
             tick += 1
+            if interrupt_after is not None and time.monotonic() - start > interrupt_after:
+                _kill_group(proc.pid, signal.SIGINT)
+                interrupt_after = None
             if not killed and time.monotonic() - start > timeout:
                 killed = "timeout"
                 _kill_group(proc.pid, signal.SIGTERM)
@@ -349,7 +370,10 @@ def run_case(case: Case, root: Path, logs: Path, args, not_built: dict[str, str]
     if args.skip and re.search(args.skip, case.id):
         res.cls, res.reason = "SKIPPED", "--skip"
         return res
-    prepare(setup, root)
+    top = root
+    if setup and setup[-1].startswith("cd "):  # ``cd o && ../.venv/bin/semmap ...``: the command runs in o/
+        root, setup = root / setup[-1][3:].strip(), setup[:-1]
+    prepare(setup, top)
     words = expand(segment, root)
     why = missing_fixture(case, words, root, not_built)
     if why:
@@ -359,13 +383,15 @@ def run_case(case: Case, root: Path, logs: Path, args, not_built: dict[str, str]
     before = snapshot(root, paths)
     log = logs / f"{re.sub(r'[^A-Za-z0-9_.#-]', '_', case.id)}.out"
     res.rc, res.seconds, res.peak_mb, killed = run_segment(segment, root, log, timeout_of(case, args.timeout),
-                                                           args.max_memory_gb)
+                                                           args.max_memory_gb, surfaces.INTERRUPTS.get(case.name))
     res.changed = changes(before, snapshot(root, paths))
     text = ANSI.sub("", log.read_bytes().decode("utf-8", "replace")).replace("\r", "\n")
     if killed == "memory":
         res.peak_mb = max(res.peak_mb, int(args.max_memory_gb * 1024))
         text += f"\n[killed by the harness above {args.max_memory_gb} GB]\n"
     res.cls, res.reason = classify(res.rc, res.peak_mb, killed == "timeout", res.changed, text, names_of(words))
+    if res.cls == "GOOD" and case.probe_class == "SILENT-WRONG" and not surfaces.silent_fixed(case.name, res.rc, text):
+        res.cls, res.reason = "SILENT-WRONG", "exit 0 without a warning, as in the probe"
     res.excerpt = " | ".join(x.strip() for x in text.splitlines() if x.strip() and not PROGRESS.search(x))[-600:]
     return res
 
@@ -400,12 +426,14 @@ def classify(rc: int, peak_mb: int, timed_out: bool, changed: list[str], text: s
     memory_words = ("killed by the harness above", "MemoryError", "bad_alloc")
     if rc == 137 or any(w in text for w in memory_words) or (rc != 0 and peak_mb > MEMORY_MB):
         return "MEMORY", f"rc {rc}, peak {peak_mb} MB"
+    if rc == 130 and "interrupted" not in text:
+        return "UNCLEAR", "Ctrl-C: exit 130 without a word"
     if rc in (0, 130):
         return "GOOD", ""
     if rc in (126, 127) and "semmap" not in text.replace(".venv/bin/semmap", ""):
         return "INVALID", f"rc {rc}: the command could not start (as in the probe's uid-65534 rows)"
     lines = [x.strip() for x in text.splitlines() if x.strip() and not PROGRESS.search(x)]
-    first = next((i for i, x in enumerate(lines) if x.startswith("semmap: error:")), None)
+    first = next((i for i, x in enumerate(lines) if ERROR_LINE.match(x)), None)
     if first is None:
         if rc == 2 and ("Usage:" in text or "Invalid value" in text or "No such option" in text):
             return "GOOD", "usage error (the option is named)"
@@ -480,7 +508,7 @@ def write_reports(results: list[Result], out: Path, wall: float) -> None:
     counts = {c: sum(r.cls == c for r in results) for c in CLASSES}
     same = sum(r.cls == r.original or {r.cls, r.original} <= UNCLEAR_FAMILY for r in results)
     when = f"in {wall / 60:.1f} min" if wall else "classified again"
-    lines = [f"# Bad-input probe re-run ({time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())})", "",
+    lines = [f"# Probe re-run ({time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())})", "",
              f"{len(results)} cases {when}; the class equals the probe's for {same}.", "",
              "NO-NAME, MULTI-LINE and UNCLEAR all count as the probe's UNCLEAR. The probe's class comes from its rc,",
              "traceback flag and peak memory, and from the report for DATA-LOSS and UNCLEAR; its SILENT-WRONG cases",
@@ -531,7 +559,9 @@ def main() -> None:
     ap.add_argument("--skip", help="mark cases whose name matches this regex SKIPPED")
     ap.add_argument("--jobs", type=int, default=1, help="cases at a time (cases that share state run alone)")
     ap.add_argument("--out", type=Path, default=Path("probe-results"), help="results folder")
-    ap.add_argument("--tsv", type=Path, default=TSV, help="the probe's case table")
+    ap.add_argument("--tsv", type=Path, help="the probe's case table (default: the --probe's)")
+    ap.add_argument("--probe", choices=("bad-input", "new-surfaces"), default="bad-input",
+                    help="the bad-input probe of 2026-11-25 or the new-surfaces one of 2026-11-28")
     ap.add_argument("--timeout", type=float, default=120, help="seconds per case (a case that hung in the probe "
                     "keeps its longer time-out)")
     ap.add_argument("--max-memory-gb", type=float, default=8, help="kill a case whose processes hold more than this "
@@ -540,7 +570,8 @@ def main() -> None:
     ap.add_argument("--reclassify", action="store_true", help="classify the results in --out again (no run)")
     args = ap.parse_args()
     root = args.dir.resolve()
-    cases = [c for c in read_cases(args.tsv) if not args.cases or re.search(args.cases, c.id)]
+    tsv = args.tsv or (surfaces.TSV if args.probe == "new-surfaces" else TSV)
+    cases = [c for c in read_cases(tsv) if not args.cases or re.search(args.cases, c.id)]
     args.out.mkdir(parents=True, exist_ok=True)
     start = time.monotonic()
     results = reclassify(args.out, cases, root) if args.reclassify else run_all(cases, root, args.out, args)
