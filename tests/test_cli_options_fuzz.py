@@ -39,6 +39,7 @@ TEXT_OPTIONS = frozenset({
     "--crf-params",
     # an axis name or a direction x,y,z: parse_up refuses a non-finite or zero vector (tests/test_structure.py)
     "--up",
+    "--gt-classes",
 })
 #: The required arguments of each command: paths that are never opened (the numbers are checked first).
 NOWHERE = "/nonexistent/semmap-fuzz"

@@ -41,7 +41,7 @@ FAMILIES: dict[str, tuple[tuple[str, ...], tuple[str, ...]]] = {
     "instance source": (tuple(INSTANCE_SOURCES), ("perception/instances/registry.py",)),
     "map": (tuple(MAPS), ("maps/registry.py",)),
     "dataset format": (tuple(FORMATS), ("datasets/tum.py", "datasets/sevenscenes.py", "datasets/rosbag.py",
-                                         "datasets/scannet.py", "datasets/replica.py")),
+                                         "datasets/scannet.py", "datasets/replica.py", "datasets/stills.py")),
     "fusion rule": (tuple(r.value for r in FusionRule), ("fusion/rules.py", "fusion/registry.py")),
 }
 #: (file, literal) pairs where the same word means something else, each with the reason.

@@ -159,7 +159,8 @@ OPTIONS: dict[str, OptionRule] = {
     "--slice-z": OptionRule("coordinate"), "--inflation": OptionRule("inflation"), "--near": OptionRule("distance"),
     "--door-width": OptionRule("distance"), "--region": OptionRule("coordinate", REGION),
     # eval-map, merge
-    "eval-map --every": OptionRule("every_positive"), "--min-overlap": OptionRule("probability"),
+    "eval-map --every": OptionRule("every_positive"), "eval-seg --every": OptionRule("every_positive"),
+    "--min-overlap": OptionRule("probability"),
     # the TSDF and its mesh
     "--tsdf-voxel": OptionRule("resolution"), "--tsdf-truncation": OptionRule("tsdf_truncation"),
     "--min-weight": OptionRule("tsdf_weight"),

@@ -72,8 +72,11 @@ def _traj_rows(scores: dict) -> list[tuple[str, str]]:
 
 
 def eval_seg(
-    pred_dir: Annotated[Path, typer.Argument(help="folder of predicted label PNGs (class ids)")],
-    gt_dir: Annotated[Path, typer.Argument(help="folder of ground-truth label PNGs with the same names")],
+    pred_dir: Annotated[Path, typer.Argument(metavar="PRED_DIR|SEQ", help="folder of predicted label PNGs (class "
+                                             "ids); with --segmenter the labelled frames: any sequence semmap "
+                                             "reads, or still frames (rgb/ depth/ labels/, NYU-40)")],
+    gt_dir: Annotated[Path | None, typer.Argument(help="folder of ground-truth label PNGs with the same names "
+                                                       "(without --segmenter)")] = None,
     num_classes: Annotated[int | None, typer.Option(help="number of classes K (ids 0..K-1); default: the label "
                                                         "set's, else the largest id in the images + 1")] = None,
     labelset: Annotated[Path | None, typer.Option(help="labelset.json naming the classes (default: the one in or "
@@ -82,13 +85,32 @@ def eval_seg(
     out: Annotated[Path | None, typer.Option(help="also write the scores as JSON here")] = None,
     resize: Annotated[bool, typer.Option("--resize", help="resize predictions of another size than their ground "
                                          "truth (nearest neighbour) instead of refusing them")] = False,
+    segmenter: Annotated[str | None, typer.Option(help="run this segmenter over SEQ and score it in NYU-40 over the "
+                                                  f"classes both name ({SEGMENTERS.choices()}, NAME+structure)")
+                         ] = None,
+    weights: Annotated[Path | None, typer.Option(help="--segmenter's weights (default: the shipped ones)")] = None,
+    labels: Annotated[Path | None, typer.Option(help="SEQ's label PNGs, when they are not in it")] = None,
+    gt_classes: Annotated[str | None, typer.Option(help="the labels' classes: nyu40 | semmap (default: semmap for "
+                                                   "the simulator's label set, else nyu40)")] = None,
+    every: Annotated[int, typer.Option(help="--segmenter: score every N-th frame")] = 1,
+    max_frames: Annotated[int | None, typer.Option(help="--segmenter: read at most N frames")] = None,
+    up: Annotated[str | None, typer.Option(help="--segmenter NAME+structure: the world's up axis (+z, ...), "
+                                                "else from the frames")] = None,
     as_json: Json = False,
 ) -> None:
     """Segmentation accuracy of predicted label images: MIoU and MPA (eqs. 11-12), per-class IoU and accuracy,
-    confusion matrix."""
+    confusion matrix; with --segmenter, of a segmenter run over labelled (real) frames, in NYU-40."""
     setup_logging(False)
+    if segmenter is not None:
+        _eval_segmenter(pred_dir, segmenter, weights=weights, labels=labels, gt_classes=gt_classes, every=every,
+                        max_frames=max_frames, up=up, out=out, as_json=as_json)
+        return
+    from semmap.errors import ConfigError
     from semmap.eval.segmentation import evaluate_label_folders
 
+    if gt_dir is None:
+        raise ConfigError("eval-seg: give GT_DIR (the ground-truth label PNGs), or --segmenter NAME to run one over "
+                          f"the labelled frames in {pred_dir}")
     result = evaluate_label_folders(pred_dir, gt_dir, num_classes, ignore=None if ignore < 0 else ignore,
                                     resize=resize, out=out, label_set=labelset)
     d = result.to_dict()
@@ -103,6 +125,23 @@ def eval_seg(
     if out is not None:
         rows.append(("scores written to", str(out)))
     summary_out(d, as_json, f"semmap eval-seg: {pred_dir} against {gt_dir}", rows)
+
+
+def _eval_segmenter(seq: Path, segmenter: str, *, out: Path | None, as_json: bool, **options) -> None:
+    """``eval-seg SEQ --segmenter NAME``: the segmenter over the frames, in NYU-40, as a table or JSON."""
+    from semmap.cli.terminal import progress_bar
+    from semmap.run.eval_seg import score_on_frames
+
+    scores = score_on_frames(seq, segmenter, out=out, progress=progress_bar("segmenting"), **options)
+    d = scores.to_dict()
+    rows = [("frames", str(d["frames"])),
+            ("mIoU (NYU-40)", "-" if d["miou"] is None else f"{d['miou']:.4f} over {len(d['classes'])} classes "
+                                                              "both name"),
+            ("pixel accuracy", "-" if d["pixel_accuracy"] is None else f"{d['pixel_accuracy']:.4f}")]
+    rows += [(f"IoU {name}", f"{c['iou']:.4f} ({c['pixels']:,} px)") for name, c in d["per_class"].items()]
+    if out is not None:
+        rows.append(("scores written to", str(out)))
+    summary_out(d, as_json, f"semmap eval-seg: {segmenter} on {seq}", rows)
 
 
 def eval_map(

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from semmap.datasets import replica, rosbag, scannet, sevenscenes, tum
+from semmap.datasets import replica, rosbag, scannet, sevenscenes, stills, tum
 from semmap.datasets.base import (
     Dataset,
     FormatEntry,
@@ -26,7 +26,8 @@ from semmap.registry import Registry
 
 #: Every on-disk format, in the order :func:`detect_format` tries them; each reader module declares its ``FORMAT``.
 FORMATS: Registry[FormatEntry] = Registry("dataset format", (rosbag.FORMAT, tum.FORMAT, sevenscenes.FORMAT,
-                                                            scannet.FORMAT, replica.FORMAT), error=DatasetError)
+                                                            scannet.FORMAT, replica.FORMAT, stills.FORMAT),
+                                      error=DatasetError)
 #: ``--format`` value that detects the format.
 AUTO = "auto"
 #: The format names and ``auto`` as an enum (the type of ``input.format`` in the run configuration).

@@ -82,6 +82,13 @@ class WithStructure:
     def label_set(self) -> LabelSet:
         return self._label_set
 
+    @property
+    def output_classes(self) -> np.ndarray:
+        """The ids of ``label_set`` the network (folded) or structure can name."""
+        inner = getattr(self.network, "output_classes", None)
+        network = self.fold if inner is None else self.fold[np.asarray(inner)]
+        return np.union1d(network[network > 0], self.structure_ids).astype(np.uint16)
+
     def prepare(self, frame: Frame) -> float:
         """The network's start-up cost (an ONNX export, a session), paid before the frame loop."""
         return self.network.prepare(frame) if isinstance(self.network, Preparable) else 0.0

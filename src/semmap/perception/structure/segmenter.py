@@ -125,6 +125,11 @@ class StructureSegmenter:
     def label_set(self) -> LabelSet:
         return self._label_set
 
+    @property
+    def output_classes(self) -> np.ndarray:
+        """The ids of ``label_set`` this segmenter can name (wall, floor, ceiling): what it is scored on."""
+        return self.ids
+
     def _up(self, frame: Frame, surface: Surface) -> UpEstimate:
         """The frame's up direction in the camera frame, first found wins (see :class:`UpSource`)."""
         T = frame.T_world_cam
