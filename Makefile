@@ -12,6 +12,12 @@ $(STAMP): pyproject.toml
 		(apt-get install -y -qq libusb-1.0-0 >/dev/null 2>&1 || \
 		 (apt-get update -qq >/dev/null && apt-get install -y -qq libusb-1.0-0 >/dev/null)); \
 	fi
+	@if command -v apt-get >/dev/null 2>&1 && ! { [ -x /usr/bin/chromium ] && [ -x /usr/bin/chromedriver ]; }; then \
+		echo "installing apt packages chromium and chromium-driver (the tests open report.html in a headless browser)"; \
+		(DEBIAN_FRONTEND=noninteractive apt-get install -y -qq chromium chromium-driver >/dev/null 2>&1 || \
+		 (apt-get update -qq >/dev/null && \
+		  DEBIAN_FRONTEND=noninteractive apt-get install -y -qq chromium chromium-driver >/dev/null)); \
+	fi
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/pip install -q --upgrade pip
 	$(BIN)/pip install -q -e '.[dev]'

@@ -546,8 +546,8 @@ def write_readme_headline(results: dict, stamp: str, where: str) -> None:
     if START not in readme or END not in readme:
         return
     block = [START, "", *headline_rows(results), "",
-             f"Measured on {stamp} ({where}) by `benchmarks/update_docs.py`; every other number and how it was "
-             "measured: [docs/BENCHMARKS.md](docs/BENCHMARKS.md).", END]
+             f"Measured on {stamp} ({where}) by `benchmarks/update_docs.py`; every number and how it was measured: "
+             "[docs/BENCHMARKS.md](docs/BENCHMARKS.md).", END]
     head, rest = readme.split(START, 1)
     (ROOT / "README.md").write_text(head + "\n".join(block) + rest.split(END, 1)[1])
 

@@ -351,11 +351,23 @@ def view(
                                               "diff.json, objects.json, a trajectory, a picture)")],
     save: Annotated[Path | None, typer.Option(help="write a rerun recording (.rrd) instead of opening a viewer")
                     ] = None,
+    html: Annotated[Path | None, typer.Option(help="write the map in 3D as one offline web page (classes to hide "
+                                                   "and show, objects and camera path of its run folder) instead")
+                    ] = None,
 ) -> None:
     """Open a finished map in the rerun viewer (voxels in class colours, class names on hover), or a product: the
     mesh, the grid as an image and floor cells, the ESDF as points by distance, the scene graph as boxes and
-    edges."""
+    edges; --html writes a map as a web page instead."""
     setup_logging(False)
+    if html is not None and save is not None:
+        raise SemmapError("--html and --save each write the view: give one of them")
+    if html is not None:
+        from semmap.viz.web_view import write_map_view
+
+        shown = write_map_view(path, html)
+        stderr_console().print(f"{path}: {shown.voxels:,} voxels, {shown.drawn:,} drawn in {html}"
+                               + (f" ({shown.note})" if shown.note else ""))
+        return
     from semmap.viz.rerun_log import view_map
     from semmap.viz.rerun_products import is_product_file, shown
 

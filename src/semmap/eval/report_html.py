@@ -8,6 +8,7 @@ import html
 import re
 from pathlib import Path
 
+from semmap.eval.report_md import MAP_VIEW_MARKER
 from semmap.files.atomic import write_text_atomic
 
 #: Pictures larger than this are linked instead of embedded (keeps the page small enough to open anywhere).
@@ -22,6 +23,7 @@ th { background: #f2f2f2; }
 td:not(:first-child) { font-variant-numeric: tabular-nums; }
 img { max-width: 100%; margin: 0.5em 0; }
 code { background: #f4f4f4; padding: 0 0.2em; }
+.map-view { border: 1px solid #ccc; margin: 0.8em 0; }
 """
 
 
@@ -36,17 +38,22 @@ def _embed(match: re.Match, base: Path) -> str:
     return f'<img src="data:{kind};base64,{data}"'
 
 
-def render_report_html(markdown: str, base_dir: str | Path, *, title: str = "semmap run") -> str:
-    """HTML page of a report's Markdown with the pictures it names (relative to ``base_dir``) embedded."""
+def render_report_html(markdown: str, base_dir: str | Path, *, title: str = "semmap run",
+                       map_view: str | None = None) -> str:
+    """HTML page of a report's Markdown with the pictures it names (relative to ``base_dir``) embedded, and the
+    map's 3D view (:mod:`semmap.viz.web_view`, plotly inlined) where the Markdown marks its place."""
     from markdown_it import MarkdownIt
 
     body = MarkdownIt("commonmark").enable("table").render(markdown)
     body = _IMG.sub(lambda m: _embed(m, Path(base_dir)), body)
+    if map_view is not None:
+        body = body.replace(MAP_VIEW_MARKER, f'<div class="map-view">\n{map_view}\n</div>', 1)
     return (f"<!DOCTYPE html>\n<html lang=\"en\">\n<head>\n<meta charset=\"utf-8\">\n<title>{html.escape(title)}"
             f"</title>\n<style>{_STYLE}</style>\n</head>\n<body>\n{body}</body>\n</html>\n")
 
 
-def write_report_html(path: str | Path, markdown: str, *, title: str = "semmap run") -> Path:
-    """Write ``report.html`` beside the pictures ``markdown`` names."""
+def write_report_html(path: str | Path, markdown: str, *, title: str = "semmap run",
+                      map_view: str | None = None) -> Path:
+    """Write ``report.html`` beside the pictures ``markdown`` names (with the map's 3D view when given)."""
     path = Path(path)
-    return write_text_atomic(path, render_report_html(markdown, path.parent, title=title))
+    return write_text_atomic(path, render_report_html(markdown, path.parent, title=title, map_view=map_view))

@@ -9,6 +9,10 @@ import numpy as np
 from semmap.eval.headline import SAME_PIXELS, VOXELS_3D, segmenter_of
 from semmap.eval.report_plots import iou_at_pixels
 from semmap.files.atomic import write_text_atomic
+from semmap.viz.web_view import ViewContent
+
+#: Where report.html puts the map's 3D view (an HTML comment: invisible in report.md itself).
+MAP_VIEW_MARKER = "<!-- semmap: the map in 3D -->"
 
 
 def _continued_lines(c: dict | None) -> list[str]:
@@ -40,9 +44,11 @@ def _plot(plots: dict[str, str] | None, section: str, caption: str) -> list[str]
     return [f"![{caption}]({plots[section]})", ""] if plots and section in plots else []
 
 
-def render_report_md(report: dict, *, title: str = "semmap run", plots: dict[str, str] | None = None) -> str:
+def render_report_md(report: dict, *, title: str = "semmap run", plots: dict[str, str] | None = None,
+                     map_view: ViewContent | None = None) -> str:
     """Markdown for a report dict as written by the pipeline; ``plots`` names the pictures of
-    :func:`semmap.eval.report_plots.write_report_plots` by section."""
+    :func:`semmap.eval.report_plots.write_report_plots` by section, ``map_view`` what report.html's 3D view of the
+    map shows (its place marked for :mod:`semmap.eval.report_html`)."""
     lines = [f"# {title}", "", f"Dataset: `{report.get('dataset', '?')}`  ", *_realism_line(report),
              f"Resolution: {report['resolution']} m  ",
              *([f"Semantics: {report['semantics']}  "] if "semantics" in report else []),
@@ -56,6 +62,7 @@ def render_report_md(report: dict, *, title: str = "semmap run", plots: dict[str
     lines += _voxel_section(report)
     lines += [] if at_pixels else _plot(plots, "iou", f"IoU per class, {VOXELS_3D}")
     lines += _network_section(report)
+    lines += _map_view_section(map_view)
     sizes = report["bytes_on_disk"]
     lines += ["## Storage", "", "| representation | size | bytes |", "|---|---|---|"]
     if "dense_point_cloud_bytes" in report:
@@ -88,6 +95,20 @@ def render_report_md(report: dict, *, title: str = "semmap run", plots: dict[str
     if "maps" in report:
         lines.append("")
     return "\n".join(lines)
+
+
+def _map_view_section(shown: ViewContent | None) -> list[str]:
+    """Where report.html shows the map in 3D, what it draws and what it left out."""
+    if shown is None:
+        return []
+    what = [f"{shown.drawn:,} voxels in {len(shown.classes)} classes" if shown.classes != ("voxels",)
+            else f"{shown.drawn:,} voxels"]
+    what += [f"{shown.objects} object boxes" if shown.objects else "", "the camera path" if shown.poses else ""]
+    return ["## The map in 3D", "",
+            f"`report.html` shows the map here to turn and zoom ({', '.join(w for w in what if w)}): a click on a "
+            "class in the legend hides or shows it, a double click shows it alone, and `RGB` switches to the "
+            "observed colours. `semmap view MAP --html FILE` writes the same view for any map file."
+            + (f" {shown.note[0].upper()}{shown.note[1:]}." if shown.note else ""), "", MAP_VIEW_MARKER, ""]
 
 
 def _realism_line(report: dict) -> list[str]:
@@ -270,5 +291,5 @@ def _maps_section(maps: dict) -> list[str]:
 
 
 def write_report_md(path: str | Path, report: dict, *, title: str = "semmap run",
-                    plots: dict[str, str] | None = None) -> Path:
-    return write_text_atomic(path, render_report_md(report, title=title, plots=plots))
+                    plots: dict[str, str] | None = None, map_view: ViewContent | None = None) -> Path:
+    return write_text_atomic(path, render_report_md(report, title=title, plots=plots, map_view=map_view))

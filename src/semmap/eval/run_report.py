@@ -32,6 +32,7 @@ from semmap.poses.base import LiveTracker
 from semmap.poses.frame_poses import FramePoses
 from semmap.poses.track import GROUND_TRUTH
 from semmap.types import TopKProbs, Trajectory, rotation_angle, transform_points
+from semmap.viz.web_view import ViewContent
 
 log = logging.getLogger("semmap")
 #: Ground truth for 3D evaluation: resolution -> (keys (M, 3), class ids (M,)) of the true surface voxels.
@@ -363,12 +364,24 @@ def write_report(out_dir: Path, report: dict, *, title: str, plots: bool, used: 
     write_text_atomic(out_dir / "report.json", json.dumps(report, indent=2))
     figures = (write_report_plots(out_dir, report, used=used, ground_truth=ground_truth, cloud=primary.cloud())
                if plots else {})
-    write_report_md(out_dir / "report.md", report, title=title, plots=figures)
-    write_report_html(out_dir / "report.html", (out_dir / "report.md").read_text(), title=title)
+    view, shown = _map_view(out_dir, primary, used) if plots else (None, None)
+    write_report_md(out_dir / "report.md", report, title=title, plots=figures, map_view=shown)
+    write_report_html(out_dir / "report.html", (out_dir / "report.md").read_text(), title=title, map_view=view)
     files = {"report": out_dir / "report.json", "report_md": out_dir / "report.md",
              "report_html": out_dir / "report.html"}
     files.update({f"plot_{name}": out_dir / file for name, file in figures.items()})
     return files
+
+
+def _map_view(out_dir: Path, primary: SemanticMap, used: Trajectory) -> tuple[str, ViewContent]:
+    """report.html's 3D view of the primary map, with the run's objects (``objects.json``, already written) and
+    camera path: the HTML to embed and what it shows."""
+    from semmap.viz.web_view import figure_of, run_extras, view_html
+
+    objects, _ = run_extras(out_dir)
+    fig, shown = figure_of(primary.cloud(), primary.label_set, objects=objects, poses=used.poses,
+                           title=f"the {primary.kind.value} map in 3D")
+    return view_html(fig, full_html=False), shown
 
 
 def drift_left_in(used: Trajectory, final: Trajectory, resolution: float) -> dict:
