@@ -146,6 +146,8 @@ def test_view_html_writes_the_same_view_for_a_map_file(run, tmp_path):
     assert again.exit_code != 0 and "choose another --html" in str(again.exception)  # never over the map it reads
     both = _cli("view", str(run / "map.semmap"), "--html", str(out), "--save", str(tmp_path / "map.rrd"))
     assert both.exit_code != 0 and "give one of them" in str(both.exception)
+    product = _cli("view", str(run / "objects.json"), "--html", str(tmp_path / "objects.html"))
+    assert product.exit_code != 0 and "not the products" in str(product.exception)
 
 
 def test_past_the_budget_a_seeded_sample_is_drawn_and_the_page_stays_small():
