@@ -120,3 +120,32 @@ def cosine_scores(R, t, pts, local_labels, prior):
         nb = np.linalg.norm(b)
         out[i] = a @ b / (np.linalg.norm(a) * nb) if nb > 0 and np.linalg.norm(a) > 0 else 0.0
     return out
+
+
+def cell_mean_reference(keys: np.ndarray, valid: np.ndarray, packed: np.ndarray, labels: np.ndarray,
+                        probs: np.ndarray, num_classes: int) -> tuple[np.ndarray, np.ndarray]:
+    """The OctoMap's mean evidence per cell ``packed`` (m,): each cell's points gathered in input order, a float64
+    sum per class (starting at 0.0) divided by the points, the k largest (ties: the lower class); one point: its
+    set as given."""
+    m, k = packed.shape[0], labels.shape[1]
+    cell_of = {int(p): j for j, p in enumerate(packed)}
+    members: dict[int, list[int]] = {}
+    for i in np.flatnonzero(valid):
+        x, y, z = (int(v) for v in keys[i])
+        j = cell_of.get(x | y << 16 | z << 32)
+        if j is not None:
+            members.setdefault(j, []).append(int(i))
+    out_labels = np.full((m, k), EMPTY, np.uint16)
+    out_probs = np.zeros((m, k), np.float32)
+    for j, points in members.items():
+        if len(points) == 1:
+            out_labels[j], out_probs[j] = labels[points[0]], probs[points[0]]
+            continue
+        sums: dict[int, float] = {}
+        for i in points:
+            for lab, p in zip(labels[i].tolist(), probs[i].tolist(), strict=True):
+                if lab != EMPTY and lab < num_classes:
+                    sums[lab] = sums.get(lab, 0.0) + p
+        for c, (lab, v) in enumerate(sorted(sums.items(), key=lambda kv: (-kv[1], kv[0]))[:k]):
+            out_labels[j, c], out_probs[j, c] = lab, np.float32(v / len(points))
+    return out_labels, out_probs

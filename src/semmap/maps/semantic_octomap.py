@@ -27,6 +27,8 @@ from semmap.fusion.rules import FusionParams
 from semmap.keys import KEY_LIMIT, TREE_MAX_VAL, coords_to_keys, keys_to_coords, pack_keys, unpack_keys
 from semmap.maps import _hashtable as ht
 from semmap.maps import _octree_kernels as kern
+from semmap.maps._cell_evidence import LABEL_RANGE, cell_mean_sets
+from semmap.maps._cell_evidence import compile_variants as compile_mean_variants
 from semmap.maps._coarsen import coarsen_cells
 from semmap.maps._keys import EMPTY_KEY
 from semmap.maps.base import MapState, check_state, restore_arrays
@@ -350,7 +352,7 @@ class SemanticOctoMap:
             k = self.fusion.k
             update, finish = self._entry.kernels()
             if sem_l is not None and self.cell_evidence == CellEvidence.MEAN:  # one measurement per cell
-                sem_l, sem_p = self._cell_means(keys[:n], valid[:n], packed, sem_l, sem_p)
+                sem_l, sem_p = self._cell_means(keys[:n], valid[:n], packed, first, sem_l, sem_p, threads)
                 col = None if col is None else np.ascontiguousarray(col[first])
                 first = np.arange(m, dtype=np.int64)
             kern.update_attributes(rows, first,
@@ -362,12 +364,12 @@ class SemanticOctoMap:
         stats.ms["attributes"] = (time.perf_counter() - t5) * 1e3
         return stats
 
-    def _cell_means(self, keys: np.ndarray, valid: np.ndarray, packed: np.ndarray, sem_l: np.ndarray,
-                    sem_p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Per endpoint cell, the mean class distribution of all its points as a top-k set (``CellEvidence.MEAN``)."""
-        classes = self._num_classes or kern.max_class_id(sem_l, int(EMPTY_LABEL)) + 1
-        return kern.cell_mean_sets(keys, valid, packed, packed.shape[0], sem_l, sem_p, max(int(classes), 1),
-                                   int(EMPTY_LABEL))
+    def _cell_means(self, keys: np.ndarray, valid: np.ndarray, packed: np.ndarray, first: np.ndarray,
+                    sem_l: np.ndarray, sem_p: np.ndarray, threads: int) -> tuple[np.ndarray, np.ndarray]:
+        """Per endpoint cell, the mean class distribution of all its points as a top-k set (``CellEvidence.MEAN``);
+        without a label set, every class id counts."""
+        return cell_mean_sets(keys, valid, packed, first, sem_l, sem_p, self._num_classes or LABEL_RANGE,
+                              int(EMPTY_LABEL), threads)
 
     def _more_targets(self, targets: np.ndarray, keys: np.ndarray, valid: np.ndarray, n: int,
                       box: tuple[np.ndarray, np.ndarray], org: np.ndarray, max_range: float,
@@ -829,4 +831,5 @@ def compile_kernels() -> float:
     m.coarsen(1)
     m.tree()
     kern.compile_parallel_variants(m._entry.code, *m._entry.kernels(), m._params)
+    compile_mean_variants(m.fusion.k)
     return time.perf_counter() - t
