@@ -67,3 +67,14 @@ def test_the_new_surfaces_rows_and_their_classes() -> None:
     assert surfaces.silent_fixed("gr_points", 0, "semmap: WARNING: a points map keeps no free space")
     assert not surfaces.silent_fixed("gr_points", 0, "o/g: 3x3 cells; free 0")
     assert surfaces.silent_fixed("sg_from_cwd", 0, "sg_cwd: 27 objects, 1 rooms (from the layout)")
+
+
+def test_a_case_reading_a_fixture_the_table_does_not_make_is_not_reproduced() -> None:
+    import surfaces
+
+    made = {"runs/a", "h/T_far.txt"}
+    assert surfaces.unbuilt(".venv/bin/semmap merge runs/a runs/a --out o/m --transform h/T_far.txt", made) == []
+    assert surfaces.unbuilt("cd o && ../.venv/bin/semmap export grid ../runs/a --out sg", made) == []
+    assert surfaces.unbuilt(".venv/bin/semmap run sim/a --segmenter onnx:h/onnx/tiny.onnx --out o/x", made) == [
+        "sim/a", "h/onnx/tiny.onnx"]
+    assert surfaces.unbuilt(".venv/bin/semmap run runs/a --segmenter onnx:h/nothere.onnx --out o/x", made) == []

@@ -376,6 +376,8 @@ def run_case(case: Case, root: Path, logs: Path, args, not_built: dict[str, str]
     prepare(setup, top)
     words = expand(segment, root)
     why = missing_fixture(case, words, root, not_built)
+    if not why and case.probe_class and (unmade := surfaces.unbuilt(case.command, args.fixtures)):
+        why = f"no fixture in scripts/probes/surfaces.py makes {', '.join(unmade[:3])}"
     if why:
         res.cls, res.reason = "NOT-REPRODUCED", why
         return res
@@ -571,6 +573,9 @@ def main() -> None:
     args = ap.parse_args()
     root = args.dir.resolve()
     tsv = args.tsv or (surfaces.TSV if args.probe == "new-surfaces" else TSV)
+    import build_fixtures
+
+    args.fixtures = set(build_fixtures.tables(args.probe)[0])
     cases = [c for c in read_cases(tsv) if not args.cases or re.search(args.cases, c.id)]
     args.out.mkdir(parents=True, exist_ok=True)
     start = time.monotonic()
