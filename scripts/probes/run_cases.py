@@ -468,8 +468,8 @@ def serial_ids(cases: list[Case], root: Path) -> set[str]:
         shared = any(counts[o] > 1 for o in outs[c.id])
         foreign = any(not o.startswith("outputs/h/") for o in outs[c.id])
         mounts = re.search(r"(^|\s)(full/|ro/|outputs(\s|$))", seg)
-        if setup or shared or foreign or mounts or c.id in reads_outputs or "capped" in seg:
-            serial.add(c.id)
+        if setup or shared or foreign or mounts or c.id in reads_outputs or "capped" in seg or c.probe_class:
+            serial.add(c.id)  # (the new-surfaces probe ran its cases one at a time, in order: o/ is shared)
     return serial
 
 
