@@ -580,3 +580,14 @@ def test_hf_segmenters_do_without_torchvision(monkeypatch):
                         real(name, *a))
     monkeypatch.delitem(sys.modules, "torchvision.ops", raising=False)
     assert hf_models._transformers().__name__ == "transformers"
+
+
+# ------------------------------------------------------------------ the harness's NO-NAME rows of the re-run
+@pytest.mark.parametrize(("region", "said"), [
+    ("-1000 -1000 -10 1000 1000 10", "semmap: error: --region: a product volume of"),  # gr_region_huge
+    ("50 50 0 51 51 1", "within --region, when one is given) has no occupied voxel to find the floor on"),
+])
+def test_a_refused_region_names_region(world, tmp_path, capsys, monkeypatch, region, said):
+    line = one_error(*semmap(capsys, monkeypatch, "export", "grid", world / "run", "--out", tmp_path / "g",
+                             "--region", region)[::2])
+    assert said in line and not (tmp_path / "g").exists()

@@ -83,7 +83,8 @@ def detect_floor(volume: OccupancyVolume) -> float:
             return float(volume.origin[2] + layer * volume.resolution + volume.resolution / 2)
     per_layer = occ.sum(axis=(0, 1))
     if per_layer.sum() == 0:
-        raise ConfigError("the map has no occupied voxel to find the floor; give --floor")
+        raise ConfigError("the map (within --region, when one is given) has no occupied voxel to find the floor on; "
+                          "give --floor")
     lower = per_layer[: max(1, (len(per_layer) + 1) // 2)]
     layer = int(np.flatnonzero(lower >= 0.5 * lower.max())[0])
     return float(z_of[layer] + volume.resolution / 2)

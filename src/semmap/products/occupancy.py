@@ -82,16 +82,17 @@ def occupancy_volume(m: SemanticMap, bounds: tuple[np.ndarray, np.ndarray] | Non
     keys = map_keys(m)
     res = float(m.resolution)
     lo, hi = _bounds_keys(bounds, res, keys[0], keys[2])
-    return volume_of_keys(keys, res, lo - margin, hi + margin, getattr(m, "label_set", None))
+    return volume_of_keys(keys, res, lo - margin, hi + margin, getattr(m, "label_set", None),
+                          option="--region: " if bounds is not None else "")
 
 
 def volume_of_keys(keys: tuple[np.ndarray, np.ndarray, np.ndarray], res: float, lo: np.ndarray, hi: np.ndarray,
-                   label_set: LabelSet | None) -> OccupancyVolume:
+                   label_set: LabelSet | None, *, option: str = "") -> OccupancyVolume:
     """The dense volume of :func:`map_keys`' (occupied, classes, free) over the key box ``lo``..``hi``
-    (inclusive); refused beyond the memory budget."""
+    (inclusive); refused beyond the memory budget (the message starts with ``option``, the one that asked)."""
     occ, labels, free = keys
     shape = tuple(int(n) for n in hi - lo + 1)
-    check_memory(f"a product volume of {shape[0]}x{shape[1]}x{shape[2]} voxels at {res} m",
+    check_memory(f"{option}a product volume of {shape[0]}x{shape[1]}x{shape[2]} voxels at {res} m",
                  float(np.prod(shape, dtype=np.float64)) * BYTES_PER_PRODUCT_VOXEL)
     state = np.full(shape, UNKNOWN, np.int8)
     cls = np.full(shape, EMPTY_LABEL, np.uint16)
