@@ -78,3 +78,8 @@ def test_a_case_reading_a_fixture_the_table_does_not_make_is_not_reproduced() ->
     assert surfaces.unbuilt(".venv/bin/semmap run sim/a --segmenter onnx:h/onnx/tiny.onnx --out o/x", made) == [
         "sim/a", "h/onnx/tiny.onnx"]
     assert surfaces.unbuilt(".venv/bin/semmap run runs/a --segmenter onnx:h/nothere.onnx --out o/x", made) == []
+
+
+def test_a_model_path_after_its_segmenter_name_counts_as_named() -> None:
+    names = rc.names_of([".venv/bin/semmap", "run", "sim/a", "--segmenter", "onnx:runs/a/map.semmap"])
+    assert "runs/a/map.semmap" in names and "onnx:runs/a/map.semmap" in names

@@ -411,6 +411,8 @@ def names_of(words: list[str]) -> set[str]:
             out |= {opt, opt[2:], opt[2:].replace("-", "_")}  # 'invalid option input_size: ...' names it too
         elif "/" in w or "." in w:
             out.add(w)
+            if re.match(r"^[a-z]+:[^/]", w):  # ``onnx:MODEL``: the model's path is named alone
+                out.add(w.split(":", 1)[1])
     return out
 
 
