@@ -83,3 +83,8 @@ def test_a_case_reading_a_fixture_the_table_does_not_make_is_not_reproduced() ->
 def test_a_model_path_after_its_segmenter_name_counts_as_named() -> None:
     names = rc.names_of([".venv/bin/semmap", "run", "sim/a", "--segmenter", "onnx:runs/a/map.semmap"])
     assert "runs/a/map.semmap" in names and "onnx:runs/a/map.semmap" in names
+
+
+def test_an_empty_word_is_no_input_path() -> None:
+    assert rc.paths_of([".venv/bin/semmap", "run", "sim/a", "--dynamic", "", "--out", "o/d1"]) == (
+        ["run", "sim/a"], ["o/d1"])

@@ -194,8 +194,8 @@ def paths_of(words: list[str]) -> tuple[list[str], list[str]]:
                 continue
         elif "=" in w and re.match(r"^[A-Z_][A-Z0-9_]*=", w):
             w = w.split("=", 1)[1]
-        if w.startswith("-") or w.endswith(SEMMAP) or w in ("./capped.sh", "/"):
-            continue
+        if not w or w.startswith("-") or w.endswith(SEMMAP) or w in ("./capped.sh", "/"):
+            continue  # (an empty word, ``--dynamic ''``, is no path: it would name the scratch folder itself)
         inputs.append(w)
     return inputs, outputs
 
