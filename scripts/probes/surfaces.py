@@ -109,6 +109,15 @@ def _seven_scenes(_ctx, path: Path) -> None:
             shutil.copy2(f, path / f.name)
 
 
+def _python(ctx, path: Path) -> None:
+    """.venv/bin/python: the interpreter that runs semmap, with this checkout's sources first (a bare link to a
+    venv's python would not find the venv)."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    repo = Path(__file__).resolve().parents[2]
+    path.write_text(f'#!/bin/sh\nPYTHONPATH={repo}/src${{PYTHONPATH:+:$PYTHONPATH}} exec {ctx.python} "$@"\n')
+    path.chmod(0o755)
+
+
 def _link(target, ctx, path: Path) -> None:
     path.parent.mkdir(parents=True, exist_ok=True)
     path.symlink_to(target(ctx))
@@ -120,7 +129,7 @@ def table(b) -> dict:
     maps = ("--maps", "octomap,points,tsdf", "--instances", "oracle", "--no-cloud")
     t = {
         ".venv/bin/semmap": b.tools,
-        ".venv/bin/python": partial(_link, lambda ctx: Path(ctx.python)),
+        ".venv/bin/python": _python,
         "w": partial(_link, lambda ctx: b.REPO / "weights" / "espnetv2"),
         "sim/a": _semmap("simulate", "--out", "{out}", "--frames", "30", *small),
         "sim/b": _semmap("simulate", "--out", "{out}", "--frames", "20", "--trajectory", "walk",
