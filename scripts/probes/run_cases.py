@@ -552,6 +552,9 @@ def reclassify(out: Path, cases: list[Case], root: Path) -> list[Result]:
             timed_out = r.cls == "HANG"
             r.cls, r.reason = classify(r.rc, r.peak_mb, timed_out, r.changed, text,
                                        names_of(expand(plan(case)[1], root)))
+            if r.cls == "GOOD" and case.probe_class == "SILENT-WRONG" and not surfaces.silent_fixed(case.name, r.rc,
+                                                                                                   text):
+                r.cls, r.reason = "SILENT-WRONG", "exit 0 without a warning, as in the probe"
             results.append(r)
     return results
 

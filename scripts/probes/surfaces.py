@@ -14,8 +14,10 @@ from pathlib import Path
 import numpy as np
 
 TSV = Path("/work/shared/probes/new-surfaces-2026-11-28.tsv")
-#: Cases the probe interrupted with SIGINT after this many seconds (its case files said INTn).
-INTERRUPTS = {"int_merge": 3.0, "int_esdf": 4.0, "ct_doc_ctrlc": 15.0}
+#: Cases the probe interrupted with SIGINT after this many seconds (its case files said INTn: 3, 4 and 15 s there),
+#: later here so that a busy machine has finished importing semmap (a Ctrl-C while Python imports is Python's).
+INTERRUPTS = {"int_merge": 8.0, "int_esdf": 8.0, "ct_doc_ctrlc": 25.0, "ct_ctrlc": 12.0, "si_ctrlc": 8.0,
+              "lo_ctrlc": 10.0}
 #: A SILENT-WRONG row is fixed when its command is refused, warns, or (here) gives the right result.
 RIGHT_RESULT = {"sg_from_cwd": "(from the layout)"}
 #: Ground-truth classes of a labelled PLY: the map's own voxels (h/gt_ok.ply), and the same 100 m away.
