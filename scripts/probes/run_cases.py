@@ -437,10 +437,10 @@ def classify(rc: int, peak_mb: int, timed_out: bool, changed: list[str], text: s
     if rc in (126, 127) and "semmap" not in text.replace(".venv/bin/semmap", ""):
         return "INVALID", f"rc {rc}: the command could not start (as in the probe's uid-65534 rows)"
     lines = [x.strip() for x in text.splitlines() if x.strip() and not PROGRESS.search(x)]
+    if rc == 2 and ("Usage:" in text or "usage:" in text or "Invalid value" in text or "No such option" in text):
+        return "GOOD", "usage error (the option is named)"  # click's or argparse's: a missing option is named
     first = next((i for i, x in enumerate(lines) if ERROR_LINE.match(x)), None)
     if first is None:
-        if rc == 2 and ("Usage:" in text or "Invalid value" in text or "No such option" in text):
-            return "GOOD", "usage error (the option is named)"
         return "UNCLEAR", f"rc {rc} without a 'semmap: error:' line"
     extra = [x for x in lines[first + 1:] if not re.match(r"semmap: (WARNING|INFO)", x)]
     if extra:
