@@ -43,7 +43,8 @@ from semmap.perception.structure.compose import fold_to
 SHARED = Path(__file__).resolve().parents[1].parent / "shared"
 KITCHEN = SHARED / "data" / "7scenes-redkitchen"
 DEFAULT_SEGMENTERS = ("structure", "espnetv2+structure", "espnetv2", "fcn", "fcn+structure", "rgbd-net")
-#: A voxel lies on a plane when its centre is within half a voxel plus this (metres) of it.
+#: A voxel lies on a plane when its centre is within half its diagonal (a cube the plane cuts, at any tilt) plus
+#: this (metres: the yardstick plane's own spread over the sequence) of it.
 ON_PLANE_M = 0.03
 
 
@@ -72,28 +73,38 @@ def score(name: str, frames: list, yard: list[np.ndarray], *, posed: bool = True
             "ms_per_frame": round(t / len(frames) * 1e3, 1)}
 
 
-def map_figures(room, *, every: int, resolution: float, max_frames: int | None) -> dict:
-    """``semmap run`` on the kitchen with the real default; its floor-plane and table-top figures."""
-    from semmap.config import InputConfig, MappingConfig, OutputConfig, RunConfig
+def map_figures(room, *, every: int, resolution: float, max_frames: int | None, segmenter: str | None = None,
+                keep: Path | None = None) -> dict:
+    """``semmap run`` on the kitchen with the real default (or ``segmenter``); its floor-plane and table-top
+    figures (the run folder kept in ``keep`` when given)."""
+    from semmap.config import InputConfig, MappingConfig, OutputConfig, RunConfig, SemanticsConfig
     from semmap.runner import run_config
 
     with tempfile.TemporaryDirectory() as tmp:
-        out = Path(tmp) / "kitchen"
+        out = keep or Path(tmp) / "kitchen"
+        semantics = SemanticsConfig() if segmenter is None else SemanticsConfig(segmenter=segmenter, backend="onnx")
         config = RunConfig(input=InputConfig(dataset=KITCHEN, stride=every, max_frames=max_frames),
-                           mapping=MappingConfig(resolution=resolution), output=OutputConfig(out=out))
+                           mapping=MappingConfig(resolution=resolution), semantics=semantics,
+                           output=OutputConfig(out=out))
         t0 = time.perf_counter()
         result = run_config(config)
         seconds = time.perf_counter() - t0
-        cloud = result.maps[0].cloud()
-        segmenter = result.report.get("semantics")
+        figures = cloud_figures(result.maps[0], room, resolution)
+    return {"resolution": resolution, "frames": int(600 // every if max_frames is None else max_frames),
+            "seconds": round(seconds, 1), "semantics": result.report.get("semantics"), **figures}
+
+
+def cloud_figures(semantic_map, room, resolution: float) -> dict:
+    """The floor-plane and table-top figures of a map (its classes read as semmap's names)."""
+    cloud = semantic_map.cloud()
+    fold, _ = fold_to(semantic_map.label_set)
     names = np.array([*INDOOR_LABELS.names, "-"])
-    labels = names[np.where(cloud.labels < len(INDOOR_LABELS), cloud.labels, len(INDOOR_LABELS))]
-    band = resolution / 2 + ON_PLANE_M
+    ids = np.where(cloud.labels < len(fold), fold[np.minimum(cloud.labels, len(fold) - 1)], len(INDOOR_LABELS))
+    labels = names[ids]
+    band = resolution * np.sqrt(3) / 2 + ON_PLANE_M
     on_floor = np.abs(room.floor.distance(cloud.centers)) < band
     is_floor = labels == "floor"
-    out = {"resolution": resolution, "frames": int(600 // every if max_frames is None else max_frames),
-           "seconds": round(seconds, 1), "voxels": len(cloud), "semantics": segmenter,
-           "floor_plane_voxels": int(on_floor.sum()),
+    out = {"voxels": len(cloud), "floor_plane_voxels": int(on_floor.sum()),
            "floor_plane_labelled_floor": round(float(np.mean(is_floor[on_floor])), 4) if on_floor.any() else None,
            "floor_voxels": int(is_floor.sum()),
            "floor_voxels_on_plane": round(float(np.mean(on_floor[is_floor])), 4) if is_floor.any() else None}
@@ -102,6 +113,7 @@ def map_figures(room, *, every: int, resolution: float, max_frames: int | None) 
         is_table = labels == "table"
         out.update(table_voxels=int(is_table.sum()),
                    table_precision=round(float(np.mean(on_table[is_table])), 4) if is_table.any() else None,
+                   table_off_floor=round(float(np.mean(~on_floor[is_table])), 4) if is_table.any() else None,
                    table_top_labelled_table=round(float(np.mean(is_table[on_table])), 4) if on_table.any() else None)
     kinds, counts = np.unique(labels, return_counts=True)
     out["largest_classes"] = {str(k): int(c) for k, c in sorted(zip(kinds, counts, strict=True),
@@ -116,6 +128,9 @@ def main() -> None:
                         ",".join(DEFAULT_SEGMENTERS) + ")")
     parser.add_argument("--no-map", action="store_true", help="skip the map of the kitchen")
     parser.add_argument("--every", type=int, default=None, help="yardstick frames: every N-th (default 10)")
+    parser.add_argument("--map-every", type=int, default=None, help="map frames: every N-th (default 5)")
+    parser.add_argument("--map-segmenter", default=None, help="map with this segmenter (default: the real default)")
+    parser.add_argument("--keep", type=Path, default=None, help="keep the map's run folder here")
     args = parser.parse_args()
     if not KITCHEN.is_dir():
         raise SystemExit(f"the real-frame benchmark needs the 7-Scenes frames: {KITCHEN} not found")
@@ -138,7 +153,8 @@ def main() -> None:
               f"{r['ms_per_frame']} ms/frame")
     figures = None
     if not args.no_map:
-        figures = map_figures(room, every=15 if args.quick else 5, resolution=0.05, max_frames=None)
+        figures = map_figures(room, every=args.map_every or (15 if args.quick else 5), resolution=0.05,
+                              max_frames=None, segmenter=args.map_segmenter, keep=args.keep)
         print("map:", json.dumps(figures))
     print(json.dumps({"bench": "real", "yardstick": {**room.to_dict(), "frames_every": every,
                                                      "pixel_shares": [round(float(s), 4) for s in shares]},

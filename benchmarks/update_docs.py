@@ -275,6 +275,39 @@ def networks_section(bench: dict | None) -> list[str]:
             *networks_table(bench), "", PAPER_NETWORKS, ""]
 
 
+def real_section(bench: dict | None) -> list[str]:
+    """The BENCHMARKS.md section on real frames: the redkitchen yardstick per segmenter and the real default's
+    kitchen map (nothing when bench_real.py has not been run)."""
+    if bench is None:
+        return []
+    y = bench["yardstick"]
+    shares = y["pixel_shares"]
+
+    def pct(v: float | None) -> str:
+        return "–" if v is None else f"{v:.3f}"
+
+    out = ["## Real frames: the 7-Scenes redkitchen structure yardstick", "",
+           f"`benchmarks/bench_real.py`: wall, floor and ceiling from the planes of the ground-truth-posed map "
+           f"(`semmap.eval.room_yardstick`, {len(y['walls'])} walls, floor {'found' if y['floor'] else 'none'}, "
+           f"ceiling {'found' if y['ceiling'] else 'not seen'}), rendered into every {y['frames_every']}th frame "
+           f"({y['frames']} frames; wall {shares[1]:.1%}, floor {shares[2]:.1%} of the pixels, the rest other "
+           f"{shares[4]:.1%} or no depth {shares[0]:.1%}). IoU over the pixels with depth; a segmenter's other "
+           "classes count as other.", "",
+           "| segmenter | wall IoU | floor IoU | ceiling IoU | ms/frame |", "|---|---|---|---|---|"]
+    out += [f"| {r['segmenter']} | {pct(r['wall'])} | {pct(r['floor'])} | {pct(r['ceiling'])} | "
+            f"{r['ms_per_frame']} |" for r in bench["results"]]
+    m = bench.get("map")
+    if m:
+        out += ["", f"The kitchen mapped by `semmap run` with no `--segmenter` ({m['semantics']}, ground-truth poses, "
+                f"{m['resolution']} m, {m['frames']} frames, {m['seconds']} s): of the {m['floor_plane_voxels']:,} "
+                f"voxels on the floor plane {m['floor_plane_labelled_floor']:.1%} are `floor`; of the "
+                f"{m['floor_voxels']:,} `floor` voxels {m['floor_voxels_on_plane']:.1%} lie on the floor plane; of the "
+                f"{m.get('table_voxels', 0):,} `table` voxels {pct(m.get('table_precision'))} lie on the table top's "
+                f"plane ({pct(m.get('table_off_floor'))} off the floor). Largest classes: "
+                + ", ".join(f"{k} {v:,}" for k, v in m["largest_classes"].items()) + "."]
+    return [*out, ""]
+
+
 def demo_lines(report: dict) -> list[str]:
     """The demo's lines: the map against its network at the same pixels first, then the 3D map against the
     ground-truth voxels on its own (a voxel mIoU and a pixel MIoU are different units, never one comparison)."""
@@ -424,9 +457,10 @@ PARTS = {"octree": ("octree_vs_octomap", "benchmarks/bench_octree_vs_octomap.py"
          "end_to_end": ("end_to_end", "benchmarks/bench_end_to_end.py"),
          "localization": ("localization", "benchmarks/bench_localization.py"),
          "networks": ("networks", "benchmarks/bench_networks.py"),
-         "products": ("products", "benchmarks/bench_products.py")}
+         "products": ("products", "benchmarks/bench_products.py"),
+         "real": ("real", "benchmarks/bench_real.py")}
 #: parts the docs can do without when an earlier run did not have them yet
-OPTIONAL = {"end_to_end", "localization", "networks", "products"}
+OPTIONAL = {"end_to_end", "localization", "networks", "products", "real"}
 #: What the docs use of the demo's report (kept in the JSON block so ``--only`` can reuse it).
 DEMO_KEYS = ("segmenter", "realism", "frames_segmented", "pixel_miou_map", "pixel_miou_network", "pixel_gain",
              "pixel_coverage", "pixel_every", "miou_3d", "geometric_precision_3d", "gt_coverage_3d", "frames_used",
@@ -533,6 +567,7 @@ def benchmarks_lines(results: dict, quick: bool, stamp: str, where: str) -> list
         *end_to_end_section(results.get("end_to_end")),
         *localization_section(results.get("localization")),
         *networks_section(results.get("networks")),
+        *real_section(results.get("real")),
         *products_section(results.get("products")),
         *kept_section(),
         "## Demo (`semmap demo`)", "", *demo_text, "",

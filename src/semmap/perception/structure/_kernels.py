@@ -38,7 +38,7 @@ def pixel_probabilities(depth: np.ndarray, rays_x: np.ndarray, rays_y: np.ndarra
             for i in range(planes.shape[0]):
                 sd = abs(x * planes[i, 0] + y * planes[i, 1] + z * planes[i, 2] + planes[i, 3])
                 excess = max(sd - tol, 0.0) / (0.5 * tol)
-                if excess > 4.0:
+                if excess > 2.0:
                     continue
                 near = math.exp(-0.5 * excess * excess)
                 if has_normal:
