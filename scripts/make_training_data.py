@@ -50,21 +50,27 @@ def val_plan() -> list[tuple[int, str, str, str]]:
     return [(seed, KINDS[i % 4], "medium", "loop") for i, seed in enumerate(VAL_SEEDS)]
 
 
-def render(out: Path, plan, frames: int, image_size: tuple[int, int]) -> None:
-    for seed, kind, size, trajectory in plan:
-        folder = out / f"{kind}-{size}-seed{seed}-{trajectory}"
+def realism_of(choice: str, i: int) -> str:
+    """The realism preset of the ``i``-th scene: ``choice``, or with ``mixed`` the three in turn."""
+    return ("clean", "kinect", "hard")[i % 3] if choice == "mixed" else choice
+
+
+def render(out: Path, plan, frames: int, image_size: tuple[int, int], realism: str = "clean") -> None:
+    for i, (seed, kind, size, trajectory) in enumerate(plan):
+        preset = realism_of(realism, i)
+        folder = out / f"{kind}-{size}-seed{seed}-{trajectory}" + ("" if preset == "clean" else f"-{preset}")
         if (folder / "scene.json").is_file():
             continue
         t0 = time.perf_counter()
         try:
             simulate_sequence(folder, scene_seed=seed, kind=kind, size=size, trajectory=trajectory, frames=frames,
-                              image_size=image_size, fps=frames / PATH_SECONDS)
+                              image_size=image_size, fps=frames / PATH_SECONDS, realism=preset)
         except SimulationError as exc:  # a desk/orbit path may not fit a scene: fall back to the room loop
             print(f"{folder.name}: {exc}; using a loop", flush=True)
             shutil.rmtree(folder, ignore_errors=True)
-            folder = out / f"{kind}-{size}-seed{seed}-loop"
+            folder = out / f"{kind}-{size}-seed{seed}-loop" + ("" if preset == "clean" else f"-{preset}")
             simulate_sequence(folder, scene_seed=seed, kind=kind, size=size, trajectory="loop", frames=frames,
-                              image_size=image_size, fps=frames / PATH_SECONDS)
+                              image_size=image_size, fps=frames / PATH_SECONDS, realism=preset)
         print(f"{folder.name}: {frames} frames in {time.perf_counter() - t0:.1f} s", flush=True)
 
 
@@ -81,6 +87,9 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--extra", type=int, default=0,
                         help=f"also render this many more training scenes into OUT/train-extra (seeds from "
                              f"{EXTRA_SEEDS.start}, the same plan; at most {len(EXTRA_SEEDS)})")
+    parser.add_argument("--realism", default="clean", choices=("clean", "kinect", "hard", "mixed"),
+                        help="the simulator's realism preset of the training scenes (mixed: clean, kinect and hard "
+                             "in turn); validation stays clean, as the shipped networks were selected")
     args = parser.parse_args(argv)
     w, h = (int(v) for v in args.image_size.lower().split("x"))
     if (args.scenes is not None and args.scenes < 1) or (args.frames is not None and args.frames < 1):
@@ -90,11 +99,11 @@ def main(argv: list[str] | None = None) -> None:
     train, val = train_plan(), val_plan()
     if args.scenes is not None:
         train, val = train[: args.scenes], val[: max(1, args.scenes // 2)]
-    render(args.out / "train", train, args.frames or TRAIN_FRAMES, (w, h))
+    render(args.out / "train", train, args.frames or TRAIN_FRAMES, (w, h), args.realism)
     render(args.out / "val", val, args.frames or VAL_FRAMES, (w, h))
     if args.extra:
         extra = train_plan(EXTRA_SEEDS)[: args.extra]
-        render(args.out / "train-extra", extra, args.frames or TRAIN_FRAMES, (w, h))
+        render(args.out / "train-extra", extra, args.frames or TRAIN_FRAMES, (w, h), args.realism)
 
 
 if __name__ == "__main__":

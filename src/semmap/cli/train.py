@@ -47,6 +47,9 @@ def train(
     depth_scale: Annotated[float | None, typer.Option(help="depth PNG units per metre (default: 5000 for "
                                                            "simulate/TUM folders, 1000 for plain folders)")] = None,
     augment: Annotated[bool, typer.Option("--augment/--no-augment", help="flips, scale and colour jitter")] = True,
+    sensor_augment: Annotated[bool, typer.Option("--sensor-augment", help="also what a real camera does: wider zoom, "
+                                                 "white balance, exposure, blur, noise; depth noise, scale error and "
+                                                 "holes (for networks that meet real frames)")] = False,
     memory_budget: MemoryBudget = None,
 ) -> None:
     """Train a segmentation network (median-frequency weighted cross entropy, SGD with poly learning rate) and
@@ -62,7 +65,7 @@ def train(
                              iterations=iterations, batch=batch, lr=lr, input_size=size, width=width,
                              depth=resnet_depth, backbone=backbone, device=device, seed=seed, threads=threads,
                              eval_every=eval_every, class_map=class_map, label_set=labelset,
-                             depth_scale=depth_scale, augment=augment, init=init)
+                             depth_scale=depth_scale, augment=augment, sensor_augment=sensor_augment, init=init)
     trainer = Trainer(settings, resume=resume)
     if trainer.init_summary is not None:
         stderr_console().print(trainer.init_summary.text(), markup=False, highlight=False)

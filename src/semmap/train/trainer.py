@@ -57,7 +57,8 @@ PAPER_INPUT_WIDTH = 480
 #: Validation pixels the temperature is fitted on: every n-th row and column of each image.
 CALIBRATION_PIXEL_STEP = 8
 RESUME_KEYS = ("model", "width", "depth", "backbone", "msff_dilation", "input_size", "batch", "lr", "momentum",
-               "weight_decay", "poly_power", "seed", "augment", "class_weighting", "iterations_total", "init")
+               "weight_decay", "poly_power", "seed", "augment", "sensor_augment", "class_weighting", "iterations_total",
+               "init")
 
 
 @dataclass(frozen=True)
@@ -90,6 +91,7 @@ class TrainSettings:
     label_set: Path | None = None
     depth_scale: float | None = None
     augment: bool = True
+    sensor_augment: bool = False  #: real-sensor-like augmentation (:meth:`Augmentation.sensor`)
     class_weighting: bool = True
     init: str | None = None  #: pretrained start (``--init``, :mod:`~semmap.perception.networks.pretrained`)
 
@@ -279,7 +281,8 @@ class Trainer:
         s, it = self.s, self.iteration
         idx = batch_indices(s.seed, it, s.batch, len(self.train_set))
         rgb, labels, depth = self._batch(self.train_set, idx)
-        rgb, labels, depth = augment(rgb, labels, depth, Augmentation(enabled=s.augment), _seeded(s.seed, it, 2))
+        aug = Augmentation.sensor() if s.sensor_augment else Augmentation()
+        rgb, labels, depth = augment(rgb, labels, depth, replace(aug, enabled=s.augment), _seeded(s.seed, it, 2))
         torch.manual_seed(int(np.random.SeedSequence([s.seed, it, 3]).generate_state(1)[0]))  # dropout
         dev = self.device
         x = self._normalise(rgb.to(dev))
