@@ -16,6 +16,11 @@ frames, the confusion summed over each resample); ``comparisons`` gives the pape
 PSPNet, the RGB-D net against its colour-only twin) as the MIoU difference with a paired interval (the same
 resampled frames for both networks), so a reader can tell a difference from noise.
 
+Real frames: where the 7-Scenes redkitchen frames are beside the repository, each network's top class is also
+scored against the project's structure yardstick (``semmap.eval.room_yardstick``: wall and floor from the
+ground-truth-posed map's planes, every 20th frame): ``real_wall_iou``, ``real_floor_iou`` on the PyTorch rows, the
+one real measure of a network trained on simulated rooms that the project holds (``--no-real`` leaves it out).
+
 Timings depend on the machine's load: the development machine is shared (2 cores, other jobs running).
 The last line is JSON: {"bench": "networks", "results": [{"model", "input", "params", "mpa", "miou",
 "ms_per_frame", "runtime", "init", "ece", "nll", ...}, ...]}
@@ -32,6 +37,7 @@ from pathlib import Path
 
 import numpy as np
 
+from semmap.eval.room_yardstick import score_on_yardstick
 from semmap.eval.semantic import confusion, scores
 from semmap.labels import INDOOR_LABELS
 from semmap.perception.networks.registry import count_parameters, load_weights
@@ -43,6 +49,7 @@ from semmap.train.calibrate import calibration_scores
 from semmap.types import Frame
 
 SHARED = Path(__file__).resolve().parents[1].parent / "shared"
+SEVEN_SCENES = SHARED / "data" / "7scenes-redkitchen"
 ESPNETV2 = Path(__file__).resolve().parents[1] / "weights" / "espnetv2" / "espnetv2_s_2.0_pascal_384x384.pth"
 #: Held-out test scenes: (scene seed, kind), medium size, the demo's loop trajectory of 300 frames.
 TEST_SCENES = ((0, "office"), (1, "kitchen"), (2, "living_room"), (3, "bedroom"))
@@ -162,6 +169,23 @@ def calibration(seg, frames: list[Frame], step: int = CALIBRATION_STEP) -> dict:
     return out
 
 
+def real_frames() -> tuple[list[Frame], list[np.ndarray]] | None:
+    """Every 20th 7-Scenes redkitchen frame and its structure yardstick labels (None without the frames)."""
+    if not SEVEN_SCENES.is_dir():
+        print(f"no real-frame column: {SEVEN_SCENES} not found")
+        return None
+    from semmap.datasets import open_dataset
+    from semmap.eval.room_yardstick import fit_room, label_frame
+
+    frames = list(open_dataset(SEVEN_SCENES, "7scenes", stride=20))
+    room = fit_room(frames)
+    return frames, [label_frame(f, room) for f in frames]
+
+
+def _rounded(v: float | None) -> float | None:
+    return None if v is None else round(v, 4)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--quick", action="store_true", help="every 60th frame of each test loop (20 frames)")
@@ -169,12 +193,14 @@ def main() -> None:
     parser.add_argument("--weights-dir", type=Path, default=None, help="folder of <network>.pt (default: weights/)")
     parser.add_argument("--networks", default=None, help="comma-separated networks to run (default: all shipped)")
     parser.add_argument("--no-peer", action="store_true", help="leave out the ESPNetv2 VOC peer")
+    parser.add_argument("--no-real", action="store_true", help="leave out the 7-Scenes structure yardstick")
     args = parser.parse_args()
     wdir = args.weights_dir or shipped_weights_dir()
     t0 = time.perf_counter()
     frames = test_frames(60 if args.quick else 10)
     print(f"{len(frames)} test frames (scene seeds {[s for s, _ in TEST_SCENES]}) rendered in "
           f"{time.perf_counter() - t0:.1f} s; machine shared: timings are indicative")
+    real = None if args.no_real else real_frames()
     results, per_frame = [], {}
     wanted = TRAINED_NETWORKS if args.networks is None else tuple(n.strip() for n in args.networks.split(","))
     for name in (n for n in TRAINED_NETWORKS if n in wanted):
@@ -195,6 +221,9 @@ def main() -> None:
                 torch_preds = preds
                 per_frame[name] = confusions
                 row |= calibration(seg, frames)  # the same probabilities in both runtimes: scored once
+                if real is not None:
+                    ious = score_on_yardstick(seg, *real)
+                    row |= {"real_wall_iou": _rounded(ious["wall"]), "real_floor_iou": _rounded(ious["floor"])}
             else:
                 same = np.mean([np.mean(a == b) for a, b in zip(preds, torch_preds, strict=True)])
                 row["agreement_with_torch"] = round(float(same), 5)
@@ -204,7 +233,9 @@ def main() -> None:
                   + (f"  agrees with torch on {100 * row['agreement_with_torch']:.2f} % of pixels"
                      if "agreement_with_torch" in row else "")
                   + (f"  ECE {row['ece_uncalibrated']:.3f} -> {row['ece']:.3f}, NLL {row['nll_uncalibrated']:.3f} -> "
-                     f"{row['nll']:.3f} (T {row['temperature']:g})" if "ece" in row else ""))
+                     f"{row['nll']:.3f} (T {row['temperature']:g})" if "ece" in row else "")
+                  + (f"  real frames: wall IoU {row['real_wall_iou']}, floor {row['real_floor_iou']}"
+                     if "real_wall_iou" in row else ""))
     if args.no_peer:
         pass
     elif ESPNETV2.is_file():

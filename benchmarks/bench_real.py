@@ -32,9 +32,8 @@ from semmap.eval.room_yardstick import (
     OTHER_ID,
     WALL_ID,
     fit_room,
-    iou_of,
     label_frame,
-    structure_confusion,
+    score_on_yardstick,
 )
 from semmap.labels import INDOOR_LABELS
 from semmap.perception.registry import make_segmenter
@@ -48,26 +47,11 @@ DEFAULT_SEGMENTERS = ("structure", "espnetv2+structure", "espnetv2", "fcn", "fcn
 ON_PLANE_M = 0.03
 
 
-def _yardstick_ids(segmenter, top: np.ndarray) -> np.ndarray:
-    """A segmenter's top classes as yardstick ids (wall / floor / ceiling, anything else ``other``)."""
-    indoor, _ = fold_to(segmenter.label_set)
-    names = np.array(INDOOR_LABELS.names)[indoor[np.minimum(top, len(indoor) - 1)]]
-    out = np.full(top.shape, OTHER_ID, np.uint8)
-    for name, i in (("wall", WALL_ID), ("floor", FLOOR_ID), ("ceiling", CEILING_ID)):
-        out[names == name] = i
-    return out
-
-
 def score(name: str, frames: list, yard: list[np.ndarray], *, posed: bool = True) -> dict:
     seg = make_segmenter(name, backend="onnx")
-    conf = np.zeros((3, 3), np.int64)
-    t = 0.0
-    for f, y in zip(frames, yard, strict=True):
-        t0 = time.perf_counter()
-        sem = seg.segment(f if posed else f.with_(T_world_cam=None))
-        t += time.perf_counter() - t0
-        conf += structure_confusion(_yardstick_ids(seg, sem.labels[..., 0]), y)
-    ious = iou_of(conf)
+    t0 = time.perf_counter()
+    ious = score_on_yardstick(seg, frames, yard, posed=posed)
+    t = time.perf_counter() - t0
     return {"segmenter": name + ("" if posed else " (single frames)"), "frames": len(frames),
             **{k: None if v is None else round(v, 4) for k, v in ious.items()},
             "ms_per_frame": round(t / len(frames) * 1e3, 1)}

@@ -248,8 +248,8 @@ PAPER_NETWORKS = ("CBAM paper, Table 2 (ADE20K, ResNet-50, full size): FCN MPA 6
 
 def networks_table(bench: dict) -> list[str]:
     """Test scores and CPU time per 640x480 frame of the shipped networks (ONNX Runtime rows carry the timing)."""
-    out = ["| network | input | params | MPA | MIoU | ms/frame torch | ms/frame ONNX |",
-           "|---|---|---|---|---|---|---|"]
+    out = ["| network | input | params | MPA | MIoU | real frames: wall / floor IoU | ms/frame torch | ms/frame ONNX |",
+           "|---|---|---|---|---|---|---|---|"]
     rows: dict[str, dict] = {}
     for r in bench["results"]:
         rows.setdefault(r["model"], {})[r["runtime"]] = r
@@ -259,7 +259,9 @@ def networks_table(bench: dict) -> list[str]:
             acc = f"– | shared classes {t['miou_shared']:.3f}"
         else:
             acc = f"{t['mpa']:.3f} | **{t['miou']:.3f}**"
-        out.append(f"| {model} | {t['input']} | {t['params'] / 1e6:.2f} M | {acc} | "
+        real = (f"{t['real_wall_iou']} / {t['real_floor_iou']}" if t.get("real_wall_iou") is not None
+                or t.get("real_floor_iou") is not None else "–")
+        out.append(f"| {model} | {t['input']} | {t['params'] / 1e6:.2f} M | {acc} | {real} | "
                    f"{by.get('torch', {}).get('ms_per_frame', '–')} | {by.get('onnx', {}).get('ms_per_frame', '–')} |")
     return out
 

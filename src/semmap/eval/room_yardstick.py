@@ -16,6 +16,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from semmap.labels import INDOOR_LABELS
+from semmap.perception.base import Segmenter
+from semmap.perception.structure.compose import fold_to
 from semmap.perception.structure.gravity import _refine, unit
 from semmap.perception.structure.planes import FLOOR, WALL, horizontal_plane, wall_planes
 from semmap.perception.structure.surface import Surface, plane_tolerance, surface_of
@@ -169,3 +172,25 @@ def iou_of(confusion: np.ndarray) -> dict[str, float | None]:
     for name, (tp, fp, fn) in zip(names, confusion, strict=True):
         out[name] = None if tp + fn == 0 else float(tp / (tp + fp + fn))
     return out
+
+
+def as_yardstick_ids(label_set, top: np.ndarray) -> np.ndarray:
+    """A segmenter's top classes (ids of its ``label_set``) as yardstick ids: wall / floor / ceiling by semmap's
+    names (its classes folded into them), anything else ``other``."""
+    indoor, _ = fold_to(label_set)
+    names = np.asarray(INDOOR_LABELS.names)[indoor[np.minimum(top, len(indoor) - 1)]]
+    out = np.full(top.shape, OTHER_ID, np.uint8)
+    for name, i in ((WALL, WALL_ID), (FLOOR, FLOOR_ID), ("ceiling", CEILING_ID)):
+        out[names == name] = i
+    return out
+
+
+def score_on_yardstick(segmenter: Segmenter, frames: Iterable[Frame], labels: Iterable[np.ndarray], *,
+                       posed: bool = True) -> dict[str, float | None]:
+    """Wall, floor and ceiling IoU of ``segmenter``'s top class against the yardstick's ``labels`` of ``frames``
+    (in order; ``posed=False`` hides the poses: single frames)."""
+    conf = np.zeros((3, 3), np.int64)
+    for f, y in zip(frames, labels, strict=True):
+        sem = segmenter.segment(f if posed else f.with_(T_world_cam=None))
+        conf += structure_confusion(as_yardstick_ids(segmenter.label_set, sem.labels[..., 0]), y)
+    return iou_of(conf)
