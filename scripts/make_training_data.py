@@ -58,7 +58,8 @@ def realism_of(choice: str, i: int) -> str:
 def render(out: Path, plan, frames: int, image_size: tuple[int, int], realism: str = "clean") -> None:
     for i, (seed, kind, size, trajectory) in enumerate(plan):
         preset = realism_of(realism, i)
-        folder = out / f"{kind}-{size}-seed{seed}-{trajectory}" + ("" if preset == "clean" else f"-{preset}")
+        tag = "" if preset == "clean" else f"-{preset}"
+        folder = out / f"{kind}-{size}-seed{seed}-{trajectory}{tag}"
         if (folder / "scene.json").is_file():
             continue
         t0 = time.perf_counter()
@@ -68,7 +69,7 @@ def render(out: Path, plan, frames: int, image_size: tuple[int, int], realism: s
         except SimulationError as exc:  # a desk/orbit path may not fit a scene: fall back to the room loop
             print(f"{folder.name}: {exc}; using a loop", flush=True)
             shutil.rmtree(folder, ignore_errors=True)
-            folder = out / f"{kind}-{size}-seed{seed}-loop" + ("" if preset == "clean" else f"-{preset}")
+            folder = out / f"{kind}-{size}-seed{seed}-loop{tag}"
             simulate_sequence(folder, scene_seed=seed, kind=kind, size=size, trajectory="loop", frames=frames,
                               image_size=image_size, fps=frames / PATH_SECONDS, realism=preset)
         print(f"{folder.name}: {frames} frames in {time.perf_counter() - t0:.1f} s", flush=True)
