@@ -117,18 +117,31 @@ class BagWriter:
                                           twist=twist)
 
 
+    def imu(self, stamp: float, frame_id: str, acceleration: np.ndarray):
+        g = self.types
+        zero = g["geometry_msgs/msg/Vector3"](x=0.0, y=0.0, z=0.0)
+        acc = g["geometry_msgs/msg/Vector3"](x=float(acceleration[0]), y=float(acceleration[1]),
+                                             z=float(acceleration[2]))
+        return g["sensor_msgs/msg/Imu"](header=self.header(stamp, frame_id),
+                                        orientation=g["geometry_msgs/msg/Quaternion"](x=0.0, y=0.0, z=0.0, w=1.0),
+                                        orientation_covariance=np.zeros(9), angular_velocity=zero,
+                                        angular_velocity_covariance=np.zeros(9), linear_acceleration=acc,
+                                        linear_acceleration_covariance=np.zeros(9))
+
+
 #: A fixed mounting of the camera on the robot body (for /tf chains and Odometry of the body).
 T_BODY_CAM = np.array([[0.0, 0.0, 1.0, 0.1], [-1.0, 0.0, 0.0, 0.0], [0.0, -1.0, 0.0, 0.3], [0, 0, 0, 1.0]])
 
 
 def write_bag(path: Path, frames: Sequence[Frame], *, kind: str = "ros1", color: str = "rgb8",
               depth: str = "16UC1", poses: str = "tf", depth_offset: float = 0.0, drop_depth: Sequence[int] = (),
-              camera_info: bool = True) -> Path:
+              camera_info: bool = True, imu: bool = False) -> Path:
     """Write ``frames`` as a bag: colour (``color``: rgb8 | bgr8 | mono8 | jpeg | png), depth (``depth``: 16UC1 |
     mono16 | 32FC1 | 32FC1_be | compressedDepth | png16), CameraInfo and poses (``poses``: tf (map -> odom ->
     base_link -> camera, the last in /tf_static) | pose (PoseStamped of the camera) | odometry (Odometry of the body
     plus /tf_static to the camera) | none). Depth stamps are shifted by ``depth_offset`` seconds; the depth of the
-    frames in ``drop_depth`` is left out."""
+    frames in ``drop_depth`` is left out. ``imu``: an accelerometer on the body (``/imu``, frame base_link) reading
+    gravity's specific force for a z-up world."""
     with BagWriter(path, kind) as bag:
         if poses in ("tf", "odometry"):
             bag.write("/tf_static", bag.tf([bag.transform(frames[0].timestamp, "base_link", "camera", T_BODY_CAM)]),
@@ -147,6 +160,8 @@ def write_bag(path: Path, frames: Sequence[Frame], *, kind: str = "ros1", color:
                 bag.write("/odom", bag.odometry(t, "map", "base_link", T_body), t)
             if camera_info:
                 bag.write(INFO, bag.camera_info(t, "camera", frame), t)
+            if imu:
+                bag.write("/imu", bag.imu(t, "base_link", T_body[:3, :3].T @ np.array([0.0, 0.0, 9.81])), t)
             bag.write(RGB, _color_message(bag, frame, t, color), t)
             if i not in drop_depth:
                 td = t + depth_offset

@@ -136,3 +136,19 @@ def test_semmap_run_maps_a_bag(frames, tmp_path):
     assert r.returncode == 0, r.stderr
     report = json.loads((out / "report.json").read_text())
     assert report["frames_used"] == len(frames) and report["occupied_voxels"] > 100
+
+
+@pytest.mark.parametrize("kind", ["ros1", "sqlite3"])
+def test_a_bags_imu_gives_each_frame_its_up_direction_in_the_camera_frame(frames, tmp_path, kind):
+    """The accelerometer sits on the robot body; /tf_static carries its reading into the camera's frame."""
+    name = "rec.bag" if kind == "ros1" else "rec"
+    path = write_bag(tmp_path / name, frames, kind=kind, poses="tf", imu=True)
+    got = list(open_dataset(path))
+    assert len(got) == len(frames)
+    for f in got:
+        assert f.up_cam is not None
+        assert np.allclose(f.up_cam, f.T_world_cam[:3, :3].T @ [0.0, 0.0, 1.0], atol=1e-6)
+    # without the body -> camera transform the readings cannot be placed: frames get none, said once
+    (tmp_path / "alone").mkdir()
+    alone = write_bag(tmp_path / "alone" / name, frames, kind=kind, poses="none", imu=True)
+    assert all(f.up_cam is None for f in open_dataset(alone))

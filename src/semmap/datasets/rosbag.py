@@ -22,6 +22,7 @@ import numpy as np
 
 from semmap.datasets._ros_images import decode_color, decode_depth
 from semmap.datasets._ros_tf import TransformTree
+from semmap.datasets.accelerometer import up_at
 from semmap.datasets.base import (
     FormatEntry,
     SkippedFrame,
@@ -39,6 +40,7 @@ LOG = logging.getLogger("semmap")
 
 IMAGE_TYPES = ("sensor_msgs/msg/Image", "sensor_msgs/msg/CompressedImage")
 CAMERA_INFO_TYPE = "sensor_msgs/msg/CameraInfo"
+IMU_TYPE = "sensor_msgs/msg/Imu"
 TF_TYPE = "tf2_msgs/msg/TFMessage"
 POSE_TYPES = ("geometry_msgs/msg/PoseStamped", "nav_msgs/msg/Odometry", "geometry_msgs/msg/TransformStamped",
               "geometry_msgs/msg/PoseWithCovarianceStamped")
@@ -102,6 +104,7 @@ class _Pair:
     depth: int
     T_world_cam: np.ndarray | None
     pose_reason: str
+    up_cam: np.ndarray | None = None
 
 
 def _stamp_of(msg, bag_time_ns: int) -> float:
@@ -141,7 +144,8 @@ class RosbagDataset:
     def __init__(self, path: str | Path, *, rgb_topic: str | None = None, depth_topic: str | None = None,
                  camera_info_topic: str | None = None, pose_topic: str | None = None, world_frame: str | None = None,
                  camera_frame: str | None = None, max_time_diff: float = 0.02, stride: int = 1,
-                 max_frames: int | None = None, labels_dir=None, strict: bool = False) -> None:
+                 max_frames: int | None = None, labels_dir=None, strict: bool = False,
+                 imu_topic: str | None = None) -> None:
         from rosbags.highlevel import AnyReader
 
         if labels_dir is not None:
@@ -171,12 +175,16 @@ class RosbagDataset:
                     self._check_topic(topics, info_topic, (CAMERA_INFO_TYPE,), "--camera-info-topic")
                 if pose_topic is not None:
                     self._check_topic(topics, pose_topic, POSE_TYPES, "--pose-topic")
+                imus = [t for t, kind in topics.items() if kind == IMU_TYPE]
+                self._imu_topic = imu_topic or (imus[0] if len(imus) == 1 else None)
+                if imu_topic is not None:
+                    self._check_topic(topics, imu_topic, (IMU_TYPE,), "imu_topic")
                 index = self._index(reader, info_topic, pose_topic)
         except DatasetError:
             raise
         except Exception as exc:  # rosbags raises its own errors (and struct / KeyError ones) on damaged bags
             raise DatasetError(f"{self._path}: cannot read the bag: {type(exc).__name__}: {exc}") from None
-        rgb, depth, info, tree, image_frame = index
+        rgb, depth, info, tree, image_frame, self._imu = index
         if not rgb or not depth:
             empty = self._rgb_topic if not rgb else self._depth_topic
             raise DatasetError(f"{self._path}: topic {empty} has no messages")
@@ -265,7 +273,7 @@ class RosbagDataset:
             self._skip(pair.name, exc.path, exc.reason)
             return None
         return Frame(index=pair.index, timestamp=pair.stamp, rgb=rgb, depth=depth, intrinsics=self._intrinsics,
-                     T_world_cam=pair.T_world_cam, name=pair.name)
+                     T_world_cam=pair.T_world_cam, name=pair.name, up_cam=pair.up_cam)
 
     def _skip(self, name: str, path: str, reason: str) -> None:
         skip_frame(name, path, reason, self._skipped, strict=self._strict)
@@ -277,7 +285,8 @@ class RosbagDataset:
         info = None
         tree = TransformTree()
         image_frame = ""
-        read = set(stamps) | {info_topic, pose_topic}
+        imu: list[tuple[float, float, float, float, str]] = []  # stamp, acceleration, frame id
+        read = set(stamps) | {info_topic, pose_topic, self._imu_topic}
         if pose_topic is None:
             read |= set(TF_TOPICS)
         else:
@@ -294,6 +303,9 @@ class RosbagDataset:
                 info = info or msg
             elif topic == pose_topic:
                 self._add_pose(tree, msg, bag_time, topic)
+            elif topic == self._imu_topic:
+                a = msg.linear_acceleration
+                imu.append((_stamp_of(msg, bag_time), float(a.x), float(a.y), float(a.z), str(msg.header.frame_id)))
             elif connection.msgtype == TF_TYPE:
                 for transform in msg.transforms:
                     try:
@@ -304,7 +316,7 @@ class RosbagDataset:
                         continue
                     tree.add(transform.header.frame_id, transform.child_frame_id, _stamp_of(transform, bag_time), T,
                              static=topic == "/tf_static")
-        return stamps[self._rgb_topic], stamps[self._depth_topic], info, tree, image_frame
+        return stamps[self._rgb_topic], stamps[self._depth_topic], info, tree, image_frame, imu
 
     def _add_pose(self, tree: TransformTree, msg, bag_time: int, topic: str) -> None:
         """A pose-topic message as an edge of the tree (its child is the camera unless the message names one)."""
@@ -400,15 +412,44 @@ class RosbagDataset:
             raise DatasetError(f"{self._path}: no colour image of {self._rgb_topic} has a depth image of "
                                f"{self._depth_topic} within {self._max_time_diff} s")
         world, camera = self._frames(tree, pose_topic, world_frame, camera_frame)
+        gravity = self._gravity(tree, camera_frame)
         pairs = []
         for index, (i, j) in enumerate(pairs_ij):
             stamp = rgb[i].stamp
             T, reason = (None, "the bag has no poses") if world is None else \
                 tree.lookup(world, camera, stamp, self._max_time_diff)
-            pairs.append(_Pair(index, f"{stamp:.6f}", stamp, rgb[i].index, depth[j].index, T, reason))
+            up = None
+            if gravity is not None:
+                up = up_at(gravity[0], gravity[1], stamp)
+                up = None if up is None else gravity[2] @ up
+            pairs.append(_Pair(index, f"{stamp:.6f}", stamp, rgb[i].index, depth[j].index, T, reason, up))
         if world is not None and all(p.T_world_cam is None for p in pairs):
             LOG.warning("%s: no frame has a pose from %s to %s: %s", self._path, world, camera, pairs[0].pose_reason)
         return pairs
+
+    def _gravity(self, tree: TransformTree, camera_frame: str
+                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+        """The IMU's stamps, accelerations and the rotation from its frame into the camera's, or None (no IMU, or
+        no transform between the two frames: said once)."""
+        if not self._imu:
+            return None
+        stamps = np.array([r[0] for r in self._imu])
+        readings = np.array([r[1:4] for r in self._imu])
+        order = np.argsort(stamps, kind="stable")
+        imu_frame = self._imu[0][4].lstrip("/")
+        camera = (camera_frame or "").lstrip("/")
+        if imu_frame in ("", camera):
+            return stamps[order], readings[order], np.eye(3)
+        root = tree.root_of(camera) if camera in tree else None
+        t = float(stamps[order][0])
+        T_root_cam, why = (None, f"camera frame {camera!r} is not in /tf") if root is None else \
+            tree.lookup(root, camera, t, float("inf"))
+        T_root_imu, why_imu = (None, why) if T_root_cam is None else tree.lookup(root, imu_frame, t, float("inf"))
+        if T_root_imu is None:
+            LOG.warning("%s:%s: no transform from the IMU frame %r to the camera (%s); its readings are not used",
+                        self._path, self._imu_topic, imu_frame, why_imu)
+            return None
+        return stamps[order], readings[order], T_root_cam[:3, :3].T @ T_root_imu[:3, :3]
 
     def _frames(self, tree: TransformTree, pose_topic: str | None, world_frame: str | None, camera_frame: str
                 ) -> tuple[str | None, str]:

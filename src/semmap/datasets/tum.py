@@ -14,6 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
+from semmap.datasets.accelerometer import up_at
 from semmap.datasets.base import (
     LOG,
     FormatEntry,
@@ -196,12 +197,6 @@ def _stamp(path: Path, number: int, field: str) -> float:
 #: The Kinect's accelerometer readings TUM records beside the images: ``timestamp ax ay az`` (m/s²), axes those of
 #: the camera (x right, y down, z forward); at rest the reading is the specific force, which points up.
 ACCELEROMETER = "accelerometer.txt"
-#: Readings this close in time (seconds) to a frame are averaged for its up direction (hand motion averages out).
-ACCEL_WINDOW_S = 0.05
-#: Readings whose magnitude is this far from 9.81 m/s² are the hand's acceleration, not gravity: left out.
-ACCEL_TOLERANCE = 2.5
-
-
 def read_accelerometer(path: Path) -> tuple[np.ndarray, np.ndarray]:
     """Timestamps (N,) and readings (N, 3) of ``accelerometer.txt``, sorted by time; DatasetError naming the
     line for a malformed row."""
@@ -219,19 +214,6 @@ def read_accelerometer(path: Path) -> tuple[np.ndarray, np.ndarray]:
         rows.append(a)
     order = np.argsort(stamps, kind="stable")
     return np.asarray(stamps, np.float64)[order], np.asarray(rows, np.float64).reshape(-1, 3)[order]
-
-
-def up_at(stamps: np.ndarray, readings: np.ndarray, t: float) -> np.ndarray | None:
-    """The unit up direction in the camera frame at time ``t``: the mean of the readings within ACCEL_WINDOW_S
-    whose magnitude is near gravity's, or None where there are none."""
-    lo, hi = np.searchsorted(stamps, [t - ACCEL_WINDOW_S, t + ACCEL_WINDOW_S], side="left")
-    near = readings[lo:hi]
-    near = near[np.abs(np.linalg.norm(near, axis=1) - 9.81) < ACCEL_TOLERANCE]
-    if len(near) == 0:
-        return None
-    mean = near.mean(axis=0)
-    norm = float(np.linalg.norm(mean))
-    return mean / norm if norm > 1e-6 else None
 
 
 def _read_groundtruth(path: Path, strict: bool) -> tuple[np.ndarray, np.ndarray]:
