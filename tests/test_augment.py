@@ -47,3 +47,27 @@ def test_switched_off_augmentation_passes_the_batch_through() -> None:
     rgb, labels, depth = _batch()
     out = augment(rgb, labels, depth, Augmentation(enabled=False), torch.Generator().manual_seed(0))
     assert out[0] is rgb and out[1] is labels and out[2] is depth
+
+
+def test_training_can_start_from_a_weight_file_and_fine_tune_it(tmp_path) -> None:
+    """--init NET.pt: the same architecture as the file, every tensor copied (a shipped network fine-tuned)."""
+    from semmap.errors import ConfigError
+    from semmap.labels import INDOOR_LABELS
+    from semmap.perception.networks.pretrained import init_plan, load_pretrained
+    from semmap.perception.networks.registry import NetworkSpec, build_network, load_weights, save_weights
+
+    spec = NetworkSpec("fcn", num_classes=len(INDOOR_LABELS), width=0.25, depth=18)
+    torch.manual_seed(1)
+    source = build_network(spec)
+    path = save_weights(tmp_path / "fcn.pt", source, spec, INDOOR_LABELS, (64, 48))
+    plan = init_plan(str(path))
+    assert (plan.model, plan.width, plan.depth) == ("fcn", 0.25, 18)
+    torch.manual_seed(2)
+    target = build_network(spec)
+    summary = load_pretrained(target, str(path))
+    stored = load_weights(path).model.state_dict()
+    assert not summary.new and all(torch.equal(stored[k], v) for k, v in target.state_dict().items())
+    import pytest
+
+    with pytest.raises(ConfigError, match="no such weight file"):
+        init_plan(str(tmp_path / "missing.pt"))

@@ -32,8 +32,9 @@ def train(
     backbone: Annotated[str, typer.Option(help="backbone: resnet | vgg16 (fcn) | espnetv2-s1 | espnetv2-s2 (every "
                                                "model; set by --init)")] = "resnet",
     init: Annotated[str | None, typer.Option(help="pretrained start: espnetv2-pascal[-s1|-s2] (ESPNetv2 encoder, "
-                                                  "../shared/weights/espnetv2) | torchvision:resnet18|34|50|vgg16 "
-                                                  "(downloads ImageNet weights)")] = None,
+                                                  "weights/espnetv2) | torchvision:resnet18|34|50|vgg16 "
+                                                  "(downloads ImageNet weights) | NET.pt (fine-tune semmap's own "
+                                                  "weights, e.g. weights/fcn.pt)")] = None,
     device: Annotated[str, typer.Option(help="cpu | cuda")] = "cpu",
     resume: Annotated[bool, typer.Option("--resume", help="continue the run in --out from its last checkpoint")
                       ] = False,

@@ -129,6 +129,8 @@ class TrainSettings:
                 "vgg16": entry.chooses_backbone or entry.backbone == "vgg16"}.get(plan.backbone, True)
         if not fits:
             raise ConfigError(f"--init {self.init}: --model {self.model} has no {plan.backbone} backbone")
+        if plan.model is not None and plan.model != self.model:
+            raise ConfigError(f"--init {self.init}: holds a {plan.model} network, not --model {self.model}")
         defaults = TrainSettings.__dataclass_fields__
         for option, name, wanted in (("--backbone", "backbone", plan.backbone), ("--resnet-depth", "depth", plan.depth),
                                      ("--width", "width", plan.width)):
@@ -136,7 +138,8 @@ class TrainSettings:
             if wanted is not None and given != defaults[name].default and given != wanted:
                 raise ConfigError(f"{option} {given} conflicts with --init {self.init}, which sets {option} {wanted}; "
                                   f"leave {option} out")
-        return replace(self, backbone=plan.backbone, depth=plan.depth or self.depth, width=plan.width or self.width)
+        return replace(self, backbone=plan.backbone, depth=plan.depth or self.depth, width=plan.width or self.width,
+                       msff_dilation=plan.msff_dilation if plan.model is not None else self.msff_dilation)
 
     def spec(self, num_classes: int) -> NetworkSpec:
         dil = self.msff_dilation or max(1, round(12 * self.input_size[0] / PAPER_INPUT_WIDTH))

@@ -50,17 +50,30 @@ class InitPlan:
     backbone: str
     depth: int | None = None
     width: float | None = None
-
+    msff_dilation: int | None = None
+    model: str | None = None  #: a semmap weight file fixes the network too
 
 def init_choices() -> tuple[str, ...]:
-    """Every name ``--init`` takes."""
+    """Every name ``--init`` takes (besides a semmap weight file, ``NET.pt``: fine-tune it)."""
     return (*ESPNET_INITS, *(TORCHVISION + m for m in TORCHVISION_MODELS))
+
+
+def is_weight_file(name: str) -> bool:
+    """``--init`` names one of semmap's own weight files (a shipped network or a run's best.pt) to fine-tune."""
+    return str(name).endswith(".pt")
 
 
 def init_plan(name: str) -> InitPlan:
     """The plan of ``--init name``; ConfigError listing the choices for another name."""
     if name in ESPNET_INITS:
         return InitPlan(name, ESPNET_INITS[name])
+    if is_weight_file(name):
+        from semmap.perception.networks.registry import load_weights
+
+        if not Path(name).is_file():
+            raise ConfigError(f"--init {name}: no such weight file")
+        spec = load_weights(Path(name)).spec
+        return InitPlan(name, spec.backbone, spec.depth, spec.width, spec.msff_dilation, spec.model)
     arch = name.removeprefix(TORCHVISION)
     if name.startswith(TORCHVISION) and arch in TORCHVISION_MODELS:
         backbone, depth = TORCHVISION_MODELS[arch]
@@ -214,4 +227,9 @@ def load_pretrained(model: nn.Module, name: str) -> LoadSummary:
     init_plan(name)
     if name in ESPNET_INITS:
         return load_espnet_encoder(model, name)
+    if is_weight_file(name):
+        from semmap.perception.networks.registry import load_weights
+
+        source = load_weights(Path(name)).model.state_dict()
+        return load_matching(model, source, lambda k: k, Path(name).name)
     return load_torchvision(model, name)

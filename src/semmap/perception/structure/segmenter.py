@@ -37,6 +37,10 @@ STRUCTURE_CLASSES = (WALL, FLOOR, CEILING)
 MAX_SURE = 0.95
 #: A pixel's normal agrees fully with its plane within this angle, not at all beyond the second (degrees).
 NORMAL_FULL_DEG, NORMAL_NONE_DEG = 30.0, 60.0
+#: A pixel is on a plane within the depth noise's tolerance, but never more than this (metres): the plane is known
+#: far better than one far pixel, and a looser band creeps up furniture; past it, a fall-off cut this many
+#: half-tolerances further out.
+MAX_PIXEL_TOLERANCE_M, MAX_EXCESS = 0.04, 1.5
 #: Agreement given to a pixel whose cell has no normal (a depth edge, a hole next to it).
 NO_NORMAL_AGREEMENT = 0.8
 #: A posed frame's wall at least this sure is remembered for later frames of the sequence.
@@ -195,7 +199,8 @@ class StructureSegmenter:
         pixel_probabilities(np.ascontiguousarray(frame.depth, np.float32), rays.x, rays.y,
                             np.ascontiguousarray(surface.normals, np.float64), surface.cell, table, kinds,
                             float(self.min_depth), float(self.max_depth), float(np.cos(np.radians(NORMAL_NONE_DEG))),
-                            float(np.cos(np.radians(NORMAL_FULL_DEG))), NO_NORMAL_AGREEMENT, MAX_SURE, out)
+                            float(np.cos(np.radians(NORMAL_FULL_DEG))), NO_NORMAL_AGREEMENT, MAX_SURE,
+                            MAX_PIXEL_TOLERANCE_M, MAX_EXCESS, out)
         return out
 
     def probabilities(self, frame: Frame) -> np.ndarray:
