@@ -19,7 +19,7 @@ MEMORY = ("bytes_in_memory", "bytes_per_voxel_in_memory")
 
 def test_demo_writes_the_stored_map_bytes_and_report_numbers(tmp_path):
     stored = json.loads(DIGEST.read_text())
-    result = run_demo(out=tmp_path / "demo", frames=20, oracle=True)
+    result = run_demo(out=tmp_path / "demo", frames=20, oracle=True, cloud=True)  # (the digest has cloud.ply)
     for name, digest in stored["sha256"].items():
         assert hashlib.sha256((result.out_dir / name).read_bytes()).hexdigest() == digest, name
     report = {k: v for k, v in result.report.items() if k not in TIMINGS}

@@ -370,8 +370,10 @@ class OutputConfig(_Section):
     color_mode: ColorMode = ColorMode.CLASS
     preview: bool = True
     plots: bool = Field(True, description="draw the report's plots (trajectory, IoU, storage, timings)")
-    cloud: bool = Field(True, description="write cloud.ply, the dense coloured point cloud of every frame's points "
-                                          "voxel-filtered at mapping.point_resolution (the storage table's baseline)")
+    cloud: bool = Field(False, description="write cloud.ply, the dense coloured point cloud of every frame's points "
+                                           "voxel-filtered at mapping.point_resolution (the storage table's "
+                                           "baseline); off by default: it costs a voxel-grid insertion per frame and "
+                                           "a file of tens of MB")
     rerun: Path | None = Field(None, description="log the run to this rerun recording (.rrd)")
     rerun_spawn: bool = Field(False, description="stream the run to a rerun viewer")
     rerun_map_every: int = Field(10, **field_bounds("every_positive", "--rerun-map-every"),

@@ -88,11 +88,11 @@ def run_config(config: RunConfig, *, dataset: Dataset | None = None, progress: P
 
 
 def demo_config(*, out: Path, frames: int = 300, resolution: float | None = None, scene_seed: int = 0,
-                rerun: Path | None = None, oracle: bool = False, trust_weights: bool = False
+                rerun: Path | None = None, oracle: bool = False, trust_weights: bool = False, cloud: bool = False
                 ) -> tuple[RunConfig, Dataset]:
     """The demo's run: the default simulated scene, ground-truth poses, and the shipped network (ONNX Runtime;
     ``trust_weights``: even if its sha256 differs from the manifest) or, with ``oracle`` or without shipped
-    weights (warned), the cnn-like oracle segmenter."""
+    weights (warned), the cnn-like oracle segmenter; ``cloud``: also the dense cloud (``cloud.ply``)."""
     from semmap.datasets.simulated import SimulatedDataset
     from semmap.perception.registry import demo_network
 
@@ -104,12 +104,12 @@ def demo_config(*, out: Path, frames: int = 300, resolution: float | None = None
                  if network is not None else SemanticsConfig(source=SemanticSource.ORACLE, seed=scene_seed))
     mapping = MappingConfig() if resolution is None else MappingConfig(resolution=resolution)
     config = RunConfig(input=InputConfig(dataset=Path(dataset.name)), mapping=mapping, semantics=semantics,
-                       output=OutputConfig(out=out, rerun=rerun))
+                       output=OutputConfig(out=out, rerun=rerun, cloud=cloud))
     return config, dataset
 
 
 def run_demo(*, out: Path, frames: int = 300, resolution: float | None = None, scene_seed: int = 0,
-             rerun: Path | None = None, oracle: bool = False, trust_weights: bool = False,
+             rerun: Path | None = None, oracle: bool = False, trust_weights: bool = False, cloud: bool = False,
              progress: Progress | None = None) -> RunResult:
     """``semmap demo``: simulate the default scene and map it as ``semmap run`` would, scored against the
     simulator's ground truth (``out`` and ``rerun`` checked before the scene is built)."""
@@ -119,7 +119,7 @@ def run_demo(*, out: Path, frames: int = 300, resolution: float | None = None, s
     check("seed", scene_seed, "--scene-seed")
     check_outputs([("--out", out, OutputKind.FOLDER), ("--rerun", rerun, OutputKind.FILE)], [])
     config, dataset = demo_config(out=out, frames=frames, resolution=resolution, scene_seed=scene_seed,
-                                  rerun=rerun, oracle=oracle, trust_weights=trust_weights)
+                                  rerun=rerun, oracle=oracle, trust_weights=trust_weights, cloud=cloud)
     from semmap.perception.registry import SegmenterName
 
     segmenter = SegmenterName(config.semantics.segmenter or SegmenterName.ORACLE)

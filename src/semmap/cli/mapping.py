@@ -142,9 +142,10 @@ def run(
                                               rich_help_panel=_OUTPUT)] = False,
     rerun_map_every: Annotated[int, typer.Option(help="frames between two logs of the whole map to rerun",
                                                  rich_help_panel=_OUTPUT)] = default(OutputConfig, "rerun_map_every"),
-    cloud: Annotated[bool, typer.Option("--cloud/--no-cloud", help="write cloud.ply, the dense coloured cloud of every "
-                                        "frame's points (one per --point-resolution cell) the report's storage table "
-                                        "compares the maps with", rich_help_panel=_OUTPUT)] = True,
+    cloud: Annotated[bool, typer.Option("--cloud/--no-cloud", help="also write cloud.ply, the dense coloured cloud of "
+                                        "every frame's points (one per --point-resolution cell) the report's storage "
+                                        "table compares the maps with (a grid insertion per frame, a large file)",
+                                        rich_help_panel=_OUTPUT)] = default(OutputConfig, "cloud"),
     checkpoint_every: Annotated[int, typer.Option(help="save the run's state every N mapped frames (0: never), so "
                                                   "--resume can continue after a crash", rich_help_panel=_OUTPUT)] = 0,
     resume: Annotated[bool, typer.Option("--resume", help="continue a run that was killed, from its last checkpoint "
@@ -200,7 +201,7 @@ def run(
     memory_budget: MemoryBudget = None,
 ) -> None:
     """Map an RGB-D sequence: writes map.ot, map.bt, map.semmap (and voxelgrid.* / points.* for --maps,
-    objects.json / objects.ply for --instances), cloud.ply (the dense coloured cloud; --no-cloud: none), preview.png,
+    objects.json / objects.ply for --instances), cloud.ply (with --cloud: the dense coloured cloud), preview.png,
     trajectory.txt, report.json, report.md and config.json."""
     setup_logging(verbose)
     budget(memory_budget)
@@ -260,6 +261,8 @@ def demo(
                                                 "ONNX Runtime) | oracle (the cnn-like error model)")] = "network",
     trust_weights: Annotated[bool, typer.Option("--trust-weights", help="use shipped weights whose sha256 differs "
                                                 "from weights/manifest.json (with a warning)")] = False,
+    cloud: Annotated[bool, typer.Option("--cloud", help="also write cloud.ply, the dense coloured cloud the storage "
+                                        "table compares the maps with")] = default(OutputConfig, "cloud"),
 ) -> None:
     """Simulate the default scene, map it with ground-truth poses and the shipped segmentation network (or the
     cnn-like oracle), and write the outputs of `semmap run` plus report.md with 3D accuracy against ground truth."""
@@ -271,7 +274,8 @@ def demo(
     with interruptible():
         result = validated(lambda: run_demo(out=out, frames=frames, resolution=resolution, scene_seed=scene_seed,
                                              rerun=rerun, oracle=semantics == SegmenterName.ORACLE,
-                                             trust_weights=trust_weights, progress=progress_bar("simulate + map")))
+                                             trust_weights=trust_weights, cloud=cloud,
+                                             progress=progress_bar("simulate + map")))
     print_summary(result.report, result.out_dir)
 
 
