@@ -306,20 +306,3 @@ def test_structure_confusion_counts_against_the_yardstick() -> None:
     assert conf.tolist() == [[1, 1, 1], [2, 0, 0], [0, 0, 1]]  # the no-depth pixel (0) is not scored
     assert iou_of(conf) == {"wall": 1 / 3, "floor": 1.0, "ceiling": 0.0}
 
-
-def test_the_networks_void_goes_to_structures_classes_by_structures_own_probabilities() -> None:
-    """ESPNetv2 says background (void) where structure is half sure of floor: floor wins, not a coin toss."""
-    from semmap.perception.structure.compose import combine_sets
-
-    chair = INDOOR_LABELS.id_of("chair")
-    labels = np.array([[0, chair, EMPTY_LABEL], [chair, 0, EMPTY_LABEL]], np.uint16)
-    probs = np.array([[0.95, 0.05, 0.0], [0.8, 0.2, 0.0]], np.float32)
-    structure = np.array([[0.0, 0.5, 0.0], [0.0, 0.1, 0.0]], np.float32)
-    out_l = np.empty((2, 3), np.uint16)
-    out_p = np.empty((2, 3), np.float32)
-    on_plane = np.zeros(len(INDOOR_LABELS), np.bool_)
-    combine_sets(labels, probs, structure, np.array([WALL, FLOOR, CEILING], np.uint16), on_plane, out_l, out_p)
-    assert out_l[0, 0] == FLOOR and out_p[0, 0] == pytest.approx(0.5 + 0.5 * 0.95 * 0.5)
-    assert out_l[0, 1] == 0 and out_p[0, 1] == pytest.approx(0.5 * 0.95 * 0.5)
-    assert out_l[1, 0] == chair and out_p[1, 0] == pytest.approx(0.9 * 0.8)  # the network's object stands
-    assert np.allclose(out_p.sum(-1), [1.0, 1.0], atol=1e-6)  # nothing lost when the sets hold every class

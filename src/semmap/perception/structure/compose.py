@@ -1,21 +1,16 @@
 """``--segmenter NAME+structure``: a network's classes with the room's shell from geometry.
 
 The rule, per pixel, with ``s`` the structure segmenter's total wall + floor + ceiling probability (its
-sureness, at most 0.95), ``a`` the share of it that stands (1 minus the network's probability of a class that
-lies flat on a wall or floor: door, window, picture, whiteboard, curtain, so a poster stays a poster) and ``v`` the
-network's void mass (its ``background`` / ``unknown``: none of its own classes, which for a network without a
-wall or floor class is mostly wall and floor)::
+sureness, at most 0.95) and ``a`` the share of it that stands (1 minus the network's probability of a class that
+lies flat on a wall or floor: door, window, picture, whiteboard, curtain, so a poster stays a poster)::
 
-    P(c) = a * P_structure(c) + (1 - a * s) * (P_network(c) + v * P_structure(c))   for wall, floor, ceiling
-    P(unknown) = (1 - a * s) * v * (1 - s)
-    P(c) = (1 - a * s) * P_network(c)                                                 for the network's others
+    P(c) = a * P_structure(c) + (1 - a * s) * P_network(c)
 
-Structure owns wall, floor and ceiling where it is sure; where it is not (furniture, clutter, no depth) the
-network's distribution stands, its own wall and floor included, and what it leaves void goes to structure's
-classes by structure's own probabilities (a floor pixel structure is half sure of and ESPNetv2 calls background is
-floor 0.74, unknown 0.24, not a coin toss); a poster the network is sure of stays a poster. The network's classes
-meet semmap's indoor names first: by name, or through the shipped mapping of its label set
-(``class_maps/pascal-voc.json`` for ESPNetv2, ``nyu40.json``); a class with no counterpart becomes ``unknown``."""
+Structure owns wall, floor and ceiling where it is sure; where it is not (``s`` near 0: furniture, clutter, no
+depth) the network's distribution stands as it is, its own wall / floor / ceiling included. The network's
+classes are first folded into the output label set (semmap's indoor classes) by name, or through the shipped
+class mapping of its label set (``class_maps/pascal-voc.json`` for ESPNetv2, ``nyu40.json``); a class with no
+counterpart becomes ``unknown``."""
 
 from __future__ import annotations
 
@@ -141,17 +136,11 @@ def combine_sets(net_labels: np.ndarray, net_probs: np.ndarray, structure: np.nd
         s = structure[r, 0] + structure[r, 1] + structure[r, 2]
         a = 1.0 - min(flat, 1.0)
         keep = 1.0 - a * s
-        void = 0.0
-        for j in range(kn):
-            if net_labels[r, j] == 0:
-                void += net_probs[r, j]
         for j in range(kn):
             lab = net_labels[r, j]
             p = net_probs[r, j]
             if lab == EMPTY_LABEL or p <= 0.0:
                 continue
-            if lab == 0:
-                p = p * (1.0 - s)  # the rest of the void goes to structure's classes below
             found = -1
             for q in range(m):
                 if cand_l[q] == lab:
@@ -163,7 +152,7 @@ def combine_sets(net_labels: np.ndarray, net_probs: np.ndarray, structure: np.nd
             else:
                 cand_p[found] += keep * p
         for i in range(3):
-            p = a * structure[r, i] + keep * void * structure[r, i]
+            p = a * structure[r, i]
             if p <= 0.0:
                 continue
             lab = structure_ids[i]
