@@ -49,7 +49,7 @@ def short_demo(tmp_path_factory):
     dataset = SimulatedDataset(scene, poses, intrinsics=SMALL, name="sim-test")
     out = tmp_path_factory.mktemp("demo")
     config = RunConfig(input=InputConfig(dataset=Path("sim-test")), mapping=MappingConfig(resolution=0.08),
-                       semantics=SemanticsConfig(source="oracle"), output=OutputConfig(out=out))
+                       semantics=SemanticsConfig(source="oracle"), output=OutputConfig(out=out, cloud=True))
 
     def ground_truth(res):
         gt = gt_voxels(scene, res)

@@ -302,13 +302,18 @@ def test_make_test_bag_writes_a_bag_that_semmap_reads(boxes, tmp_path, kind):
 def test_make_training_data_makes_a_small_set_on_request(tmp_path, monkeypatch):
     make_training_data = _script("make_training_data")
     rendered = []
-    monkeypatch.setattr(make_training_data, "render", lambda out, plan, frames, size: rendered.append(
+    monkeypatch.setattr(make_training_data, "render", lambda out, plan, frames, size, realism="clean": rendered.append(
         (out.name, len(plan), frames, size)))
     make_training_data.main(["--out", str(tmp_path), "--scenes", "4", "--frames", "5"])
     assert rendered == [("train", 4, 5, (160, 120)), ("val", 2, 5, (160, 120))]  # 30 frames
     rendered.clear()
     make_training_data.main(["--out", str(tmp_path)])
     assert rendered == [("train", 120, 17, (160, 120)), ("val", 8, 10, (160, 120))]  # the shipped networks' set
+    realisms = []
+    monkeypatch.setattr(make_training_data, "render", lambda out, plan, frames, size, realism="clean": realisms.append(
+        (out.name, realism)))
+    make_training_data.main(["--out", str(tmp_path), "--scenes", "2", "--realism", "mixed"])
+    assert realisms == [("train", "mixed"), ("val", "clean")]  # validation stays as the shipped nets were chosen
     with pytest.raises(SystemExit):
         make_training_data.main(["--out", str(tmp_path), "--frames", "0"])
 
@@ -318,7 +323,7 @@ def test_make_training_data_renders_extra_scenes_with_their_own_seeds(tmp_path, 
     validation 300-307 and the test scenes 0-9), the same kind / size / path plan."""
     make_training_data = _script("make_training_data")
     rendered = []
-    monkeypatch.setattr(make_training_data, "render", lambda out, plan, frames, size: rendered.append(
+    monkeypatch.setattr(make_training_data, "render", lambda out, plan, frames, size, realism="clean": rendered.append(
         (out.name, [p[0] for p in plan], frames)))
     make_training_data.main(["--out", str(tmp_path), "--extra", "5", "--image-size", "320x240"])
     names = [r[0] for r in rendered]

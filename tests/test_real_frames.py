@@ -83,6 +83,18 @@ def test_eval_seg_scores_a_segmenter_over_the_classes_both_name(still_frames, tm
     assert scores["pixel_accuracy"] < per["floor"]["iou"]
 
 
+def test_catch_all_classes_are_never_what_a_segmenter_names(still_frames, tmp_path) -> None:
+    """The simulator's networks send keyboards, cups, bottles and plants to otherprop: not a class they name."""
+    from semmap.datasets import open_dataset
+    from semmap.eval.real_frames import score_segmenter
+    from semmap.perception.registry import make_segmenter
+
+    seg = make_segmenter("oracle", label_set=open_dataset(still_frames).label_set)
+    scores = score_segmenter(open_dataset(still_frames), seg)
+    assert not {"otherprop", "otherfurniture", "otherstructure"} & set(scores.classes)
+    assert {"wall", "floor", "bed"} <= set(scores.classes)
+
+
 def test_eval_seg_without_ground_truth_or_segmenter_says_what_to_give(still_frames) -> None:
     from semmap.errors import ConfigError
 

@@ -1,8 +1,8 @@
 """A segmenter scored on labelled frames in NYU-40 (``semmap eval-seg SEQ --segmenter NAME``): every network's
 classes are brought to NYU-40 (its own label set folded into semmap's indoor classes, then semmap's classes to
 NYU-40, :func:`semmap.labels.simulator_to_nyu40`), and scored over the classes both name: the NYU-40 classes the
-segmenter can output that the ground truth holds. Every pixel with a label counts; a pixel the segmenter leaves
-``unknown`` counts as wrong."""
+segmenter can output that the ground truth holds, NYU-40's catch-all classes (other structure / furniture / prop)
+left out. Every pixel with a label counts; a pixel the segmenter leaves ``unknown`` counts as wrong."""
 
 from __future__ import annotations
 
@@ -20,6 +20,10 @@ from semmap.types import Frame, LabelSet
 
 #: The ground truth's class space: NYU-40 ids (0 void), or semmap's indoor classes (the simulator's).
 GT_SPACES = ("nyu40", "semmap")
+#: NYU-40's catch-all classes are never among the classes a segmenter names: a network that names bottles and
+#: plants (semmap sends them to otherprop) names a sliver of otherprop, not the class (its pixels still count in
+#: the pixel accuracy).
+CATCH_ALL = frozenset(NYU40_NAMES.index(n) for n in ("otherstructure", "otherfurniture", "otherprop"))
 
 
 def nyu40_of(label_set: LabelSet) -> np.ndarray:
@@ -86,7 +90,8 @@ def score_segmenter(frames: Iterable[Frame], segmenter: Segmenter, *, gt_space: 
         conf += confusion(pred.astype(np.int64), gt.astype(np.int64), k, ignore=0)
         n += 1
     names = getattr(segmenter, "output_classes", None)  # a segmenter that names only some of its label set's classes
-    nameable = sorted({int(c) for c in (pred_to_nyu if names is None else pred_to_nyu[np.asarray(names)])} - {0})
+    named = {int(c) for c in (pred_to_nyu if names is None else pred_to_nyu[np.asarray(names)])}
+    nameable = sorted(named - {0} - CATCH_ALL)
     present = [c for c in nameable if conf[c].sum() > 0]
     s = scores(conf, ignore=0)
     per_class = {NYU40_NAMES[c]: {"iou": round(float(s.iou[c]), 4), "pixels": int(conf[c].sum())} for c in present}
