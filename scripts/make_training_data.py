@@ -27,27 +27,15 @@ from pathlib import Path
 
 from semmap.errors import SimulationError
 from semmap.sim.export import simulate_sequence
-from semmap.sim.scene import KINDS, SIZES
-from semmap.sim.trajectory import TRAJECTORY_KINDS
-
-TRAIN_SEEDS = range(100, 220)
-#: Seeds of the extra training scenes of ``--extra N`` (disjoint from training, validation and test).
-EXTRA_SEEDS = range(400, 1000)
-VAL_SEEDS = range(300, 308)
-TRAIN_FRAMES, VAL_FRAMES = 17, 10
-#: Seconds of camera motion the stored frames of a scene are spread over.
-PATH_SECONDS = 20.0
-
-
-def train_plan(seeds: range = TRAIN_SEEDS) -> list[tuple[int, str, str, str]]:
-    """(seed, kind, size, trajectory) of every training scene (of ``seeds``)."""
-    # every kind meets every trajectory kind and size (kind i % 4, trajectory (i + i // 4) % 4, size (i // 4) % 3)
-    return [(seed, KINDS[i % 4], SIZES[(i // 4) % 3], TRAJECTORY_KINDS[(i + i // 4) % 4])
-            for i, seed in enumerate(seeds)]
-
-
-def val_plan() -> list[tuple[int, str, str, str]]:
-    return [(seed, KINDS[i % 4], "medium", "loop") for i, seed in enumerate(VAL_SEEDS)]
+from semmap.train.sim_data import (
+    EXTRA_SEEDS,
+    PATH_SECONDS,
+    TRAIN_FRAMES,
+    TRAIN_SEEDS,
+    VAL_FRAMES,
+    train_plan,
+    val_plan,
+)
 
 
 def realism_of(choice: str, i: int) -> str:
@@ -56,10 +44,11 @@ def realism_of(choice: str, i: int) -> str:
 
 
 def render(out: Path, plan, frames: int, image_size: tuple[int, int], realism: str = "clean") -> None:
-    for i, (seed, kind, size, trajectory) in enumerate(plan):
+    for i, scene in enumerate(plan):
+        seed, kind, size, trajectory = scene.seed, scene.kind, scene.size, scene.trajectory
         preset = realism_of(realism, i)
         tag = "" if preset == "clean" else f"-{preset}"
-        folder = out / f"{kind}-{size}-seed{seed}-{trajectory}{tag}"
+        folder = out / f"{scene.name}{tag}"
         if (folder / "scene.json").is_file():
             continue
         t0 = time.perf_counter()

@@ -17,15 +17,12 @@ import argparse
 import hashlib
 import json
 import shutil
-import sys
 from pathlib import Path
 
 from semmap.files.atomic import write_text_atomic
 from semmap.perception.networks.registry import load_weights
 from semmap.perception.registry import MANIFEST, TRAINED_NETWORKS, shipped_weights_dir
-
-sys.path.insert(0, str(Path(__file__).parent))
-from make_training_data import PATH_SECONDS, TRAIN_FRAMES, VAL_FRAMES, train_plan, val_plan
+from semmap.train.sim_data import PATH_SECONDS, TRAIN_FRAMES, VAL_FRAMES, train_plan, val_plan
 
 #: Largest shipped weight file (bytes).
 MAX_BYTES = 10 * 1024 * 1024
@@ -105,7 +102,7 @@ def main() -> None:
                  "regenerate with scripts/make_training_data.py, scripts/train_shipped.sh, scripts/ship_weights.py",
         "data": {"train": {"scene_seeds": [p[0] for p in train_plan()], "frames_per_scene": TRAIN_FRAMES,
                            "path_seconds": PATH_SECONDS,
-                           "scenes": [f"{k}-{s}-seed{seed}-{t}" for seed, k, s, t in train_plan()]},
+                           "scenes": [scene.name for scene in train_plan()]},
                  "val": {"scene_seeds": [p[0] for p in val_plan()], "frames_per_scene": VAL_FRAMES,
                          "path_seconds": PATH_SECONDS},
                  "test": TEST_SCENES,

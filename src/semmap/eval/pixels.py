@@ -60,11 +60,51 @@ def frame_sample(frame: Frame, T_world_cam: np.ndarray, semantics: TopKProbs | N
     return PixelSample(np.ascontiguousarray(points[keep], np.float32), gt[keep], net[keep])
 
 
+def map_classes_at(m: SemanticMap, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The map's most probable class (uint16, EMPTY_LABEL where it has none) and its probability (float32) at
+    each (N, 3) point: the one lookup the map-at-pixel scores and the pseudo-labels of ``semmap adapt`` share."""
+    if len(points) == 0:
+        return np.zeros(0, np.uint16), np.zeros(0, np.float32)
+    labels, confidence = m.class_at(points)
+    return np.asarray(labels, np.uint16), np.asarray(confidence, np.float32)
+
+
 def map_labels_at(m: SemanticMap, points: np.ndarray) -> np.ndarray:
     """The map's most probable class at each (N, 3) point (EMPTY_LABEL where it has none), uint16."""
-    if len(points) == 0:
-        return np.zeros(0, np.uint16)
-    return np.asarray(m.class_at(points)[0], np.uint16)
+    return map_classes_at(m, points)[0]
+
+
+@dataclass(frozen=True)
+class MapView:
+    """A map rendered into one frame: at each kept pixel (flat index into the frame, every ``stride``-th row and
+    column with a depth in range) its 3D point, the map's class there (EMPTY_LABEL: none) and that class's
+    probability."""
+
+    shape: tuple[int, int]  # (H, W) of the frame
+    stride: int
+    pixels: np.ndarray  # (N,) int64 flat indices v * W + u
+    points: np.ndarray  # (N, 3) float32 world points
+    labels: np.ndarray  # (N,) uint16
+    confidence: np.ndarray  # (N,) float32
+
+    def image(self, values: np.ndarray, fill, dtype) -> np.ndarray:
+        """(ceil(H / stride), ceil(W / stride)) image of per-pixel ``values`` (N,), ``fill`` elsewhere."""
+        h, w = self.shape
+        s = self.stride
+        out = np.full(((h + s - 1) // s, (w + s - 1) // s), fill, dtype)
+        v, u = np.divmod(self.pixels, w)
+        out[v // s, u // s] = values
+        return out
+
+
+def map_view(m: SemanticMap, frame: Frame, T_world_cam: np.ndarray, *, min_depth: float = DEFAULT_MIN_DEPTH,
+             max_depth: float = DEFAULT_MAX_DEPTH, stride: int = 1) -> MapView:
+    """The map's class and confidence at every (``stride``-th) pixel's 3D point of ``frame`` seen from
+    ``T_world_cam``: the lookup of the map-at-pixel scores, for every pixel with a depth in range."""
+    points, pixels = backproject_world(frame.depth, frame.intrinsics, T_world_cam, min_depth=min_depth,
+                                       max_depth=max_depth, stride=stride)
+    labels, confidence = map_classes_at(m, points)
+    return MapView(frame.depth.shape, int(stride), pixels, points, labels, confidence)
 
 
 @dataclass

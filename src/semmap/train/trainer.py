@@ -177,8 +177,33 @@ def poly_lr(base: float, iteration: int, total: int, power: float) -> float:
     return base * (1.0 - iteration / total) ** power
 
 
-def _seeded(seed: int, iteration: int, stream: int) -> torch.Generator:
-    return torch.Generator().manual_seed(int(np.random.SeedSequence([seed, iteration, stream]).generate_state(1)[0]))
+def seeded(seed: int, iteration: int, stream: int) -> torch.Generator:
+    """The generator of random stream ``stream`` of iteration ``iteration``: the same draws whenever it runs."""
+    return torch.Generator().manual_seed(seed_of(seed, iteration, stream))
+
+
+def seed_of(seed: int, iteration: int, stream: int) -> int:
+    """An integer seed for stream ``stream`` of iteration ``iteration`` (torch.manual_seed for dropout)."""
+    return int(np.random.SeedSequence([seed, iteration, stream]).generate_state(1)[0])
+
+
+def batch_tensors(ds: TrainingSet, idx: np.ndarray, uses_depth: bool
+                  ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor | None]:
+    """Images ``idx`` of ``ds`` as tensors: rgb (N, 3, H, W) in [0, 1], labels (N, H, W) int64, depth
+    (N, 1, H, W) metres (None unless ``uses_depth``)."""
+    rgb = torch.from_numpy(ds.rgb[idx]).permute(0, 3, 1, 2).float().div_(255.0)
+    labels = torch.from_numpy(ds.labels[idx].astype(np.int64))
+    depth = None
+    if uses_depth:
+        depth = torch.from_numpy(ds.depth[idx].astype(np.float32) / DEPTH_MM)[:, None]
+    return rgb, labels, depth
+
+
+def normalise(rgb: torch.Tensor) -> torch.Tensor:
+    """RGB in [0, 1] normalised per channel as the segmenter feeds the network (ImageNet mean and deviation)."""
+    mean = torch.tensor(IMAGENET_MEAN, dtype=rgb.dtype, device=rgb.device).view(1, 3, 1, 1)
+    std = torch.tensor(IMAGENET_STD, dtype=rgb.dtype, device=rgb.device).view(1, 3, 1, 1)
+    return (rgb - mean) / std
 
 
 def batch_indices(seed: int, iteration: int, batch: int, n: int) -> np.ndarray:
@@ -186,7 +211,7 @@ def batch_indices(seed: int, iteration: int, batch: int, n: int) -> np.ndarray:
     pos = np.arange(iteration * batch, (iteration + 1) * batch)
     out = np.empty(batch, np.int64)
     for epoch in np.unique(pos // n):
-        perm = torch.randperm(n, generator=_seeded(seed, int(epoch), 1)).numpy()
+        perm = torch.randperm(n, generator=seeded(seed, int(epoch), 1)).numpy()
         sel = pos // n == epoch
         out[sel] = perm[pos[sel] % n]
     return out
@@ -266,18 +291,7 @@ class Trainer:
 
     # ------------------------------------------------------------------ one step
     def _batch(self, ds: TrainingSet, idx: np.ndarray):
-        rgb = torch.from_numpy(ds.rgb[idx]).permute(0, 3, 1, 2).float().div_(255.0)
-        labels = torch.from_numpy(ds.labels[idx].astype(np.int64))
-        depth = None
-        if self.spec.uses_depth:
-            depth = torch.from_numpy(ds.depth[idx].astype(np.float32) / DEPTH_MM)[:, None]
-        return rgb, labels, depth
-
-    @staticmethod
-    def _normalise(rgb: torch.Tensor) -> torch.Tensor:
-        mean = torch.tensor(IMAGENET_MEAN, dtype=rgb.dtype, device=rgb.device).view(1, 3, 1, 1)
-        std = torch.tensor(IMAGENET_STD, dtype=rgb.dtype, device=rgb.device).view(1, 3, 1, 1)
-        return (rgb - mean) / std
+        return batch_tensors(ds, idx, self.spec.uses_depth)
 
     def step(self) -> float:
         """One SGD step of iteration ``self.iteration``; returns its loss."""
@@ -285,10 +299,10 @@ class Trainer:
         idx = batch_indices(s.seed, it, s.batch, len(self.train_set))
         rgb, labels, depth = self._batch(self.train_set, idx)
         aug = Augmentation.sensor() if s.sensor_augment else Augmentation()
-        rgb, labels, depth = augment(rgb, labels, depth, replace(aug, enabled=s.augment), _seeded(s.seed, it, 2))
-        torch.manual_seed(int(np.random.SeedSequence([s.seed, it, 3]).generate_state(1)[0]))  # dropout
+        rgb, labels, depth = augment(rgb, labels, depth, replace(aug, enabled=s.augment), seeded(s.seed, it, 2))
+        torch.manual_seed(seed_of(s.seed, it, 3))  # dropout
         dev = self.device
-        x = self._normalise(rgb.to(dev))
+        x = normalise(rgb.to(dev))
         y = labels.to(dev)
         d = None if depth is None else depth.to(dev)
         for group in self.optimizer.param_groups:
@@ -321,7 +335,7 @@ class Trainer:
         for start in range(0, len(self.val_set), batch):
             idx = np.arange(start, min(start + batch, len(self.val_set)))
             rgb, labels, depth = self._batch(self.val_set, idx)
-            logits, _ = self.model.forward_train(self._normalise(rgb.to(self.device)),
+            logits, _ = self.model.forward_train(normalise(rgb.to(self.device)),
                                                  None if depth is None else depth.to(self.device))
             conf += confusion(logits.argmax(1).cpu().numpy(), labels.numpy(), k, ignore=IGNORE)
             step = CALIBRATION_PIXEL_STEP
