@@ -18,7 +18,7 @@ from semmap.perception.networks.registry import build_network, load_weights
 from semmap.pipeline import Mapper
 from semmap.train.adapt import Adapter, AdaptSettings, AdaptSource, adapt, class_lut
 from semmap.train.class_weights import IGNORE
-from semmap.train.pseudo_labels import MaskSettings, ViewCounter, depth_edges, pseudo_labels
+from semmap.train.pseudo_labels import MaskSettings, ViewCounter, confident_network, depth_edges, pseudo_labels
 from semmap.train.trainer import TrainSettings, batch_tensors, normalise, train
 from semmap.types import CameraIntrinsics, Frame, LabelSet, TopKProbs, Trajectory, make_pose
 
@@ -106,6 +106,20 @@ def test_masks_drop_low_confidence_few_views_and_depth_edges():
     np.testing.assert_array_equal(again.labels, p.labels)
 
 
+def test_a_network_sure_of_another_class_vetoes_the_maps_label():
+    p = pseudo_labels(_HandBuiltMap(), _wall_frame(box=False), np.eye(4), None, NO_MASKS)
+    network = np.where(np.arange(40) < 10, 2, 1).astype(np.uint16)[None].repeat(30, 0)  # class 2 at u < 10
+    confidence = np.full((30, 40), 0.9, np.float32)
+    confidence[:15] = 0.6  # unsure in the upper half
+    before = p.labels.copy()
+    confident_network(p, network, confidence, 0.7)
+    vetoed = (before != p.labels)
+    disagree = np.zeros((30, 40), bool)
+    disagree[:, :10] = disagree[:, 20:] = True  # the map says 1 left of u = 20, 2 right of it
+    np.testing.assert_array_equal(vetoed, disagree & (confidence >= 0.7))
+    assert (p.labels[vetoed] == IGNORE).all() and p.removed["confident_network"] == 15 * 30
+
+
 def test_depth_edges_mark_holes_and_jumps_relative_to_depth():
     d = np.full((10, 10), 4.0, np.float32)
     d[:, 5:] = 4.15  # 15 cm at 4 m: under 5 %, no edge
@@ -158,7 +172,7 @@ def _source(room, weights: Path, run_dir: Path) -> AdaptSource:
 
 def _settings(out: Path, **kw) -> AdaptSettings:
     base = dict(out=out, steps=2, batch=2, replay_share=0.0, lr=0.01, eval_every=1, threads=1, augment=False,
-                holdout_every=4, anchor=0.0, masks=MaskSettings(min_views=2))
+                holdout_every=4, anchor=0.0, masks=MaskSettings(min_views=2, network_confidence=None))
     return AdaptSettings(**(base | kw))
 
 

@@ -48,6 +48,7 @@ REQUIRED = {
     "simulate": ["--out", f"{NOWHERE}/out"],
     "demo": ["--out", f"{NOWHERE}/out"],
     "train": ["--model", "fcn", "--data", f"{NOWHERE}/data", "--out", f"{NOWHERE}/out"],
+    "adapt": [f"{NOWHERE}/run", "--out", f"{NOWHERE}/out"],
     "track": [f"{NOWHERE}/seq", "--out", f"{NOWHERE}/t.txt"],
     "localize": [f"{NOWHERE}/map.semmap", f"{NOWHERE}/seq", "--out", f"{NOWHERE}/out"],
     "eval-traj": [f"{NOWHERE}/gt.txt", f"{NOWHERE}/est.txt"],

@@ -65,6 +65,7 @@ LIMITS: dict[str, Limit] = {
     "every": Limit(0, 1_000_000, "frames", integer=True),
     "every_positive": Limit(1, 1_000_000, "frames", integer=True),
     "iterations": Limit(1, 10_000_000, "steps", integer=True),
+    "rounds": Limit(1, 10, "rounds of mapping and adapting", integer=True),
     "epochs": Limit(0.001, 100_000, "passes over the data"),
     "crf_iterations": Limit(1, 50, "iterations", integer=True),
     "threads": Limit(1, 1024, "threads", integer=True),
@@ -143,6 +144,11 @@ OPTIONS: dict[str, OptionRule] = {
     "--lr": OptionRule("learning_rate"), "--width": OptionRule("width"), "--resnet-depth": OptionRule("resnet_depth"),
     "--threads": OptionRule("threads"), "--eval-every": OptionRule("every_positive"),
     "--depth-scale": OptionRule("depth_scale"),
+    # adapt, run --adapt
+    "--steps": OptionRule("iterations"), "--replay-share": OptionRule("probability"),
+    "--min-confidence": OptionRule("probability"), "--min-views": OptionRule("every"),
+    "--network-confidence": OptionRule("probability"), "adapt --every": OptionRule("every_positive"),
+    "--adapt-rounds": OptionRule("rounds"), "--adapt-steps": OptionRule("iterations"),
     # localize
     "--particles": OptionRule("particles"), "--points": OptionRule("scan_points"),
     "--init-pose": OptionRule("pose_number", POSE), "--motion-noise": OptionRule("noise"),

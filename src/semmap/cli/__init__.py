@@ -20,7 +20,7 @@ app = typer.Typer(add_completion=False, no_args_is_help=True, pretty_exceptions_
                   help="RGB-D sequences to 3D semantic maps (semantic OctoMap, .ot/.bt/native files, reports).")
 
 #: Every command in the order ``semmap --help`` lists them (a command's name is its function's, ``_`` as ``-``).
-COMMANDS = (mapping.run, simulate.simulate, mapping.demo, train.train, localize.track, localize.localize,
+COMMANDS = (mapping.run, simulate.simulate, mapping.demo, train.train, train.adapt, localize.track, localize.localize,
             evaluate.eval_traj, evaluate.eval_seg, evaluate.eval_map, mapping.info, mapping.batch, mapping.view,
             products.diff, products.merge)
 for _command in COMMANDS:

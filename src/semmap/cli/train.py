@@ -1,4 +1,5 @@
-"""``semmap train``: a segmentation network trained on simulated or labelled images."""
+"""The training family: ``semmap train`` (a segmentation network trained on simulated or labelled images) and
+``semmap adapt`` (a finished run's map teaches the network that built it)."""
 
 from __future__ import annotations
 
@@ -8,8 +9,8 @@ from typing import Annotated
 
 import typer
 
-from semmap.cli.options import MemoryBudget, budget, parse_size
-from semmap.cli.terminal import setup_logging, stderr_console
+from semmap.cli.options import Json, MemoryBudget, budget, parse_size
+from semmap.cli.terminal import setup_logging, stderr_console, summary_out
 from semmap.errors import SemmapError
 from semmap.perception.networks.registry import MODELS
 
@@ -100,6 +101,108 @@ class _TrainProgress:
         def update(i: int, n: int, row: dict) -> None:
             info = f"loss {row['train_loss']:.3f}  val mIoU {row['val_miou']:.3f}" if row else ""
             self._progress.update(task, completed=i, total=n, info=info)
+
+        return update
+
+    def __exit__(self, *exc):
+        return self._progress.__exit__(*exc)
+
+
+def adapt(
+    run_dir: Annotated[Path, typer.Argument(help="a finished semmap run folder (its config.json, map and "
+                                                 "trajectory.txt), mapped with one of semmap's networks")],
+    out: Annotated[Path, typer.Option("--out", "-o", help="folder: best.pt (for --weights), manifest.json, "
+                                                          "report.md, curve.png, pseudo_labels.png")],
+    steps: Annotated[int, typer.Option(help="SGD steps")] = 300,
+    batch: Annotated[int, typer.Option(help="images per step (pseudo-labelled and replayed)")] = 8,
+    lr: Annotated[float, typer.Option(help="initial learning rate (poly decay)")] = 0.005,
+    replay_share: Annotated[float, typer.Option(help="share of each batch from the network's original training "
+                                                     "data (0: none)")] = 0.5,
+    replay: Annotated[list[Path] | None, typer.Option(help="training folder(s) to replay (default: the scenes the "
+                                                           "weights or weights/manifest.json record)")] = None,
+    min_confidence: Annotated[float, typer.Option(help="a pixel teaches only where the map's class has at least "
+                                                       "this probability")] = 0.5,
+    min_views: Annotated[int, typer.Option(help="... and at least this many frames saw its voxel")] = 3,
+    network_confidence: Annotated[float, typer.Option(help="... and the network is not this sure of another "
+                                                           "class (1: never vetoes)")] = 0.7,
+    every: Annotated[int, typer.Option(help="pseudo-label every k-th mapped frame")] = 1,
+    eval_every: Annotated[int, typer.Option(help="evaluate, log and checkpoint every N steps")] = 50,
+    seed: Annotated[int, typer.Option(help="seed of image order and augmentation")] = 0,
+    threads: Annotated[int | None, typer.Option(help="CPU threads for PyTorch")] = None,
+    resume: Annotated[bool, typer.Option("--resume", help="continue the adaptation in --out from its last "
+                                                          "checkpoint")] = False,
+    as_json: Json = False,
+    memory_budget: MemoryBudget = None,
+) -> None:
+    """Fine-tune a run's network on its own map: the map's class at each pixel's 3D point of every frame it used,
+    where the map is sure, as labels (no ground truth needed); replays some original training data so it does not
+    forget; recalibrates. Reuse the result with semmap run --segmenter NAME --weights OUT/best.pt."""
+    setup_logging(False)
+    budget(memory_budget)
+    from semmap.train.adapt import AdaptSettings
+    from semmap.train.pseudo_labels import MaskSettings
+
+    masks = MaskSettings(min_confidence=min_confidence, min_views=min_views,
+                         network_confidence=None if network_confidence >= 1 else network_confidence)
+    settings = AdaptSettings(out=out, steps=steps, batch=batch, lr=lr, replay_share=replay_share, every=every,
+                             eval_every=eval_every, seed=seed, threads=threads, masks=masks,
+                             replay_folders=tuple(replay or ()))
+    try:
+        result = adapt_with_progress(run_dir, settings, resume, command=" ".join(["semmap", "adapt", *sys.argv[2:]]))
+    except KeyboardInterrupt:
+        print(f"semmap: interrupted; continue with the same command and --resume ({out}/last.pt)", file=sys.stderr)
+        raise SystemExit(130) from None
+    summary_out(result.report, as_json, f"semmap adapt: {run_dir} -> {result.weights}", adapt_rows(result.report))
+
+
+def adapt_with_progress(run_dir: Path, settings, resume: bool, *, command: str = ""):
+    """``semmap adapt``'s library call behind a progress bar per stage (counting views, pseudo-labels, adapting)."""
+    from semmap.run.adapt import adapt_run
+
+    with _StageProgress() as progress:
+        return adapt_run(run_dir, settings, resume=resume, progress=progress, command=command)
+
+
+def adapt_rows(report: dict) -> list[tuple[str, str]]:
+    """The adaptation's main numbers for the summary table."""
+    p, start, chosen = report["pseudo_labels"], report["start"], report["chosen"]
+
+    def move(key: str) -> str:
+        return "-" if start.get(key) is None else f"{start[key]:.3f} -> {chosen.get(key, start[key]):.3f}"
+
+    rows = [("network", report["network"]), ("frames", f"{report['frames']['train']} trained on, "
+                                                         f"{report['frames']['holdout']} held out"),
+            ("pseudo-label coverage", f"{p['coverage']:.1%} of the pixels with a depth")]
+    if "accuracy" in p:
+        rows.append(("pseudo-labels vs truth", f"accuracy {p['accuracy']:.3f}, MIoU {p['miou']:.3f} (network on "
+                                               f"the same pixels {p.get('network_accuracy', 0):.3f}, "
+                                               f"{p.get('network_miou', 0):.3f})"))
+    rows += [("replay", f"{report['replay']['images']} images ({report['replay']['source']})"),
+             ("kept", f"step {report['best'].get('step')} of {report['steps']}"),
+             ("held-out MIoU vs the map", move("holdout_pseudo_miou")),
+             ("validation MIoU (forgetting)", move("val_miou"))]
+    if start.get("holdout_truth_miou") is not None:
+        rows.append(("held-out MIoU vs truth", move("holdout_truth_miou")))
+    rows += [("temperature", f"{report['calibration']['temperature']:.3f}"),
+             ("CPU time", f"{report['cpu_minutes']:.1f} min"), ("adapted weights", report["files"]["weights"])]
+    return rows
+
+
+class _StageProgress:
+    """A rich progress bar per stage of ``progress(stage, i, n)`` calls (views, pseudo-labels, adapting)."""
+
+    def __enter__(self):
+        from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
+
+        self._progress = Progress(TextColumn("[bold]{task.description}"), BarColumn(), MofNCompleteColumn(),
+                                  TimeRemainingColumn(), console=stderr_console())
+        self._progress.__enter__()
+        tasks: dict[str, int] = {}
+
+        def update(stage: str, i: int, n: int) -> None:
+            if stage not in tasks:
+                tasks[stage] = self._progress.add_task(stage, total=n)
+            self._progress.update(tasks[stage], completed=i, total=n)
 
         return update
 

@@ -34,8 +34,6 @@ log = logging.getLogger("semmap")
 ROUND_KEYS = ("pixel_miou_network", "pixel_miou_map", "pixel_gain", "pixel_coverage", "miou_3d")
 #: Folders of the loop's rounds inside ``--out``.
 ROUND_DIR, ADAPT_DIR = "round-{}", "adapt-{}"
-#: Rounds ``--adapt-rounds`` may ask for.
-MAX_ROUNDS = 10
 
 
 def read_run_config(run_dir: Path) -> RunConfig:
@@ -135,17 +133,18 @@ def round_row(index: int, report: dict, weights: Path | None, adapted: dict | No
 
 
 def run_with_adaptation(config: RunConfig, rounds: int, settings: AdaptSettings, *,
-                        run: Callable[[RunConfig], object], progress: Callable[[str, int, int], None] | None = None,
-                        command: str = "") -> LoopResult:
+                        run: Callable[[RunConfig], object],
+                        adapt: Callable[[Path, AdaptSettings, bool], AdaptResult | None] | None = None) -> LoopResult:
     """Map ``config``'s sequence, then ``rounds`` times: adapt the segmenter on the last map and map again with the
     adapted weights; each round in its folder of ``config.output.out``. ``run`` maps one configuration (the
-    runner's ``run_config``) and returns its result; ``settings.out`` is replaced by each round's folder."""
-    check("every_positive", rounds, "--adapt-rounds")
-    if rounds > MAX_ROUNDS:
-        raise ConfigError(f"--adapt-rounds must be at most {MAX_ROUNDS}, got {rounds}")
+    runner's ``run_config``) and returns its result; ``adapt(run_dir, settings, resume)`` adapts (default
+    :func:`adapt_run`); ``settings.out`` is replaced by each round's folder."""
+    check("rounds", rounds, "--adapt-rounds")
     out = Path(config.output.out)
     trainable_weights(config, out)  # refused before any mapping
+    check_outputs([("--out", out, OutputKind.FOLDER)], [("DATASET", config.input.dataset)])
     out.mkdir(parents=True, exist_ok=True)
+    adapt = adapt or (lambda run_dir, s, resume: adapt_run(run_dir, s, resume=resume))
     result = LoopResult(out)
     current, adapted = config.model_copy(deep=True), None
     for index in range(rounds + 1):
@@ -154,18 +153,14 @@ def run_with_adaptation(config: RunConfig, rounds: int, settings: AdaptSettings,
         report = _finished_round(round_out, current)
         if report is None:
             report = run(current).report
-        weights = current.semantics.weights
-        result.rows.append(round_row(index, report, weights, adapted))
+        result.rows.append(round_row(index, report, current.semantics.weights, adapted))
         _write_rounds(out, result.rows)
         if index == rounds:
             break
         adapt_out = out / ADAPT_DIR.format(index + 1)
         adapted = _finished_adaptation(adapt_out)
         if adapted is None:
-            resume = (adapt_out / "last.pt").is_file()
-            r = adapt_run(round_out, replace(settings, out=adapt_out), resume=resume, progress=progress,
-                          command=command)
-            adapted = r.report
+            adapted = adapt(round_out, replace(settings, out=adapt_out), (adapt_out / "last.pt").is_file()).report
         result.weights = Path(adapted["out"])
         semantics = current.semantics.model_copy(update={"weights": result.weights})
         current = current.model_copy(update={"semantics": semantics})

@@ -6,8 +6,9 @@ CVPR 2023 with a NeRF), with no labels.
    frame is kept out of training (the curve, the choice of the weights and the temperature are measured there).
 2. Fine-tuning from the network's own weights at its training size: SGD with the poly rate, augmentation, each
    step's batch shared between pseudo-labelled frames and replayed original training images
-   (:mod:`semmap.train.replay`), the trainer's median-frequency class weights over both, and optionally a pull
-   towards the starting weights (L2-SP: ``anchor`` / 2 x squared distance; the default without replay).
+   (:mod:`semmap.train.replay`), every class weighed alike (median-frequency weights of so few images cost 5-7
+   points of validation MIoU in 20 steps: docs/EXPERIMENTS.md), and optionally a pull towards the starting weights
+   (L2-SP: ``anchor`` / 2 x squared distance; the default without replay).
 3. Every ``eval_every`` steps: agreement with the held-out frames' pseudo-labels (MIoU) and MIoU on the original
    validation scenes; the weights kept (``best.pt``) are those agreeing best with the map among the evaluations
    whose validation MIoU fell by at most ``forget_tolerance`` (the starting weights when none does better).
@@ -49,7 +50,13 @@ from semmap.train.augment import Augmentation, augment
 from semmap.train.calibrate import fitted_record
 from semmap.train.class_weights import IGNORE, median_frequency_weights
 from semmap.train.data import DEPTH_MM, TrainingSet
-from semmap.train.pseudo_labels import MaskSettings, PseudoLabelStats, ViewCounter, pseudo_labels
+from semmap.train.pseudo_labels import (
+    MaskSettings,
+    PseudoLabelStats,
+    ViewCounter,
+    confident_network,
+    pseudo_labels,
+)
 from semmap.train.replay import REPLAY_FRAMES, REPLAY_SCENES, find_replay
 from semmap.train.trainer import batch_indices, batch_tensors, normalise, poly_lr, seed_of, seeded
 from semmap.types import Frame, LabelSet, Trajectory
@@ -72,7 +79,7 @@ PREVIEW_FRAMES = 4
 #: Settings that must match to resume.
 RESUME_KEYS = ("steps", "batch", "replay_share", "lr", "momentum", "weight_decay", "poly_power", "anchor", "every",
                "holdout_every", "eval_every", "seed", "augment", "masks", "replay_scenes", "replay_frames",
-               "forget_tolerance")
+               "forget_tolerance", "freeze_norm", "class_weighting")
 
 Progress = Callable[[str, int, int], None]
 
@@ -101,6 +108,8 @@ class AdaptSettings:
     replay_scenes: int = REPLAY_SCENES
     replay_frames: int = REPLAY_FRAMES
     forget_tolerance: float = 0.01  #: validation MIoU the kept weights may lose (0.01 = 1 point)
+    freeze_norm: bool = False  #: BatchNorm keeps its statistics (eval mode) while the weights move
+    class_weighting: bool = False  #: median-frequency class weights of the pseudo-labels and replay (else alike)
 
     def __post_init__(self) -> None:
         check("iterations", self.steps, "--steps")
@@ -248,7 +257,8 @@ class Adapter:
                        else (0.0 if self.replay.train is not None else ANCHOR_WITHOUT_REPLAY))
         k = len(self.net.label_set)
         parts = [self.data.train.labels] + ([] if self.replay.train is None else [self.replay.train.labels])
-        self.class_weights = median_frequency_weights(np.concatenate(parts), k)
+        self.class_weights = (median_frequency_weights(np.concatenate(parts), k) if settings.class_weighting
+                              else (np.arange(k) != IGNORE).astype(np.float32))
         self.start = {name: p.detach().clone() for name, p in self.model.named_parameters()}
         self.optimizer = torch.optim.SGD(self.model.parameters(), lr=settings.lr, momentum=settings.momentum,
                                          weight_decay=settings.weight_decay)
@@ -289,15 +299,23 @@ class Adapter:
                 continue
             p = pseudo_labels(src.map, frame, T, views, s.masks, stride=stride, class_lut=self.lut,
                               min_depth=src.min_depth, max_depth=src.max_depth)
-            stats.add(p)
-            rgb.append(_resized(frame.rgb, (w, h), cv2.INTER_AREA))
-            labels.append(_resized(p.labels, (w, h), cv2.INTER_NEAREST))
-            maps.append(_resized(p.map_labels, (w, h), cv2.INTER_NEAREST))
+            rgb_in = _resized(frame.rgb, (w, h), cv2.INTER_AREA)
+            depth_in = None
             if self.uses_depth:
                 dm = np.nan_to_num(_resized(frame.depth, (w, h), cv2.INTER_NEAREST))
-                depth.append(np.clip(np.rint(dm * DEPTH_MM), 0, 65535).astype(np.uint16))
+                depth_in = np.clip(np.rint(dm * DEPTH_MM), 0, 65535).astype(np.uint16)
+                depth.append(depth_in)
+            grid = p.labels.shape
+            pred, conf = (_resized(a, (grid[1], grid[0]), cv2.INTER_NEAREST) for a in self._top(rgb_in, depth_in))
+            confident_network(p, pred, conf, s.masks.network_confidence)
+            truth_grid = None
             if frame.labels is not None:
-                truth.append(_resized(frame.labels.astype(np.uint16), (w, h), cv2.INTER_NEAREST))
+                truth_grid = frame.labels[::stride, ::stride].astype(np.uint16)
+                truth.append(_resized(truth_grid, (w, h), cv2.INTER_NEAREST))
+            stats.add(p, truth_grid, pred)
+            rgb.append(rgb_in)
+            labels.append(_resized(p.labels, (w, h), cv2.INTER_NEAREST))
+            maps.append(_resized(p.map_labels, (w, h), cv2.INTER_NEAREST))
             names.append(frame.name or str(frame.index))
             hold.append((i // s.every) % s.holdout_every == s.holdout_every - 1)
             self.progress("pseudo-labels", i + 1, mapped)
@@ -315,10 +333,19 @@ class Adapter:
         if not data.train.labels.any():
             raise DatasetError(f"{src.run_dir}: the map is unsure of every pixel (no pseudo-label survived the "
                                f"masks: {json.dumps(data.stats['removed'])}); lower --min-confidence / --min-views")
-        if has_truth:
-            data.stats.update(self._truth_stats(rgb_a, lab_a, map_a, depth_a, truth_a))
         self._save_data(rgb_a, lab_a, depth_a, map_a, truth_a, hold_mask, names, data.stats)
         return data
+
+    @torch.no_grad()
+    def _top(self, rgb: np.ndarray, depth: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
+        """The starting network's class (uint16) and its probability (float32) at each pixel of one image at the
+        input size (``depth`` in millimetres, for a network that uses it)."""
+        self.model.eval()
+        x = torch.from_numpy(rgb[None]).permute(0, 3, 1, 2).float().div_(255.0)
+        d = None if depth is None else torch.from_numpy(depth[None, None].astype(np.float32) / DEPTH_MM)
+        logits, _ = self._forward(x, d)
+        conf, top = torch.softmax(logits[0], 0).max(0)
+        return top.numpy().astype(np.uint16), conf.numpy().astype(np.float32)
 
     def _split(self, rgb, labels, depth, maps, truth, hold, names, stats) -> PseudoData:
         ls = self.net.label_set
@@ -330,22 +357,6 @@ class Adapter:
         train, holdout = part(~hold), part(hold)
         return PseudoData(train, holdout, maps[hold], None if truth is None else truth[~hold],
                           None if truth is None else truth[hold], train.sources + holdout.sources, stats)
-
-    def _truth_stats(self, rgb, labels, maps, depth, truth) -> dict:
-        """Pseudo-labels and the starting network against the frames' true labels, on the kept pixels."""
-        stats = PseudoLabelStats(len(self.net.label_set))
-        ds = TrainingSet(rgb, labels, depth, self.net.label_set)
-        for i, pred in self._predictions(ds):
-            kept = labels[i] != IGNORE
-            t = truth[i]
-            stats.truth = True
-            stats.conf_pseudo += confusion(labels[i][kept], t[kept], stats.num_classes)
-            stats.conf_network += confusion(pred[kept], t[kept], stats.num_classes)
-            mapped = maps[i] != IGNORE
-            stats.conf_map += confusion(maps[i][mapped], t[mapped], stats.num_classes)
-        full = stats.summary()
-        return {k: full[k] for k in ("accuracy", "miou", "map_accuracy", "map_miou", "network_accuracy",
-                                     "network_miou") if k in full}
 
     def _save_data(self, rgb, labels, depth, maps, truth, hold, names, stats) -> None:
         arrays = {"rgb": rgb, "labels": labels, "map_labels": maps, "holdout": hold,
@@ -400,6 +411,10 @@ class Adapter:
         for group in self.optimizer.param_groups:
             group["lr"] = poly_lr(s.lr, it, s.steps, s.poly_power)
         self.model.train()
+        if s.freeze_norm:
+            for module in self.model.modules():
+                if isinstance(module, torch.nn.modules.batchnorm._BatchNorm):
+                    module.eval()
         logits, aux = self._forward(rgb, depth)
         row: dict = {}
         total = torch.zeros(())

@@ -9,7 +9,10 @@ training ignores) where the map is unsure of it:
 * too few views: fewer than ``min_views`` of the frames saw the voxel (one view is the network's own guess again);
 * disagreement with the geometry: the pixel lies within ``edge_px`` of a depth jump (more than ``edge_jump_m``, or
   ``edge_jump_share`` of the depth) or of a hole, where its voxel may hold two surfaces and a small pose or
-  depth error moves the pixel onto the other one; or the map has no occupied voxel at the point.
+  depth error moves the pixel onto the other one; or the map has no occupied voxel at the point;
+* a confident network: the network about to be adapted gives the pixel another class with probability at least
+  ``network_confidence`` (where it is that sure and the map disagrees, the map is more often wrong: a voxel
+  larger than a thin object, a chair's voxels reaching into the table above it; docs/EXPERIMENTS.md).
 """
 
 from __future__ import annotations
@@ -28,7 +31,7 @@ from semmap.train.class_weights import IGNORE
 from semmap.types import EMPTY_LABEL, Frame
 
 #: Why a pixel with a depth teaches nothing, in the order the masks are applied.
-REASONS = ("no_class", "low_confidence", "few_views", "depth_edge")
+REASONS = ("no_class", "low_confidence", "few_views", "depth_edge", "confident_network")
 
 
 @dataclass(frozen=True)
@@ -37,13 +40,15 @@ class MaskSettings:
 
     min_confidence: float = 0.5
     min_views: int = 3
-    edge_px: int = 2
+    edge_px: int = 0  #: 0: the pixels on either side of a jump or next to a hole only
     edge_jump_m: float = 0.1
     edge_jump_share: float = 0.05
+    network_confidence: float | None = 0.7  #: None: the network's own labels never veto the map's
 
     def to_dict(self) -> dict:
         return {"min_confidence": self.min_confidence, "min_views": self.min_views, "edge_px": self.edge_px,
-                "edge_jump_m": self.edge_jump_m, "edge_jump_share": self.edge_jump_share}
+                "edge_jump_m": self.edge_jump_m, "edge_jump_share": self.edge_jump_share,
+                "network_confidence": self.network_confidence}
 
 
 class ViewCounter:
@@ -148,6 +153,16 @@ def pseudo_labels(m: SemanticMap, frame: Frame, T_world_cam: np.ndarray, views: 
                         map_labels=view.image(cls, IGNORE, np.uint16),
                         confidence=view.image(view.confidence, 0.0, np.float32), stride=int(stride),
                         with_depth=len(cls), removed=removed)
+
+
+def confident_network(p: PseudoLabels, network: np.ndarray, confidence: np.ndarray, threshold: float | None) -> None:
+    """Drop, in place, the pseudo-labels of ``p`` where the network's class (``network``, on the same grid) differs
+    and its probability ``confidence`` is at least ``threshold`` (None: keep them all)."""
+    drop = np.zeros(p.labels.shape, bool)
+    if threshold is not None:
+        drop = (p.labels != IGNORE) & (np.asarray(confidence) >= threshold) & (np.asarray(network) != p.labels)
+        p.labels[drop] = IGNORE
+    p.removed["confident_network"] = int(drop.sum())
 
 
 @dataclass

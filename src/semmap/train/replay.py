@@ -87,6 +87,17 @@ def evenly(n: int, k: int) -> list[int]:
     return sorted({int(i) for i in np.linspace(0, n - 1, k).round()})
 
 
+def balanced(plan: Sequence[PlannedScene], n: int) -> list[PlannedScene]:
+    """``n`` scenes of ``plan``, as many of each room kind as can be, spread evenly over each kind's scenes."""
+    kinds = list(dict.fromkeys(s.kind for s in plan))
+    groups = {k: [s for s in plan if s.kind == k] for k in kinds}
+    share = {k: n // len(kinds) + (i < n % len(kinds)) for i, k in enumerate(kinds)}
+    picked = {k: [groups[k][i] for i in evenly(len(groups[k]), share[k])] for k in kinds}
+    order = [s for rank in range(max(map(len, picked.values()), default=0)) for k in kinds
+             if rank < len(picked[k]) for s in (picked[k][rank],)]
+    return order
+
+
 def cache_dir() -> Path:
     """``$SEMMAP_CACHE_DIR/replay`` (default ``~/.cache/semmap/replay``)."""
     return Path(os.environ.get("SEMMAP_CACHE_DIR", Path.home() / ".cache" / "semmap")) / "replay"
@@ -150,7 +161,7 @@ def plan_replay(plan: ReplayPlan, size: tuple[int, int], label_set: LabelSet, *,
                 frames: int = REPLAY_FRAMES, val_frames: int = VAL_FRAMES_PER_SCENE,
                 cache: Path | None = None) -> Replay:
     """``frames`` frames of ``scenes`` scenes of ``plan`` and ``val_frames`` of each validation scene, rendered."""
-    chosen = [plan.scenes[i] for i in evenly(len(plan.scenes), scenes)]
+    chosen = balanced(plan.scenes, scenes)
     train = render_scenes(chosen, plan.frames, evenly(plan.frames, frames), size, label_set,
                           path_seconds=plan.path_seconds, cache=cache)
     val = None
