@@ -115,7 +115,7 @@ def adapt(
                                                           "report.md, curve.png, pseudo_labels.png")],
     steps: Annotated[int, typer.Option(help="SGD steps")] = 300,
     batch: Annotated[int, typer.Option(help="images per step (pseudo-labelled and replayed)")] = 8,
-    lr: Annotated[float, typer.Option(help="initial learning rate (poly decay)")] = 0.005,
+    lr: Annotated[float, typer.Option(help="initial learning rate (poly decay)")] = 0.01,
     replay_share: Annotated[float, typer.Option(help="share of each batch from the network's original training "
                                                      "data (0: none)")] = 0.5,
     replay: Annotated[list[Path] | None, typer.Option(help="training folder(s) to replay (default: the scenes the "

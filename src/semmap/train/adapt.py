@@ -92,7 +92,7 @@ class AdaptSettings:
     steps: int = 300
     batch: int = 8
     replay_share: float = 0.5
-    lr: float = 0.005
+    lr: float = 0.01
     momentum: float = 0.9
     weight_decay: float = 1e-4
     poly_power: float = 0.9
