@@ -3,6 +3,7 @@ lowers the loss on its pseudo-labels, resuming after a kill, and the refusal of 
 
 from __future__ import annotations
 
+import copy
 import json
 import shutil
 from pathlib import Path
@@ -13,12 +14,15 @@ import torch
 
 from helpers import make_room_frames, room_label_set, write_png
 from semmap.errors import ConfigError, DatasetError
+from semmap.labels import INDOOR_LABELS
 from semmap.maps.semantic_octomap import SemanticOctoMap
-from semmap.perception.networks.registry import build_network, load_weights
+from semmap.perception.networks.registry import load_weights
+from semmap.perception.voc import PASCAL_VOC
 from semmap.pipeline import Mapper
-from semmap.train.adapt import Adapter, AdaptSettings, AdaptSource, adapt, class_lut
+from semmap.train.adapt import Adapter, AdaptSettings, AdaptSource, adapt
 from semmap.train.class_weights import IGNORE
 from semmap.train.pseudo_labels import MaskSettings, ViewCounter, confident_network, depth_edges, pseudo_labels
+from semmap.train.trainable import _voc_classes, by_name, load_trainable
 from semmap.train.trainer import TrainSettings, batch_tensors, normalise, train
 from semmap.types import CameraIntrinsics, Frame, LabelSet, TopKProbs, Trajectory, make_pose
 
@@ -134,12 +138,18 @@ def test_depth_edges_mark_holes_and_jumps_relative_to_depth():
     assert e[0:5, 0:5].sum() == e.sum() == 25 - 4  # that cross grown by one pixel: 5x5 less its corners
 
 
-def test_class_lut_maps_by_name_and_refuses_disjoint_sets():
+def test_map_classes_reach_the_network_by_name_and_espnetv2_through_the_voc_fold(trained):
     net = LabelSet(("unknown", "wall", "floor"), np.zeros((3, 3), np.uint8))
     mapped = LabelSet(("unknown", "floor", "chair", "wall"), np.zeros((4, 3), np.uint8))
-    np.testing.assert_array_equal(class_lut(mapped, net), [0, 2, 0, 1])
+    np.testing.assert_array_equal(by_name(mapped, net), [0, 2, 0, 1])
+    voc = {name: i for i, name in enumerate(("unknown", *PASCAL_VOC.names))}  # VOC's classes moved up one
+    lut = _voc_classes(INDOOR_LABELS, None)
+    assert lut[INDOOR_LABELS.id_of("table")] == voc["diningtable"] and lut[INDOOR_LABELS.id_of("chair")] == voc["chair"]
+    assert lut[INDOOR_LABELS.id_of("wall")] == lut[INDOOR_LABELS.id_of("cabinet")] == voc["background"]
+    network = load_trainable("fcn", trained)
+    assert network.lut(room_label_set())[0] == IGNORE  # the map's own "unknown" teaches nothing
     with pytest.raises(ConfigError, match="share none"):
-        class_lut(LabelSet(("unknown", "sofa"), np.zeros((2, 3), np.uint8)), net)
+        network.lut(LabelSet(("unknown", "sofa"), np.zeros((2, 3), np.uint8)))
 
 
 # ------------------------------------------------------------------ adaptation
@@ -178,7 +188,7 @@ def _settings(out: Path, **kw) -> AdaptSettings:
 
 def _pseudo_loss(adapter: Adapter, state: dict) -> float:
     """Cross entropy of the pseudo-labelled training frames under the network weights ``state``."""
-    model = build_network(adapter.net.spec)
+    model = copy.deepcopy(adapter.model)
     model.load_state_dict(state)
     model.eval()
     ds = adapter.data.train
@@ -240,3 +250,32 @@ def test_a_map_without_a_class_at_any_pixel_teaches_nothing_and_says_so(room, tr
     source = _source((frames, empty), _weights(tmp_path, trained), tmp_path / "run")
     with pytest.raises(DatasetError, match="no pseudo-label survived"):
         Adapter(source, _settings(tmp_path / "out"))
+
+
+def test_espnetv2_adapts_with_voc_background_as_a_class_and_its_file_reads_back(room, tmp_path):
+    """ESPNetv2 (PASCAL VOC) learns from a map in semmap's classes: wall and floor are VOC's background; the adapted
+    file is an ESPNetv2 weights file that --segmenter espnetv2 --weights reads, with its temperature."""
+    from semmap.perception.registry import make_segmenter, shipped_espnetv2
+
+    frames = room[0][:6]
+    faces = np.array([0, 1, 1, 1, 1, 2, 3])  # room face -> wall, wall, wall, wall, floor, ceiling (indoor ids)
+    indoor = SemanticOctoMap(RES, label_set=INDOOR_LABELS)
+    mapper = Mapper([indoor], min_depth=0.1, max_depth=10.0)
+    for f in frames:
+        mapper.integrate(f, f.T_world_cam, TopKProbs.from_hard_labels(faces[f.labels], 0.9, len(INDOOR_LABELS)))
+    weights = Path(shutil.copy(shipped_espnetv2("s1"), tmp_path / "espnetv2.pth"))
+    source = _source((frames, indoor), weights, tmp_path / "run")
+    source.segmenter = "espnetv2"
+    settings = _settings(tmp_path / "adapted", lr=0.001, freeze_norm=True, eval_every=2, holdout_every=3)
+    adapter = Adapter(source, settings)
+    assert adapter.data.train.rgb.shape[1:3] == (320, 432)  # ESPNetv2's input: short side 320
+    taught = np.unique(adapter.data.train.labels)
+    assert set(taught) <= {IGNORE, 1} and 1 in taught  # everything the map names is VOC's background (id 0 + 1)
+    before = _pseudo_loss(adapter, load_trainable("espnetv2", weights).model.state_dict())
+    result = adapter.run()
+    after = _pseudo_loss(adapter, _last_state(tmp_path / "adapted"))
+    assert after < before
+    assert result.weights.name == "best.pth"
+    seg = make_segmenter("espnetv2", weights=result.weights)
+    assert seg.temperature == pytest.approx(result.report["calibration"]["temperature"])
+    assert seg.segment(frames[0]).labels.shape[:2] == frames[0].depth.shape

@@ -447,3 +447,24 @@ def load_espnetv2(weights_path: str | Path, num_classes: int | None = None,
         raise FormatError(f"{path}: {len(bad)} tensor shapes do not match ESPNetv2 s={s:g}: {_few(bad, 3)}")
     model.load_state_dict(sd, strict=True)
     return model.eval()
+
+
+def save_espnetv2(path: str | Path, model: ESPNetv2Seg, meta: dict | None = None) -> Path:
+    """Write ``model``'s state dict as :func:`load_espnetv2` reads it (``{"state_dict": ..., "meta": ...}``, the
+    metadata plain data: a calibration temperature, how the weights were made), atomically."""
+    import io
+
+    from semmap.files.atomic import write_bytes_atomic
+
+    buf = io.BytesIO()
+    torch.save({"state_dict": {k: v.detach().cpu() for k, v in model.state_dict().items()}, "meta": meta or {}}, buf)
+    return write_bytes_atomic(path, buf.getvalue())
+
+
+def espnetv2_meta(path: str | Path) -> dict:
+    """The metadata :func:`save_espnetv2` stored with an ESPNetv2 weights file ({} for the authors' files)."""
+    from semmap.perception.networks.registry import read_torch_file
+
+    blob = read_torch_file(path, "PyTorch weights file")
+    meta = blob.get("meta") if isinstance(blob, Mapping) else None
+    return dict(meta) if isinstance(meta, Mapping) else {}

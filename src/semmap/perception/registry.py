@@ -150,8 +150,8 @@ def _precomputed(*, weights: Path | None, label_set: LabelSet | None, k: int, la
 
 def _espnetv2(*, weights: Path | None, k: int, backend: str, batch_size: int,
               input_size: tuple[int, int] | int | None, threads: int | None, trust_weights: bool = False,
-              **_) -> Segmenter:
-    from semmap.perception.espnetv2 import load_espnetv2
+              calibration: bool = True, **_) -> Segmenter:
+    from semmap.perception.espnetv2 import espnetv2_meta, load_espnetv2
     from semmap.perception.network import NetworkInput, NetworkSegmenter
     from semmap.perception.voc import PASCAL_VOC
 
@@ -167,8 +167,9 @@ def _espnetv2(*, weights: Path | None, k: int, backend: str, batch_size: int,
     size = ESPNETV2_INPUT if input_size is None else input_size
     net_input = NetworkInput(short_side=size) if isinstance(size, int) else NetworkInput(size=size)
     stat = Path(weights).stat()
+    temperature = weights_temperature(espnetv2_meta(weights), Path(weights)) if calibration and not shipped else 1.0
     return NetworkSegmenter(model, PASCAL_VOC, name=ESPNETV2, net_input=net_input, k=k, backend=backend,
-                            batch_size=batch_size, threads=threads,
+                            batch_size=batch_size, threads=threads, temperature=temperature,
                             cache_key=f"{Path(weights).resolve()}|{stat.st_size}|{stat.st_mtime_ns}|half")
 
 

@@ -45,7 +45,7 @@ from semmap.files.outputs import OutputKind, check_outputs
 from semmap.limits import check, check_memory, check_network_input
 from semmap.maps.base import SemanticMap
 from semmap.perception.networks.pspnet import AUX_WEIGHT
-from semmap.perception.networks.registry import NetworkWeights, load_weights, read_torch_file, save_weights
+from semmap.perception.networks.registry import read_torch_file
 from semmap.train.augment import Augmentation, augment
 from semmap.train.calibrate import fitted_record
 from semmap.train.class_weights import IGNORE, median_frequency_weights
@@ -58,8 +58,9 @@ from semmap.train.pseudo_labels import (
     pseudo_labels,
 )
 from semmap.train.replay import REPLAY_FRAMES, REPLAY_SCENES, find_replay
+from semmap.train.trainable import Trainable, load_trainable
 from semmap.train.trainer import batch_indices, batch_tensors, normalise, poly_lr, seed_of, seeded
-from semmap.types import Frame, LabelSet, Trajectory
+from semmap.types import Frame, Trajectory
 
 log = logging.getLogger("semmap")
 
@@ -67,7 +68,7 @@ CHECKPOINT_FORMAT = "semmap-adapt-checkpoint"
 #: The pseudo-labelled frames of a run (written once, read back on ``resume``).
 DATA_FILE = "pseudo_labels.npz"
 #: The weights chosen so far (the best evaluation's), recalibrated into ``best.pt`` at the end.
-CANDIDATE_FILE = "candidate.pt"
+CANDIDATE_FILE = "candidate.state"
 #: A frame's pose in ``trajectory.txt`` lies within this of its timestamp (TUM files keep 6 decimals).
 POSE_TIME_TOLERANCE = 1e-3
 #: Held-out pixels the temperature is fitted on: every n-th row and column.
@@ -186,18 +187,6 @@ def _hash_file(path: Path) -> str:
     return digest.hexdigest()
 
 
-def class_lut(map_labels: LabelSet, network_labels: LabelSet) -> np.ndarray:
-    """Map class id -> network class id by name (0 for a class the network does not have); ConfigError when they
-    share no class."""
-    index = {name: i for i, name in enumerate(network_labels.names)}
-    lut = np.array([index.get(name, IGNORE) for name in map_labels.names], np.int64)
-    lut[IGNORE] = IGNORE
-    if not (lut != IGNORE).any():
-        raise ConfigError(f"the map's classes ({', '.join(map_labels.names[1:6])}, ...) share none with the "
-                          f"network's ({', '.join(network_labels.names[1:6])}, ...): nothing to teach")
-    return lut
-
-
 def _posed_frames(source: AdaptSource) -> Iterable[tuple[int, Frame, np.ndarray]]:
     """(index among the mapped frames, frame, the pose it was mapped with) of the frames in ``trajectory.txt``."""
     stamps = source.trajectory.timestamps
@@ -235,18 +224,17 @@ class Adapter:
             torch.set_num_threads(int(settings.threads))
         self.cpu_s = 0.0
         self._cpu0 = time.process_time()
-        self.net: NetworkWeights = load_weights(source.weights)
+        self.net: Trainable = load_trainable(source.segmenter, source.weights)
         self.model = self.net.model
         self.weights_sha256 = _hash_file(source.weights)
         if source.map.label_set is None:
             raise ConfigError(f"{source.run_dir}: the run's map holds no classes; a map built with its segmenter is "
                               "needed")
-        self.lut = class_lut(source.map.label_set, self.net.label_set)
-        w, h = self.net.input_size
-        check_network_input(w, h, settings.batch, training=True)
+        self.lut = self.net.lut(source.map.label_set)
         out.mkdir(parents=True, exist_ok=True)
         self.data = self._load_data() if resume and (out / DATA_FILE).is_file() else self._make_data()
-        self.replay = find_replay(self.net.meta, source.weights, self.net.input_size, self.net.label_set,
+        self.input_size = (self.data.train.rgb.shape[2], self.data.train.rgb.shape[1])
+        self.replay = find_replay(self.net.meta, source.weights, self.input_size, self.net.label_set,
                                   need_depth=self.uses_depth, folders=settings.replay_folders,
                                   shipped_manifest=_shipped_manifest(), scenes=settings.replay_scenes,
                                   frames=settings.replay_frames, cache=_replay_cache())
@@ -271,17 +259,17 @@ class Adapter:
 
     @property
     def uses_depth(self) -> bool:
-        return self.net.spec.uses_depth
+        return self.net.uses_depth
 
     # ------------------------------------------------------------------ pseudo-labelled frames
     def _make_data(self) -> PseudoData:
         """Both passes over the run's frames: views per voxel, then pseudo-labels at the network's input size."""
         src, s = self.source, self.s
-        w, h = self.net.input_size
         views = ViewCounter(src.map.resolution)
-        stride = 1
+        stride, w, h = 1, 0, 0
         mapped = 0
         for i, frame, T in _posed_frames(src):
+            w, h = self.net.input_for(frame.intrinsics.width, frame.intrinsics.height)
             stride = max(1, round(frame.intrinsics.width / w))
             views.add(frame, T, stride=stride, min_depth=src.min_depth, max_depth=src.max_depth)
             mapped = i + 1
@@ -290,6 +278,7 @@ class Adapter:
             raise DatasetError(f"{src.run_dir}: none of the sequence's frames has a pose in trajectory.txt (is it "
                                "the sequence this run mapped?)")
         used = (mapped + s.every - 1) // s.every
+        check_network_input(w, h, s.batch, training=True)
         check_memory(f"{used} pseudo-labelled frames at {w}x{h}", used * w * h * (3 + 2 * 4))
         k = len(self.net.label_set)
         rgb, labels, depth, truth, maps, names, hold = [], [], [], [], [], [], []
@@ -299,7 +288,7 @@ class Adapter:
                 continue
             p = pseudo_labels(src.map, frame, T, views, s.masks, stride=stride, class_lut=self.lut,
                               min_depth=src.min_depth, max_depth=src.max_depth)
-            rgb_in = _resized(frame.rgb, (w, h), cv2.INTER_AREA)
+            rgb_in = _resized(frame.rgb, (w, h), self.net.interpolation)
             depth_in = None
             if self.uses_depth:
                 dm = np.nan_to_num(_resized(frame.depth, (w, h), cv2.INTER_NEAREST))
@@ -501,8 +490,9 @@ class Adapter:
         score = row["holdout_pseudo_miou"]
         if self._eligible(row) and (not self.best or score > self.best["holdout_pseudo_miou"]):
             self.best = {"step": row["step"], "holdout_pseudo_miou": score, "val_miou": row.get("val_miou")}
-            save_weights(self.candidate_path, self.model, self.net.spec, self.net.label_set, self.net.input_size,
-                         self.net.meta)
+            buf = io.BytesIO()
+            torch.save({k: v.detach().cpu() for k, v in self.model.state_dict().items()}, buf)
+            write_bytes_atomic(self.candidate_path, buf.getvalue())
         self._write_logs()
 
     # ------------------------------------------------------------------ the run
@@ -546,11 +536,10 @@ class Adapter:
     def _finish(self) -> AdaptResult:
         """The chosen weights recalibrated into ``best.pt``, with the manifest entry and the report."""
         s = self.s
-        self.model.load_state_dict(load_weights(self.candidate_path).model.state_dict())
+        self.model.load_state_dict(read_torch_file(self.candidate_path, "adaptation candidate"))
         record = self._calibrate()
         meta = self._meta(record)
-        best = s.out / "best.pt"
-        save_weights(best, self.model, self.net.spec, self.net.label_set, self.net.input_size, meta)
+        best = self.net.save(s.out / f"best{self.net.suffix}", meta)
         preview = self._preview()
         self._tick()
         report = self._report(best, record, preview)
@@ -586,7 +575,7 @@ class Adapter:
         meta = {k: v for k, v in self.net.meta.items() if k not in ("temperature", "calibration", "replay",
                                                                       "adapted_from", "adapt")}
         origin = self.net.meta.get("adapted_from") or {"file": str(src.weights), "sha256": self.weights_sha256,
-                                                       "network": self.net.spec.describe()}
+                                                       "network": self.net.network}
         meta.update({"temperature": calibration["temperature"], "calibration": calibration,
                      "adapted_from": origin,
                      "adapt": {"run": str(src.run_dir), "weights": str(src.weights),
@@ -600,7 +589,7 @@ class Adapter:
     def _report(self, best: Path, calibration: dict, preview: Path | None) -> dict:
         src = self.source
         return {"run": str(src.run_dir), "segmenter": src.segmenter, "weights": str(src.weights),
-                "network": self.net.spec.describe(), "out": str(best),
+                "network": self.net.network, "out": str(best),
                 "frames": {"train": len(self.data.train), "holdout": len(self.data.holdout)},
                 "pseudo_labels": self.data.stats, "masks": self.s.masks.to_dict(),
                 "replay": self.replay.describe(), "anchor": self.anchor,
@@ -617,16 +606,16 @@ class Adapter:
         """``manifest.json`` beside ``best.pt``: its entry in the form of ``weights/manifest.json``."""
         data = best.read_bytes()
         entry = {"file": best.name, "sha256": hashlib.sha256(data).hexdigest(), "bytes": len(data),
-                 "network": self.net.spec.describe(), "spec": self.net.spec.to_dict(),
+                 "network": self.net.network, "spec": self.net.spec,
                  "parameters": sum(p.numel() for p in self.model.parameters()),
-                 "input_size": list(self.net.input_size), "command": self.source.command,
+                 "input_size": list(self.input_size), "command": self.source.command,
                  "adapted_from": meta["adapted_from"], "run": str(self.source.run_dir),
                  "best_step": self.best.get("step"), "steps": self.s.steps,
                  "pseudo_labels": self.data.stats, "replay": self.replay.describe(),
                  "temperature": meta["temperature"], "calibration": meta["calibration"],
                  "chosen": report["chosen"], "start": report["start"], "cpu_minutes": report["cpu_minutes"]}
         manifest = {"about": "A network semmap adapted to one mapped scene (semmap adapt); see report.md",
-                    "networks": {self.net.spec.model: entry}}
+                    "networks": {self.net.name: entry}}
         write_text_atomic(self.s.out / "manifest.json", json.dumps(manifest, indent=1))
 
     # ------------------------------------------------------------------ files
@@ -668,7 +657,7 @@ class Adapter:
         writer.writeheader()
         writer.writerows(self.rows)
         write_text_atomic(self.s.out / "log.csv", buf.getvalue())
-        write_bytes_atomic(self.s.out / "curve.png", _curve_png(self.rows, f"{self.net.spec.describe()} adapted"))
+        write_bytes_atomic(self.s.out / "curve.png", _curve_png(self.rows, f"{self.net.network} adapted"))
 
     def _preview(self) -> Path | None:
         """``pseudo_labels.png``: a few held-out frames as colour | network before | map (pseudo-labels, black
@@ -706,7 +695,7 @@ class Adapter:
 
     def _start_state(self) -> dict:
         """The starting network's state dict (its file, read again: BatchNorm statistics included)."""
-        return load_weights(self.source.weights).model.state_dict()
+        return load_trainable(self.source.segmenter, self.source.weights).model.state_dict()
 
 
 def _resized(image: np.ndarray, size: tuple[int, int], interpolation: int) -> np.ndarray:
