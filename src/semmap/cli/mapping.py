@@ -20,14 +20,7 @@ from semmap.cli.options import (
     parse_size,
     validated,
 )
-from semmap.cli.terminal import (
-    interruptible,
-    print_summary,
-    print_table,
-    progress_bar,
-    setup_logging,
-    stderr_console,
-)
+from semmap.cli.terminal import interruptible, print_summary, progress_bar, setup_logging, stderr_console
 from semmap.config import CrfConfig, InputConfig, MappingConfig, ObjectsConfig, OutputConfig, SemanticsConfig
 from semmap.datasets import AUTO
 from semmap.errors import SemmapError
@@ -258,7 +251,9 @@ def run(
         if resume or continue_from is not None or checkpoint_every:
             raise SemmapError("--adapt continues a killed loop by itself (run the same command again); it takes no "
                               "--resume, --continue or --checkpoint-every")
-        return _run_adapting(config, adapt_rounds, adapt_steps)
+        from semmap.cli.train import run_adapting
+
+        return run_adapting(config, adapt_rounds, adapt_steps)
     with interruptible():
         result = run_config(config, progress=progress_bar("mapping"),
                             track_progress=progress_bar(f"tracking ({poses})"), checkpoint_every=checkpoint_every,
@@ -268,24 +263,6 @@ def run(
     except KeyboardInterrupt:  # the outputs are complete by now: say so, and it is a success
         print(f"semmap: Ctrl-C after the run had finished; its outputs in {result.out_dir} are complete",
               file=sys.stderr)
-
-
-def _run_adapting(config, rounds: int, steps: int) -> None:
-    """``semmap run --adapt``: the loop of mapping and adapting, and its table of rounds."""
-    from semmap.cli.train import adapt_with_progress
-    from semmap.run.adapt import run_with_adaptation
-    from semmap.runner import run_config
-    from semmap.train.adapt import AdaptSettings
-
-    with interruptible():
-        result = run_with_adaptation(
-            config, rounds, AdaptSettings(out=config.output.out, steps=steps),
-            run=lambda c: run_config(c, progress=progress_bar(f"mapping ({c.output.out.name})")),
-            adapt=adapt_with_progress)
-    rows = [(f"round {r['round']}", f"network {r.get('pixel_miou_network', float('nan')):.3f}, map "
-                                    f"{r.get('pixel_miou_map', float('nan')):.3f} (pixel MIoU); "
-                                    f"{r['weights'] or 'weights as given'}") for r in result.rows]
-    print_table(f"semmap run --adapt: {result.out} (rounds.md)", rows)
 
 
 def demo(

@@ -10,7 +10,7 @@ from typing import Annotated
 import typer
 
 from semmap.cli.options import Json, MemoryBudget, budget, parse_size
-from semmap.cli.terminal import setup_logging, stderr_console, summary_out
+from semmap.cli.terminal import interruptible, print_table, progress_bar, setup_logging, stderr_console, summary_out
 from semmap.errors import SemmapError
 from semmap.perception.networks.registry import MODELS
 
@@ -208,3 +208,20 @@ class _StageProgress:
 
     def __exit__(self, *exc):
         return self._progress.__exit__(*exc)
+
+
+def run_adapting(config, rounds: int, steps: int) -> None:
+    """``semmap run --adapt``: the loop of mapping and adapting, and its table of rounds."""
+    from semmap.run.adapt import run_with_adaptation
+    from semmap.runner import run_config
+    from semmap.train.adapt import AdaptSettings
+
+    with interruptible():
+        result = run_with_adaptation(
+            config, rounds, AdaptSettings(out=config.output.out, steps=steps),
+            run=lambda c: run_config(c, progress=progress_bar(f"mapping ({c.output.out.name})")),
+            adapt=adapt_with_progress)
+    rows = [(f"round {r['round']}", f"network {r.get('pixel_miou_network', float('nan')):.3f}, map "
+                                    f"{r.get('pixel_miou_map', float('nan')):.3f} (pixel MIoU); "
+                                    f"{r['weights'] or 'weights as given'}") for r in result.rows]
+    print_table(f"semmap run --adapt: {result.out} (rounds.md)", rows)

@@ -75,6 +75,11 @@ POSE_TIME_TOLERANCE = 1e-3
 CALIBRATION_PIXEL_STEP = 4
 #: Pull towards the starting weights when there is nothing to replay (``anchor`` left at None).
 ANCHOR_WITHOUT_REPLAY = 1.0
+#: The network's confident labels veto the map's only where it agrees with the map on at least this share of the
+#: pixels: a network far from the frames' domain (a simulator network on real frames) is sure and wrong alike.
+VETO_MIN_AGREEMENT = 0.5
+#: Every n-th mapped frame measures that agreement.
+AGREEMENT_EVERY = 10
 #: Frames shown in ``pseudo_labels.png``.
 PREVIEW_FRAMES = 4
 #: Settings that must match to resume.
@@ -265,18 +270,8 @@ class Adapter:
     def _make_data(self) -> PseudoData:
         """Both passes over the run's frames: views per voxel, then pseudo-labels at the network's input size."""
         src, s = self.source, self.s
-        views = ViewCounter(src.map.resolution)
-        stride, w, h = 1, 0, 0
-        mapped = 0
-        for i, frame, T in _posed_frames(src):
-            w, h = self.net.input_for(frame.intrinsics.width, frame.intrinsics.height)
-            stride = max(1, round(frame.intrinsics.width / w))
-            views.add(frame, T, stride=stride, min_depth=src.min_depth, max_depth=src.max_depth)
-            mapped = i + 1
-            self.progress("counting views", i + 1, src.length)
-        if mapped == 0:
-            raise DatasetError(f"{src.run_dir}: none of the sequence's frames has a pose in trajectory.txt (is it "
-                               "the sequence this run mapped?)")
+        views, stride, (w, h), mapped, agreement = self._first_pass()
+        veto = s.masks.network_confidence if agreement >= VETO_MIN_AGREEMENT else None
         used = (mapped + s.every - 1) // s.every
         check_network_input(w, h, s.batch, training=True)
         check_memory(f"{used} pseudo-labelled frames at {w}x{h}", used * w * h * (3 + 2 * 4))
@@ -289,14 +284,12 @@ class Adapter:
             p = pseudo_labels(src.map, frame, T, views, s.masks, stride=stride, class_lut=self.lut,
                               min_depth=src.min_depth, max_depth=src.max_depth)
             rgb_in = _resized(frame.rgb, (w, h), self.net.interpolation)
-            depth_in = None
-            if self.uses_depth:
-                dm = np.nan_to_num(_resized(frame.depth, (w, h), cv2.INTER_NEAREST))
-                depth_in = np.clip(np.rint(dm * DEPTH_MM), 0, 65535).astype(np.uint16)
+            depth_in = _depth_mm(frame, (w, h)) if self.uses_depth else None
+            if depth_in is not None:
                 depth.append(depth_in)
             grid = p.labels.shape
             pred, conf = (_resized(a, (grid[1], grid[0]), cv2.INTER_NEAREST) for a in self._top(rgb_in, depth_in))
-            confident_network(p, pred, conf, s.masks.network_confidence)
+            confident_network(p, pred, conf, veto)
             truth_grid = None
             if frame.labels is not None:
                 truth_grid = frame.labels[::stride, ::stride].astype(np.uint16)
@@ -318,12 +311,39 @@ class Adapter:
         rgb_a, lab_a, map_a = np.stack(rgb), np.stack(labels), np.stack(maps)
         depth_a = np.stack(depth) if self.uses_depth else None
         truth_a = np.stack(truth) if has_truth else None
-        data = self._split(rgb_a, lab_a, depth_a, map_a, truth_a, hold_mask, names, stats.summary())
+        summary = stats.summary() | {"network_agreement": round(agreement, 4), "network_veto": veto is not None}
+        data = self._split(rgb_a, lab_a, depth_a, map_a, truth_a, hold_mask, names, summary)
         if not data.train.labels.any():
             raise DatasetError(f"{src.run_dir}: the map is unsure of every pixel (no pseudo-label survived the "
                                f"masks: {json.dumps(data.stats['removed'])}); lower --min-confidence / --min-views")
         self._save_data(rgb_a, lab_a, depth_a, map_a, truth_a, hold_mask, names, data.stats)
         return data
+
+    def _first_pass(self) -> tuple[ViewCounter, int, tuple[int, int], int, float]:
+        """Frames per voxel over every mapped frame, the rendering stride, the network's input size, the frames
+        mapped, and how often the network agrees with the map (every ``AGREEMENT_EVERY``-th frame's pixels where
+        the map has a class)."""
+        src = self.source
+        views = ViewCounter(src.map.resolution)
+        stride, size, mapped, agree, total = 1, (0, 0), 0, 0, 0
+        for i, frame, T in _posed_frames(src):
+            size = self.net.input_for(frame.intrinsics.width, frame.intrinsics.height)
+            stride = max(1, round(frame.intrinsics.width / size[0]))
+            views.add(frame, T, stride=stride, min_depth=src.min_depth, max_depth=src.max_depth)
+            if i % AGREEMENT_EVERY == 0:
+                p = pseudo_labels(src.map, frame, T, None, self.s.masks, stride=stride, class_lut=self.lut,
+                                  min_depth=src.min_depth, max_depth=src.max_depth)
+                depth_in = _depth_mm(frame, size) if self.uses_depth else None
+                pred = self._top(_resized(frame.rgb, size, self.net.interpolation), depth_in)[0]
+                pred = _resized(pred, (p.map_labels.shape[1], p.map_labels.shape[0]), cv2.INTER_NEAREST)
+                has = p.map_labels != IGNORE
+                agree, total = agree + int((pred[has] == p.map_labels[has]).sum()), total + int(has.sum())
+            mapped = i + 1
+            self.progress("counting views", i + 1, src.length)
+        if mapped == 0:
+            raise DatasetError(f"{src.run_dir}: none of the sequence's frames has a pose in trajectory.txt (is it "
+                               "the sequence this run mapped?)")
+        return views, stride, size, mapped, agree / max(total, 1)
 
     @torch.no_grad()
     def _top(self, rgb: np.ndarray, depth: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
@@ -704,6 +724,12 @@ def _resized(image: np.ndarray, size: tuple[int, int], interpolation: int) -> np
     if interpolation == cv2.INTER_AREA and (image.shape[1] < size[0] or image.shape[0] < size[1]):
         interpolation = cv2.INTER_LINEAR
     return cv2.resize(image, size, interpolation=interpolation)
+
+
+def _depth_mm(frame: Frame, size: tuple[int, int]) -> np.ndarray:
+    """The frame's depth at ``size`` (nearest neighbour) as uint16 millimetres, 0 where invalid."""
+    dm = np.nan_to_num(_resized(frame.depth, size, cv2.INTER_NEAREST))
+    return np.clip(np.rint(dm * DEPTH_MM), 0, 65535).astype(np.uint16)
 
 
 def _shipped_manifest() -> Path:
