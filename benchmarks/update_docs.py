@@ -3,8 +3,9 @@
     python benchmarks/update_docs.py [--quick] [--only fusion,demo,...|none] [--results FILE]
 
 ``--only`` re-runs the named parts (octree, sim, tracking, segmenters, fusion, demo, end_to_end, localization,
-networks; ``none``: nothing) and takes the others' results from ``--results`` (a JSON object of part results,
-e.g. ``{"fusion": <bench_fusion.py's last line>}``) or else from the JSON block at the end of docs/BENCHMARKS.md.
+networks, products, adapt; ``none``: nothing) and takes the others' results from ``--results`` (a JSON object of part
+results, e.g. ``{"fusion": <bench_fusion.py's last line>}``) or else from the JSON block at the end of
+docs/BENCHMARKS.md.
 Without demo results the docs keep their current demo lines. ``--only none`` re-renders both files from the saved
 results alone and keeps the date and machine they were measured on.
 
@@ -438,6 +439,39 @@ def headline_rows(results: dict) -> list[str]:
             *(f"| {a} | {b} | {c} | `{d}` |" for a, b, c, d in rows[:HEADLINE_ROWS])]
 
 
+#: Issue 46's targets for one shifted scene: network gain, map gain (points), forgetting (points), CPU minutes.
+ADAPT_TARGETS = (5.0, 2.0, 1.0, 30.0)
+
+
+def adapt_section(bench: dict | None) -> list[str]:
+    """The BENCHMARKS.md section on ``semmap adapt`` under a sensor shift (nothing without bench_adapt.py's results)."""
+    if not bench:
+        return []
+    gain, map_gain, forget, cpu = ADAPT_TARGETS
+    rows = ["| scene | shift | network | network MIoU before -> after | map MIoU before -> after | forgetting | "
+            "CPU min | pseudo-labels / network MIoU on the kept pixels |", "|---|---|---|---|---|---|---|---|"]
+    met = 0
+    for r in bench["results"]:
+        rows.append(f"| {r['scene']} | {r['shift']} | {r['network']} | {r['miou_before']:.3f} -> {r['miou_after']:.3f} "
+                    f"({100 * (r['miou_after'] - r['miou_before']):+.1f}) | {r['map_before']:.3f} -> "
+                    f"{r['map_after']:.3f} ({100 * (r['map_after'] - r['map_before']):+.1f}) | {r['forgetting']:+.2f} "
+                    f"| {r['cpu_min']:.1f} | {r.get('pseudo_miou') or 0:.3f} / "
+                    f"{r.get('pseudo_network_miou') or 0:.3f} |")
+        met += (100 * (r["miou_after"] - r["miou_before"]) >= gain and 100 * (r["map_after"] - r["map_before"])
+                >= map_gain and r["forgetting"] <= forget and r["cpu_min"] <= cpu)
+    return ["## The map teaches the network (`semmap adapt`)", "",
+            f"`benchmarks/bench_adapt.py`: networks trained on `clean` scenes, on {bench['frames']}-frame hand-held "
+            f"loops of scenes they never saw, rendered `kinect` or `hard` at {bench['image']}; mapped and adapted on "
+            f"frames 0-{bench['split'] - 1}, scored at the pixels of every {bench['every']}th frame from "
+            f"{bench['scored_from']} on (never seen in adaptation): the network before and after on the same pixels, "
+            "the first map and the map re-made with the adapted network where both have a class. Forgetting: the "
+            f"network's MIoU on the {bench['forget_frames']} `clean` test frames of `bench_networks.py` before minus "
+            f"after, in points. CPU minutes: process time of one adaptation, {bench['threads']} torch thread(s).", "",
+            *rows, "",
+            f"Scenes meeting all four targets (network +{gain:g}, map +{map_gain:g}, forgetting <= {forget:g} point, "
+            f"<= {cpu:g} CPU minutes): {met} of {len(bench['results'])}.", ""]
+
+
 def kept_section() -> list[str]:
     """The hand-carried section of the current docs/BENCHMARKS.md, markers included (empty if it has none)."""
     try:
@@ -470,9 +504,10 @@ PARTS = {"octree": ("octree_vs_octomap", "benchmarks/bench_octree_vs_octomap.py"
          "localization": ("localization", "benchmarks/bench_localization.py"),
          "networks": ("networks", "benchmarks/bench_networks.py"),
          "products": ("products", "benchmarks/bench_products.py"),
-         "real": ("real", "benchmarks/bench_real.py")}
+         "real": ("real", "benchmarks/bench_real.py"),
+         "adapt": ("adapt", "benchmarks/bench_adapt.py")}
 #: parts the docs can do without when an earlier run did not have them yet
-OPTIONAL = {"end_to_end", "localization", "networks", "products", "real"}
+OPTIONAL = {"end_to_end", "localization", "networks", "products", "real", "adapt"}
 #: What the docs use of the demo's report (kept in the JSON block so ``--only`` can reuse it).
 DEMO_KEYS = ("segmenter", "realism", "frames_segmented", "pixel_miou_map", "pixel_miou_network", "pixel_gain",
              "pixel_coverage", "pixel_every", "miou_3d", "geometric_precision_3d", "gt_coverage_3d", "frames_used",
@@ -581,6 +616,7 @@ def benchmarks_lines(results: dict, quick: bool, stamp: str, where: str) -> list
         *networks_section(results.get("networks")),
         *real_section(results.get("real")),
         *products_section(results.get("products")),
+        *adapt_section(results.get("adapt")),
         *kept_section(),
         "## Demo (`semmap demo`)", "", *demo_text, "",
         "```json", json_block(results), "```", "",
