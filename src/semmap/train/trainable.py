@@ -62,7 +62,9 @@ def by_name(map_labels: LabelSet, training: LabelSet) -> np.ndarray:
 
 def load_trainable(segmenter: str, weights: Path) -> Trainable:
     """The network of segmenter ``segmenter`` with the weights in ``weights``, ready to train."""
-    if segmenter == "espnetv2":
+    from semmap.perception.registry import ESPNETV2
+
+    if segmenter == ESPNETV2:
         return _espnetv2(weights)
     from semmap.perception.networks.registry import load_weights, save_weights
 
@@ -97,7 +99,7 @@ def _espnetv2(weights: Path) -> Trainable:
     background (a wall, a cabinet: what VOC calls background)."""
     from semmap.perception.espnetv2 import espnetv2_meta, load_espnetv2, save_espnetv2
     from semmap.perception.network import NetworkInput
-    from semmap.perception.registry import ESPNETV2_INPUT
+    from semmap.perception.registry import ESPNETV2, ESPNETV2_INPUT
     from semmap.perception.voc import PASCAL_VOC
 
     inner = load_espnetv2(weights, full_resolution=False)
@@ -108,10 +110,10 @@ def _espnetv2(weights: Path) -> Trainable:
     def save(path: Path, meta: dict) -> Path:
         return save_espnetv2(path, inner, meta)
 
-    return Trainable(name="espnetv2", network=f"espnetv2-s{inner.s:g}-voc", model=_ShiftedClasses(inner),
+    return Trainable(name=ESPNETV2, network=f"espnetv2-s{inner.s:g}-voc", model=_ShiftedClasses(inner),
                      label_set=LabelSet(names, colors), uses_depth=False, meta=espnetv2_meta(weights),
                      input_for=net_input.size_for, interpolation=net_input.interpolation, save=save, suffix=".pth",
-                     spec={"model": "espnetv2", "s": inner.s, "num_classes": inner.num_classes},
+                     spec={"model": ESPNETV2, "s": inner.s, "num_classes": inner.num_classes},
                      classes_of=_voc_classes)
 
 
