@@ -252,6 +252,7 @@ def test_a_map_without_a_class_at_any_pixel_teaches_nothing_and_says_so(room, tr
         Adapter(source, _settings(tmp_path / "out"))
 
 
+@pytest.mark.slow  # (ESPNetv2 at 432x320: over 5 s)
 def test_espnetv2_adapts_with_voc_background_as_a_class_and_its_file_reads_back(room, tmp_path):
     """ESPNetv2 (PASCAL VOC) learns from a map in semmap's classes: wall and floor are VOC's background; the adapted
     file is an ESPNetv2 weights file that --segmenter espnetv2 --weights reads, with its temperature."""

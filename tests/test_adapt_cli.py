@@ -42,6 +42,7 @@ def weights(tmp_path_factory) -> Path:
     return save_weights(path, build_network(spec), spec, INDOOR_LABELS, (40, 30), {"temperature": 1.0})
 
 
+@pytest.mark.slow  # (three mapping runs and an adaptation: over 5 s)
 def test_run_adapt_maps_adapts_and_maps_again_with_the_adapted_weights(sequence, weights, tmp_path):
     out = tmp_path / "loop"
     args = ("run", str(sequence), "--out", str(out), "--segmenter", "fcn", "--weights", str(weights),
@@ -65,6 +66,7 @@ def test_run_adapt_maps_adapts_and_maps_again_with_the_adapted_weights(sequence,
     assert reused.exit_code == 0, reused.output
 
 
+@pytest.mark.slow  # (a mapping run and an adaptation: over 5 s)
 def test_adapt_command_writes_the_weights_and_prints_its_table(sequence, weights, tmp_path):
     run = tmp_path / "run"
     r = cli("run", str(sequence), "--out", str(run), "--segmenter", "fcn", "--weights", str(weights),
