@@ -15,7 +15,7 @@ from semmap.perception.instances.oracle import OracleInstances
 from semmap.types import CameraIntrinsics, Frame, Instances, LabelSet, TopKProbs, mask_boxes
 
 CAM = CameraIntrinsics(160, 120, 130.0, 130.0, 79.5, 59.5)
-CHAIR, TABLE, BOOK, WALL = (INDOOR_LABELS.id_of(n) for n in ("chair", "table", "book", "wall"))
+CHAIR, TABLE, BOOK, WALL, LAMP = (INDOOR_LABELS.id_of(n) for n in ("chair", "table", "book", "wall", "lamp"))
 
 
 def _scene_frame(index: int = 0, shift: int = 0) -> Frame:
@@ -113,6 +113,49 @@ def test_components_split_one_class_at_depth_jumps_and_class_changes():
     same_depth = components(labels, conf, np.full((60, 80), 2.0, np.float32), thing_classes(INDOOR_LABELS),
                             min_pixels=50)
     assert len(same_depth) == 1
+
+
+def _join(labels: np.ndarray, depth: np.ndarray, join: bool = True) -> Instances:
+    """Components of a 60 x 80 class image (confidence 0.8) with or without joining parts across occluders."""
+    return components(labels, np.full(labels.shape, 0.8, np.float32), depth, thing_classes(INDOOR_LABELS),
+                      min_pixels=20, join_focal_px=70.0 if join else None)
+
+
+def test_components_join_a_table_an_occluder_cuts_in_two():
+    """A table top 2 m away seen on both sides of a chair's back 80 cm nearer, and between the back's slats:
+    one table, the chair apart; without joining, the table falls into pieces."""
+    labels = np.full((60, 80), WALL, np.int64)
+    depth = np.full((60, 80), 3.0, np.float32)
+    labels[25:45, 5:75], depth[25:45, 5:75] = TABLE, 2.0
+    labels[10:55, 30:50], depth[10:55, 30:50] = CHAIR, 1.2  # the chair's back in front of the table ...
+    for u in (35, 40, 45):  # ... with gaps between its slats that show the table behind it
+        labels[28:40, u:u + 2], depth[28:40, u:u + 2] = TABLE, 2.0
+    found = _join(labels, depth)
+    assert sorted(found.class_ids.tolist()) == sorted([TABLE, CHAIR])
+    table = found.ids == 1 + int(np.flatnonzero(found.class_ids == TABLE)[0])
+    assert table[30, 10] and table[30, 70] and table[30, 35]  # left, right and between the slats
+    assert (_join(labels, depth, join=False).class_ids == TABLE).sum() >= 2
+
+
+def test_components_keep_two_chairs_apart_where_the_wall_shows_between_them():
+    """Two chairs 2.5 m away behind a lamp post that hides the space between their seats: above the post the
+    wall shows between them, so they stay two chairs; chairs with the floor between them, or one directly in
+    front of the other, are two as well."""
+    labels = np.full((60, 80), WALL, np.int64)
+    depth = np.full((60, 80), 3.5, np.float32)
+    labels[5:55, 10:37], depth[5:55, 10:37] = CHAIR, 2.5
+    labels[5:55, 43:70], depth[5:55, 43:70] = CHAIR, 2.5
+    labels[25:60, 36:44], depth[25:60, 36:44] = LAMP, 1.5
+    found = _join(labels, depth)
+    assert (found.class_ids == CHAIR).sum() == 2
+    depth[25:60, 36:44] = 3.5  # no post: the floor shows between them all the way
+    labels[25:60, 36:44] = INDOOR_LABELS.id_of("floor")
+    assert (_join(labels, depth).class_ids == CHAIR).sum() == 2
+    touching = np.full((60, 80), WALL, np.int64)
+    touching[10:50, 5:75] = CHAIR
+    near = np.full((60, 80), 2.0, np.float32)
+    near[10:50, 40:75] = 2.6  # the second chair touches the first in the image, 60 cm behind it
+    assert len(_join(touching, near)) == 2
 
 
 def test_components_source_reuses_the_runs_semantics():
