@@ -285,3 +285,97 @@ def test_a_keyframe_takes_what_its_detector_missed_from_the_frames_before_it():
     for window, away, min_pixels in ((False, False, 150), (True, True, 150), (True, False, int(2 * shown ** 2))):
         omap = run(window, away, min_pixels)
         assert omap.window_sightings == 0 and omap.real_objects() == [] and len(omap.objects) == 1
+
+
+def _chair(x: float) -> list[tuple[np.ndarray, np.ndarray]]:
+    """A chair at ``x``: seat (first box), its back raised on two posts above the seat's rear edge (+y), legs."""
+    parts = [((-0.22, -0.22, 0.42), (0.22, 0.22, 0.47)),  # seat
+             ((-0.22, 0.17, 0.62), (0.22, 0.22, 0.95)),  # back
+             ((-0.22, 0.17, 0.47), (-0.18, 0.22, 0.62)), ((0.18, 0.17, 0.47), (0.22, 0.22, 0.62)),  # posts
+             *[((sx, sy, 0.0), (sx + 0.04, sy + 0.04, 0.42)) for sx in (-0.22, 0.18) for sy in (-0.22, 0.18)]]
+    at = np.array([x, 0.0, 0.0])
+    return [(np.array(lo) + at, np.array(hi) + at) for lo, hi in parts]
+
+
+#: ``part_share`` of an object map without the part rule
+NO_PARTS = 2.0
+
+
+def _parts_map(boxes, classes, views, part_share: float = ObjectMapParams.part_share) -> ObjectMap:
+    """An object map of boxes seen from ``views``: (start, arc in degrees of :func:`box_frames`, masks), three
+    keyframes each, whose detections ``masks(instance image) -> (id image, classes)`` makes."""
+    omap = ObjectMap(INDOOR_LABELS, ObjectMapParams(pixel_stride=1, part_share=part_share))
+    index = 0
+    for start, arc, masks in views:
+        for f in box_frames(boxes, classes, 3, radius=1.4, height=1.5, arc_deg=arc, start_deg=start):
+            ids, cls = masks(f.instances)
+            omap.integrate(Instances.from_id_image(ids, cls, [1.0] * len(cls)), f.depth, f.rgb, f.intrinsics,
+                           f.T_world_cam, index)
+            index += 1
+    return omap
+
+
+def test_a_chair_seen_whole_and_then_cut_into_seat_and_back_is_one_chair():
+    """From the front the chair is one mask; from behind, where its back hides the seat's edge, a segmenter cuts
+    it into the back and the seat seen under it: two masks of one image, which alone make two objects. The back
+    seen from behind lies on the whole chair's surface (a cell from its front), so it is one chair; without the
+    part rule (``part_share`` above 1), two."""
+    chair = _chair(0.0)
+    whole = lambda inst: ((inst > 0).astype(np.int32), [CHAIR])  # noqa: E731
+    cut = lambda inst: (np.where(inst == 1, 2, np.where(inst > 1, 1, 0)).astype(np.int32), [CHAIR] * 2)  # noqa: E731
+    views = [(-120, 60, whole), (70, 40, cut)]  # the front, then behind (the back stands at +y)
+    classes = [CHAIR] * len(chair)
+    one = _parts_map(chair, classes, views)
+    assert len(one.real_objects()) == 1 and one.parts_merged >= 1
+    assert len(_parts_map(chair, classes, views, NO_PARTS).real_objects()) == 2
+
+
+def test_a_table_seen_from_its_two_ends_is_one_table():
+    """A table seen from one end, then from the other: each side's cloud holds the near half of the top, its own
+    face and legs; they share few 3 cm cells and their centroids lie 30 cm apart, so eq. 22 keeps two tables.
+    Where their bounds overlap, the two tops lie on each other: one table."""
+    table = [(np.array([-0.7, 0.3, 0.0]), np.array([0.7, 1.1, 0.75]))]
+    whole = lambda inst: ((inst > 0).astype(np.int32), [TABLE])  # noqa: E731
+    views = [(-100, 20, whole), (70, 40, whole)]
+    assert len(_parts_map(table, [TABLE], views).real_objects()) == 1
+    assert len(_parts_map(table, [TABLE], views, NO_PARTS).real_objects()) == 2
+
+
+def test_two_chairs_side_by_side_stay_two_chairs():
+    """Two chairs 6 cm apart, each its own mask in every image, seen from the front and then from behind: two
+    chairs, each seen from both sides (its sides' clouds lie a cell or so apart, share few cells and have
+    centroids 16 cm apart: without the part rule, four objects), and the neighbours not one."""
+    chairs = _chair(0.0) + _chair(0.5)
+    n = len(chairs) // 2
+    apart = lambda inst: (np.where(inst > n, 2, (inst > 0).astype(np.int32)).astype(np.int32), [CHAIR] * 2)  # noqa: E731
+    views = [(-120, 60, apart), (60, 60, apart)]
+    omap = _parts_map(chairs, [CHAIR] * len(chairs), views)
+    assert len(omap.real_objects()) == 2
+    for o in omap.real_objects():  # each on one chair
+        assert max(_inside(o.points, (lo, hi), 0.02).mean() for lo, hi in [(np.array([x - 0.22, -0.22, 0.0]),
+                   np.array([x + 0.22, 0.22, 0.95])) for x in (0.0, 0.5)]) > 0.99
+    assert len(_parts_map(chairs, [CHAIR] * len(chairs), views, NO_PARTS).real_objects()) == 4
+
+
+def test_a_table_a_person_cuts_in_two_is_one_table_with_components():
+    """A person standing in front of a table, seen from the front: the table's class region falls into two
+    pieces, one either side. Connected components join them across the nearer person (the top continues at
+    one depth): one table in the map; without joining, two."""
+    from semmap.perception.instances.components import ComponentInstances
+    from semmap.types import TopKProbs
+
+    person_class = INDOOR_LABELS.id_of("person")
+    boxes = [(np.array([-0.7, 0.3, 0.0]), np.array([0.7, 1.1, 0.75])),
+             (np.array([-0.22, 0.0, 0.0]), np.array([0.22, 0.25, 1.8]))]
+    frames = box_frames(boxes, [TABLE, person_class], 6, radius=1.4, height=1.5, arc_deg=20, start_deg=-100)
+    tables = {}
+    for join in (True, False):
+        source = ComponentInstances(INDOOR_LABELS, join=join)
+        omap = ObjectMap(INDOOR_LABELS, ObjectMapParams(pixel_stride=1))
+        for f in frames:
+            found = source.detect(f, TopKProbs.from_hard_labels(f.labels, 0.9, len(INDOOR_LABELS)))
+            omap.integrate(found, f.depth, f.rgb, f.intrinsics, f.T_world_cam, f.index)
+        tables[join] = len(omap.objects_of_class("table"))
+        assert len(omap.objects_of_class("person")) == 1
+    assert tables == {True: 1, False: 2}
+

@@ -23,12 +23,18 @@ keyframe and tracked detection (:class:`~semmap.types.Instances` with track ids)
 5. objects become real once their id appeared ``min_sightings`` times (the paper's three sightings against false
    detections): in the tracked frames (:meth:`ObjectMap.count_track_frames`), or in keyframes, and they were
    seen in ``min_keyframes`` keyframes;
-6. objects that turn out to be one are merged: after each keyframe, the objects it touched are scored against
-   their neighbours of the same class with the same ``P``, where for two accumulated clouds, which may each
-   hold another side of the object, ``M`` is the share of the smaller cloud's cells the larger one has, at the
-   overlap cell or at the coarser ``merge_voxel`` (the paper's octree of eq. 21, one level up), whichever is
-   larger; two
-   objects the segmenter told apart in the same keyframes (books side by side) are never merged;
+6. objects that turn out to be one are merged: after each keyframe, the objects it touched are scored against their
+   neighbours of the same class with the same ``P``, where for two accumulated clouds, which may each hold another
+   side of the object, ``M`` is the share of the smaller cloud's cells the larger one has, at the overlap cell or at
+   the coarser ``merge_voxel`` (the paper's octree of eq. 21, one level up), whichever is larger; two objects the
+   segmenter told apart in the same keyframes (books side by side) are not merged by it. Two large objects
+   (``MIN_COARSE_CELLS`` merge cells each) are merged, told apart or not, when most of the smaller's cells
+   (``part_share``) lie within ``NEAR_CELLS`` cells (6 cm) of the larger's: one object seen in parts. A segmenter
+   that cuts at depth jumps splits a chair seen from behind into its back and the seat below it, and a table into the
+   pieces a chair in front leaves; from other sides the same mask covers the whole, so the whole's cloud already runs
+   through the part's surface or its other face a chair back's thickness away. Two chairs 6 cm apart are near only
+   along their facing sides (5-13 % of their cells in the tests, one chair's front and back 83-91 %), and books are
+   too small for the rule;
 7. the keyframe's own masks (:class:`MaskView`, when :meth:`ObjectMap.integrate` has the image) veto what the
    clouds alone would glue: an object whose points the camera sees (in the image, depth agreeing) mostly away
    from a detection's mask (farther than the detector's outline error, ``mask_outline_px``) is not that
@@ -75,8 +81,10 @@ _OUT_OF_RANGE = "object map: point coordinates out of range (more than a million
 SPAN_SHARE = 0.5
 #: Objects must span this many merge cells each before their coarse overlap counts (a book spans two or three).
 MIN_COARSE_CELLS = 8
-#: Two objects detected apart in at least this many keyframes are never merged.
+#: Two objects detected apart in at least this many keyframes are never merged (unless one is a part of the other).
 MIN_SEEN_APART = 1
+#: Two objects are parts of one only where at least this share of one's cells lies within the other's bounds.
+PART_REGION_SHARE = 0.25
 
 
 @dataclass(frozen=True)
@@ -117,6 +125,11 @@ class ObjectMapParams:
     #: centroid distances of each other can be glued by eq. 22, and a large object's few visible points (its far
     #: side hidden) are too easily its mask's bleed onto the floor behind
     mask_check_max_size: float = 0.4
+    #: two large objects are one when this share of the smaller's ``overlap_voxel`` cells lie within
+    #: ``NEAR_CELLS`` of the larger's (step 6; above 1: never), even when seen apart in a keyframe: parts of one
+    #: object that a segmenter cuts apart from some sides only (a chair's back and its seat where the back hides
+    #: the seat's edge), and the sides of one table seen from opposite ends
+    part_share: float = 0.8
     #: use the detections between keyframes where a keyframe's detector missed an object in view (step 8; off:
     #: on kinect it finds bedroom books but adds more books than it finds on the living room walk, docs/realism.md)
     window_sightings: bool = False
@@ -274,6 +287,7 @@ class ObjectMap:
         self.points_in = 0  # points back-projected from masks (before any filter)
         self.points_after_sor = 0
         self.merged_masks = 0  # sightings left out because they covered several objects
+        self.parts_merged = 0  # objects seen apart merged as parts of one (step 6)
         self.track_frames: dict[int, int] = {}  # track id -> tracked frames it appeared in
         self._view: MaskView | None = None  # the keyframe being integrated, when its masks are known
         self._hits: dict[int, tuple[np.ndarray, int] | None] = {}
@@ -625,6 +639,12 @@ class ObjectMap:
         for other in self._candidates(obj.lo, obj.hi, obj.class_id, -1):
             if other.id == obj.id or other.class_id != obj.class_id or other.id not in self.objects:
                 continue
+            if self._part_of(obj, other):  # one lies on the other's surface: one object seen in parts
+                keep, gone = (obj, other) if obj.id < other.id else (other, obj)
+                self._absorb(keep, gone)
+                self.parts_merged += 1
+                obj = keep
+                continue
             if len(obj.keyframes & other.keyframes) >= MIN_SEEN_APART:
                 continue  # the segmenter told them apart in the same images: two objects side by side
             if self._masks_tell_apart(obj, other):
@@ -638,6 +658,24 @@ class ObjectMap:
                 keep, gone = (obj, other) if obj.id < other.id else (other, obj)
                 self._absorb(keep, gone)
                 obj = keep
+
+    def _part_of(self, a: MapObject, b: MapObject) -> bool:
+        """Whether two large objects (``MIN_COARSE_CELLS`` merge cells each) are one seen in parts: where their
+        bounds overlap, the one with fewer cells there has at least ``PART_REGION_SHARE`` of its cells there and
+        ``part_share`` of those lie within ``NEAR_CELLS`` of the other's (on its surface, or on the far face of a
+        thin part of it), even when a segmenter told them apart in some images."""
+        p = self.params
+        if p.part_share > 1.0 or min(len(a.coarse), len(b.coarse)) < MIN_COARSE_CELLS:
+            return False
+        lo, hi = np.maximum(a.lo, b.lo), np.minimum(a.hi, b.hi)
+        if np.any(lo > hi):
+            return False
+        cell_lo, cell_hi = np.floor(lo / p.overlap_voxel), np.floor(hi / p.overlap_voxel)
+        in_a, in_b = cells_within(a.cells, cell_lo, cell_hi), cells_within(b.cells, cell_lo, cell_hi)
+        part, whole, inside = (a, b, in_a) if in_a.sum() <= in_b.sum() else (b, a, in_b)
+        if inside.sum() < PART_REGION_SHARE * len(part.cells):
+            return False
+        return overlap_near(part.cells[inside], whole.cells) >= p.part_share
 
     def _absorb(self, keep: MapObject, gone: MapObject) -> None:
         keep.votes += gone.votes
@@ -695,6 +733,36 @@ def overlap_share(a: np.ndarray, b: np.ndarray) -> float:
     if len(a) == 0:
         return 0.0
     return sorted_intersection_size(a, b) / len(a)
+
+
+#: cells within this many cells of another (centre to centre) are near it: 2 overlap cells, 6 cm, the thickness
+#: of a chair's back or a table top, whose faces seen from its two sides lie that far apart
+NEAR_CELLS = 2
+#: the offsets of the cells near a cell (itself included) as differences of packed cell keys
+_NEAR_KEYS = np.array([(dx << (2 * _KEY_BITS)) + (dy << _KEY_BITS) + dz
+                       for dx in range(-NEAR_CELLS, NEAR_CELLS + 1) for dy in range(-NEAR_CELLS, NEAR_CELLS + 1)
+                       for dz in range(-NEAR_CELLS, NEAR_CELLS + 1) if dx * dx + dy * dy + dz * dz <= NEAR_CELLS ** 2],
+                      np.int64)
+
+
+def cells_within(keys: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+    """(N,) bool: which packed cell keys have cell coordinates within ``lo``-``hi`` (3,), both included."""
+    mask = (1 << _KEY_BITS) - 1
+    xyz = np.column_stack([keys >> (2 * _KEY_BITS), (keys >> _KEY_BITS) & mask, keys & mask]) - _KEY_OFFSET
+    return np.all((xyz >= lo) & (xyz <= hi), axis=1)
+
+
+def overlap_near(a: np.ndarray, b: np.ndarray) -> float:
+    """The share of sorted cell keys ``a`` within ``NEAR_CELLS`` cells of one of sorted cell keys ``b``: a part's
+    surface seen from its other side lies a few centimetres from the whole's."""
+    if len(a) == 0 or len(b) == 0:
+        return 0.0
+    near = np.zeros(len(a), bool)
+    for off in _NEAR_KEYS:
+        shifted = a + off
+        at = np.minimum(np.searchsorted(b, shifted), len(b) - 1)
+        near |= b[at] == shifted
+    return float(near.mean())
 
 
 def overlap_containment(a: np.ndarray, b: np.ndarray) -> float:
