@@ -24,6 +24,16 @@ row names it.
     python benchmarks/bench_objects.py [--quick] [--levels maskrcnn-like,noisy] [--no-poses] [--scenes a,b]
                                        [--frames N] [--realism clean|kinect|hard] [--pose-runs a,b]
 
+With ``--segmentation`` instead: over- and under-segmentation of the object map with ``--instances components``
+on the scenes from seed 500 (``--realisms kinect,hard``, ``--semantics oracle|fcn``, ground-truth poses, 320x240).
+A ground-truth instance is over-segmented when two or more of the map's objects cover it, a map object is
+under-segmented when two or more instances each hold a quarter of its keyframe detection pixels. Every variant
+(``cut``: components and map as they were, ``join-frames``, ``join-map``, ``joined``: both) runs on the same frames
+and segmentation. One JSON line per scene, preset and variant, two tables, the summary JSON last.
+
+    python benchmarks/bench_objects.py --segmentation [--realisms kinect,hard] [--semantics oracle,fcn]
+                                       [--seg-scenes a,b] [--frames N]
+
 Timings are wall-clock on whatever else the machine runs; compare the ratios.
 """
 
@@ -37,7 +47,7 @@ import numpy as np
 import open3d as o3d
 
 from semmap.datasets.simulated import SimulatedDataset
-from semmap.eval.objects import IdentitySwitches, ObjectTruth, count_errors, detection_truth
+from semmap.eval.objects import IdentitySwitches, ObjectTruth, SegmentationTruth, count_errors, detection_truth
 from semmap.eval.trajectory import evaluate_trajectory
 from semmap.labels import INDOOR_LABELS
 from semmap.maps.objects import ObjectMap, ObjectMapParams
@@ -136,6 +146,84 @@ def map_scene(name: str, seed: int, kind: str, trajectory: str, frames: int, lev
             "ate_without_m": None, "ate_with_m": None}
 
 
+#: scenes of the segmentation measure (``--segmentation``): seeds from 500 on, never in any training set
+SEGMENTATION_SCENES = {"office-500": (500, "office", "loop"), "kitchen-501": (501, "kitchen", "loop"),
+                       "living-502": (502, "living_room", "walk"), "bedroom-503": (503, "bedroom", "walk"),
+                       "office-504": (504, "office", "walk"), "kitchen-505": (505, "kitchen", "walk"),
+                       "living-506": (506, "living_room", "loop"), "bedroom-507": (507, "bedroom", "loop")}
+#: the segmentation measure's frames: 320x240 (half the simulator's 640x480), every third of a 30 Hz walk (more of
+#: the room for the same rendering time), frames per scene
+SEGMENTATION_SCALE, SEGMENTATION_STEP, SEGMENTATION_FRAMES = 0.5, 3, 100
+#: what is compared on the same frames and semantics: name -> (components join parts an occluder cut apart,
+#: the object map's part_share): today's cut components and map, each half of the change, and both
+SEGMENTATION_VARIANTS = {"cut": (False, 2.0), "join-frames": (True, 2.0), "join-map": (False, 0.8),
+                         "joined": (True, 0.8)}
+
+
+def segmentation_scene(name: str, seed: int, kind: str, trajectory: str, frames: int, realism: str,
+                       semantics: str, variants: tuple[str, ...] = tuple(SEGMENTATION_VARIANTS)) -> list[dict]:
+    """Over- and under-segmentation of the object map with ``--instances components`` on one simulated scene
+    (ground-truth poses, 320x240): the segmenter ``semantics`` (``oracle``: the true classes; ``fcn``: the shipped
+    simulator-trained network) runs once per frame and every variant's instances, tracker and map use its
+    output. One row per variant."""
+    from semmap.perception.instances.components import ComponentInstances
+    from semmap.perception.registry import make_segmenter
+
+    scene = SimulatedDataset.default(scene_seed=seed, kind=kind, trajectory=trajectory,
+                                     frames=frames * SEGMENTATION_STEP, realism=realism)
+    ds = SimulatedDataset(scene.scene, scene.poses[::SEGMENTATION_STEP], seed=seed, realism=realism,
+                          name=scene.name, intrinsics=scene.intrinsics.scaled(SEGMENTATION_SCALE))
+    segmenter = make_segmenter(semantics, label_set=ds.label_set, oracle_preset="voxel-grid-paper", seed=seed,
+                               threads=1)
+    runs = {v: (ComponentInstances(ds.label_set, join=SEGMENTATION_VARIANTS[v][0]),
+                DeepSort(num_classes=len(ds.label_set)),
+                ObjectMap(ds.label_set, ObjectMapParams(part_share=SEGMENTATION_VARIANTS[v][1])),
+                SegmentationTruth(), ObjectTruth(min_pixels=MIN_PIXELS // 4))
+            for v in variants}
+    gt_class: dict[int, int] = {}
+    keyframe = Scheduler(SegmentationSchedule(keyframes=True))
+    t_seg = 0.0
+    t_inst = dict.fromkeys(variants, 0.0)
+    keyframes = 0
+    for f in ds:
+        t0 = time.perf_counter()
+        sem = segmenter.segment(f)
+        t_seg += time.perf_counter() - t0
+        is_key = keyframe.due(f.T_world_cam)
+        keyframes += is_key
+        for v, (source, tracker, omap, seg, truth) in runs.items():
+            t0 = time.perf_counter()
+            found = source.detect(f, sem)
+            t_inst[v] += time.perf_counter() - t0
+            tracked = tracker.update(found, f, f.T_world_cam)
+            omap.count_track_frames(tracked.track_ids)
+            truth.add_frame(f.instances)
+            if is_key:
+                ids = omap.integrate(tracked, f.depth, f.rgb, f.intrinsics, f.T_world_cam, f.index)
+                seg.add_keyframe(ids, tracked.ids, f.instances)
+                truth.add_keyframe(f.instances, np.zeros((0, 3)), np.zeros(0, np.int64), omap.params.voxel)
+        if is_key:
+            for gid in np.unique(f.instances[f.instances > 0]):
+                gt_class.setdefault(int(gid), int(np.bincount(f.labels[f.instances == gid]).argmax()))
+    rows = []
+    for v, (_, _, omap, seg, truth) in runs.items():
+        real = omap.real_objects()
+        found = seg.scores([o.id for o in real], omap.resolve)
+        visible = [g for g in truth.visible(MIN_SIGHTINGS, omap.params.min_keyframes) if g in gt_class]
+        counts = count_errors([o.class_id for o in real], [gt_class[g] for g in visible], ds.label_set)
+        names = ds.label_set.names
+        rows.append({"scene": name, "realism": realism, "semantics": semantics, "variant": v,
+                     "frames": frames, "keyframes": keyframes, "objects": len(real),
+                     "objects_ground_truth": counts["objects_ground_truth"], "count_error": counts["count_error"],
+                     **{k: found[k] for k in ("instances_covered", "over_segmented", "under_segmented",
+                                              "over_rate", "under_rate")},
+                     "over_classes": sorted(names[gt_class.get(g, 0)] for g in found["over_instances"]),
+                     "under_classes": sorted(names[o.class_id] for o in real if o.id in found["under_objects"]),
+                     "segmenter_ms_per_frame": round(1e3 * t_seg / frames, 1),
+                     "instances_ms_per_frame": round(1e3 * t_inst[v] / frames, 2)})
+    return rows
+
+
 def _peer_filters(tracked, frame, omap: ObjectMap) -> float:
     """Seconds Open3D's statistical outlier removal (8 neighbours, k = 1) and 1 cm voxel filter take on the same
     back-projected detection clouds (the paper's PCL filters)."""
@@ -208,7 +296,17 @@ def main() -> None:
                     help="the object map also takes what a keyframe's detector missed from the frames before it")
     ap.add_argument("--pose-runs",
                     help=f"comma-separated subset of the pose runs {', '.join(POSE_RUNS)} (alone: no object scenes)")
+    ap.add_argument("--segmentation", action="store_true",
+                    help="instead: over- and under-segmentation with --instances components on the scenes from seed "
+                         "500 (--semantics, --realisms, --seg-scenes, --frames)")
+    ap.add_argument("--semantics", default="oracle", help="segmenters of --segmentation (oracle: the true classes; "
+                                                            "fcn: the shipped simulator network), comma-separated")
+    ap.add_argument("--realisms", default="kinect,hard", help="presets of --segmentation, comma-separated")
+    ap.add_argument("--seg-scenes", help=f"comma-separated subset of {', '.join(SEGMENTATION_SCENES)}")
     args = ap.parse_args()
+    if args.segmentation:
+        _segmentation(ap, args)
+        return
     levels = [s for s in args.levels.split(",") if s]
     scenes = _chosen_scenes(ap, args)
     rows = []
@@ -230,6 +328,57 @@ def main() -> None:
     results += [{**{k: r.get(k) for k in keys}, "count_error": None, "centroid_error_m": None, "id_switches": None,
                  "ms_per_frame": r["ms_per_frame_with"], "tracker": r["tracker"]} for r in pose_rows]
     print(json.dumps({"bench": "objects", "results": results}))
+
+
+def _segmentation(ap: argparse.ArgumentParser, args: argparse.Namespace) -> None:
+    """The ``--segmentation`` measure: one JSON line per scene, preset, segmenter and variant, a table, a summary."""
+    names = [s for s in (args.seg_scenes or ",".join(SEGMENTATION_SCENES)).split(",") if s]
+    unknown = [s for s in names if s not in SEGMENTATION_SCENES]
+    realisms = [s for s in args.realisms.split(",") if s]
+    if unknown or not set(realisms) <= set(REALISMS):
+        ap.error(f"unknown scene or preset {', '.join(unknown + sorted(set(realisms) - set(REALISMS)))}")
+    frames = args.frames or SEGMENTATION_FRAMES
+    rows = []
+    for semantics in [s for s in args.semantics.split(",") if s]:
+        for realism in realisms:
+            for name in names:
+                for row in segmentation_scene(name, *SEGMENTATION_SCENES[name], frames, realism, semantics):
+                    print(json.dumps(row), flush=True)
+                    rows.append(row)
+    print("\n| scene | preset | semantics | variant | objects / truth | count error | over-segmented truth |"
+          " under-segmented objects |")
+    print("|---|---|---|---|---|---|---|---|")
+    for r in rows:
+        print(f"| {r['scene']} | {r['realism']} | {r['semantics']} | {r['variant']} | {r['objects']} / "
+              f"{r['objects_ground_truth']} | {100 * r['count_error']:.1f} % | {r['over_segmented']} / "
+              f"{r['instances_covered']} {_classes(r['over_classes'])}| {r['under_segmented']} / {r['objects']} "
+              f"{_classes(r['under_classes'])}|")
+    summary = []
+    for key in sorted({(r["realism"], r["semantics"], r["variant"]) for r in rows}):
+        sel = [r for r in rows if (r["realism"], r["semantics"], r["variant"]) == key]
+        over, covered = sum(r["over_segmented"] for r in sel), sum(r["instances_covered"] for r in sel)
+        under, objects = sum(r["under_segmented"] for r in sel), sum(r["objects"] for r in sel)
+        summary.append({"realism": key[0], "semantics": key[1], "variant": key[2], "scenes": len(sel),
+                        "over_segmented": over, "instances_covered": covered,
+                        "over_rate": round(over / max(covered, 1), 4), "under_segmented": under, "objects": objects,
+                        "under_rate": round(under / max(objects, 1), 4),
+                        "count_error": round(float(np.mean([r["count_error"] for r in sel])), 4)})
+    print("\n| preset | semantics | variant | scenes | over-segmented truth | under-segmented objects |"
+          " mean count error |")
+    print("|---|---|---|---|---|---|---|")
+    for s in summary:
+        print(f"| {s['realism']} | {s['semantics']} | {s['variant']} | {s['scenes']} | {s['over_segmented']} / "
+              f"{s['instances_covered']} ({100 * s['over_rate']:.1f} %) | {s['under_segmented']} / {s['objects']} "
+              f"({100 * s['under_rate']:.1f} %) | {100 * s['count_error']:.1f} % |")
+    print(json.dumps({"bench": "objects-segmentation", "frames": frames, "results": summary}))
+
+
+def _classes(names: list[str]) -> str:
+    """``(chair x2, desk)`` of a list of class names, or nothing."""
+    if not names:
+        return ""
+    counts = {n: names.count(n) for n in sorted(set(names))}
+    return "(" + ", ".join(n if c == 1 else f"{n} x{c}" for n, c in counts.items()) + ") "
 
 
 def _chosen_scenes(ap: argparse.ArgumentParser, args: argparse.Namespace) -> dict:

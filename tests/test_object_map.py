@@ -379,3 +379,21 @@ def test_a_table_a_person_cuts_in_two_is_one_table_with_components():
         assert len(omap.objects_of_class("person")) == 1
     assert tables == {True: 1, False: 2}
 
+
+def test_segmentation_truth_counts_split_and_merged_instances():
+    """Over- and under-segmentation against ground truth: instance 1 seen as two map objects (its halves, in two
+    keyframes), objects 3 and 4 glued by a merge that covers instances 2 and 3, instance 4 a stray quarter."""
+    from semmap.eval.objects import SegmentationTruth
+
+    gt = np.zeros((10, 20), np.int64)
+    gt[:, :5], gt[:, 5:10], gt[:, 10:15], gt[:, 15:] = 1, 2, 3, 4
+    truth = SegmentationTruth()
+    det = np.zeros((10, 20), np.int32)
+    det[:, :3], det[:, 5:10] = 1, 2  # keyframe 1: left of instance 1 -> object 1, instance 2 -> object 3
+    truth.add_keyframe(np.array([1, 3]), det, gt)
+    det[:] = 0
+    det[:, 3:5], det[:, 10:15], det[:, 15:16] = 1, 2, 2  # keyframe 2: right of 1 -> object 2, 3 (+ a bit of 4) -> 4
+    truth.add_keyframe(np.array([2, 4]), det, gt)
+    found = truth.scores([1, 2, 3], lambda i: 3 if i == 4 else i)  # object 4 was merged into 3
+    assert found["over_instances"] == [1] and found["under_objects"] == [3]
+    assert found["instances_covered"] == 3 and found["over_segmented"] == 1 and found["under_segmented"] == 1
