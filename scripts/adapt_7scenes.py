@@ -30,10 +30,10 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "benchmarks"))
-from bench_real import KITCHEN, _yardstick_ids  # noqa: E402
+from bench_real import KITCHEN  # noqa: E402
 from semmap.config import InputConfig, MappingConfig, OutputConfig, RunConfig, SemanticsConfig  # noqa: E402
 from semmap.datasets import open_dataset  # noqa: E402
-from semmap.eval.room_yardstick import fit_room, iou_of, label_frame, structure_confusion  # noqa: E402
+from semmap.eval.room_yardstick import fit_room, label_frame, score_on_yardstick  # noqa: E402
 from semmap.labels import INDOOR_LABELS  # noqa: E402
 from semmap.perception.registry import make_segmenter  # noqa: E402
 from semmap.perception.structure.compose import fold_to  # noqa: E402
@@ -50,10 +50,7 @@ PICTURE_FRAMES = (450, 560)
 def score(segmenter: str, weights: Path | None, frames: list, yard: list) -> dict:
     """Wall / floor / ceiling IoU of ``segmenter`` on the yardstick frames (in order, with their poses)."""
     seg = make_segmenter(segmenter, weights=weights, threads=1)
-    conf = np.zeros((3, 3), np.int64)
-    for f, y in zip(frames, yard, strict=True):
-        conf += structure_confusion(_yardstick_ids(seg, seg.segment(f).labels[..., 0]), y)
-    return {k: None if v is None else round(v, 4) for k, v in iou_of(conf).items()}
+    return {k: None if v is None else round(v, 4) for k, v in score_on_yardstick(seg, frames, yard).items()}
 
 
 def classes(segmenter: str, weights: Path | None, frames: list) -> list[np.ndarray]:

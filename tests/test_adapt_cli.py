@@ -101,6 +101,20 @@ def test_a_segmenter_adapt_cannot_train_is_refused_in_one_line(semantics, tmp_pa
     assert not (tmp_path / "out").exists()  # refused before any work
 
 
+def test_a_run_mapped_with_espnetv2_and_structure_adapts_espnetv2(tmp_path):
+    """The real default (``espnetv2+structure``) adapts ESPNetv2, from the run's weights or the shipped file."""
+    from semmap.perception.registry import shipped_espnetv2
+
+    for weights, expected in ((None, shipped_espnetv2()), (shipped_espnetv2("s1"), shipped_espnetv2("s1"))):
+        config = RunConfig(input=InputConfig(dataset=tmp_path), output=OutputConfig(out=tmp_path / "run"),
+                           semantics=SemanticsConfig(segmenter="espnetv2", add_structure=True, weights=weights))
+        assert trainable_weights(config, tmp_path / "run") == ("espnetv2", expected)
+    gone = RunConfig(input=InputConfig(dataset=tmp_path), output=OutputConfig(out=tmp_path / "run"),
+                     semantics=SemanticsConfig(segmenter="espnetv2", weights=tmp_path / "gone.pth"))
+    with pytest.raises(ConfigError, match="not there any more"):
+        trainable_weights(gone, tmp_path / "run")
+
+
 def test_a_folder_that_is_not_a_finished_run_is_one_line(tmp_path):
     (tmp_path / "folder").mkdir()
     r = cli("adapt", str(tmp_path / "folder"), "--out", str(tmp_path / "out"))

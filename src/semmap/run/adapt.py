@@ -53,22 +53,24 @@ def read_run_config(run_dir: Path) -> RunConfig:
 
 
 def trainable_weights(config: RunConfig, run_dir: Path) -> tuple[str, Path]:
-    """(segmenter name, weight file) of a run whose segmenter semmap can fine-tune; ConfigError in one line for
-    any other (a user's ONNX or Hugging Face model, stored predictions, the oracle, labels from files)."""
-    from semmap.perception.registry import SEGMENTERS, TRAINED_NETWORKS, shipped_weights
+    """(segmenter name, weight file) of a run whose segmenter semmap can fine-tune (its own networks and ESPNetv2,
+    alone or inside ``NAME+structure``); ConfigError in one line for any other (a user's ONNX or Hugging Face
+    model, stored predictions, the oracle, labels from files)."""
+    from semmap.perception.registry import ESPNETV2, SEGMENTERS, TRAINED_NETWORKS, shipped_espnetv2, shipped_weights
 
     s = config.semantics
     name = s.segmenter.value if s.segmenter is not None else None
-    trainable = ", ".join(TRAINED_NETWORKS)
+    trainable = ", ".join((*TRAINED_NETWORKS, ESPNETV2))
     if name is None:
         what = f"--semantics {s.source.value}" if s.source is not None else "no segmenter"
         raise ConfigError(f"{run_dir}: the run took its classes from {what}, not from a network semmap can "
                           f"fine-tune; map with one of {trainable} (--segmenter) to adapt")
-    if not SEGMENTERS[name].trained:
+    if not SEGMENTERS[name].trained and name != ESPNETV2:
         shown = f"{name}:{s.model}" if s.model else name
-        raise ConfigError(f"{run_dir}: the run's segmenter {shown} cannot be fine-tuned: semmap adapts only the "
-                          f"networks it trains ({trainable}); map with one of them (--segmenter) to adapt")
-    weights = Path(s.weights) if s.weights is not None else shipped_weights(name)
+        raise ConfigError(f"{run_dir}: the run's segmenter {shown} cannot be fine-tuned: semmap adapts only "
+                          f"{trainable}; map with one of them (--segmenter) to adapt")
+    shipped = shipped_espnetv2() if name == ESPNETV2 else shipped_weights(name)
+    weights = Path(s.weights) if s.weights is not None else shipped
     if not weights.is_file():
         raise ConfigError(f"{run_dir}: the run's {name} weights {weights} are not there any more")
     return name, weights
