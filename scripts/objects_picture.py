@@ -1,10 +1,10 @@
 """Picture of a run's object map: the semantic OctoMap from above, dimmed, and every object on it in its own colour
 with its upright box and ``id class`` label where it overprints no other (what ``docs/images/objects_7scenes.png``
-shows). From the checkout's root; ``../shared/data/7scenes-redkitchen`` is the shared 7-Scenes copy beside it
-(substitute your own sequence, docs/FIRST_STEPS.md), W the ESPNetv2 weights:
+shows, with the count per class in its title). From the checkout's root; ``../shared/data/7scenes-redkitchen`` is
+the shared 7-Scenes copy beside it (substitute your own sequence, docs/FIRST_STEPS.md); the real default
+(espnetv2+structure), ground-truth poses, every 5th frame:
 
-    .venv/bin/semmap run ../shared/data/7scenes-redkitchen --out OUT --segmenter espnetv2 --weights W \\
-        --segment-every 3 --backend onnx --instances components
+    .venv/bin/semmap run ../shared/data/7scenes-redkitchen --out OUT --stride 5 --poses gt --instances components
     .venv/bin/python scripts/objects_picture.py OUT --out docs/images/objects_7scenes.png [--classes chair,diningtable]
 
 Also prints, per class, how many objects the map holds and, for the class named by ``--near``, how far each of its
@@ -62,10 +62,12 @@ def main() -> None:
     background = (cloud.centers[height < np.percentile(height, 90)], cloud.colors[height < np.percentile(height, 90)])
     colors = object_colors(max([o.id for o in objects], default=0))
     image = objects_top_down(objects, colors, all_names, up=up, size=args.size, background=background)
-    write_png(args.out, side_by_side([image], [f"objects from above: {len(objects)} ({args.run.name})"]))
     counts: dict[str, int] = {}
     for o in objects:
         counts[all_names[o.class_id]] = counts.get(all_names[o.class_id], 0) + 1
+    per_class = ", ".join(f"{n} {c}" for n, c in sorted(counts.items(), key=lambda nc: (-nc[1], nc[0])))
+    title = f"objects from above: {len(objects)}" + (f" ({per_class})" if per_class else "") + f", {args.run.name}"
+    write_png(args.out, side_by_side([image], [title]))
     print(json.dumps({"objects": counts}))
     if args.near in names and args.near_to in names:
         near = [o for o in objects if o.class_id == names[args.near]]
