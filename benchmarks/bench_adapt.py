@@ -137,10 +137,9 @@ def main() -> None:
             name = seq.name
             base = work / f"{name}-{network}"
             first = mapped(seq, base / "first", network, None, SPLIT)
-            c0 = time.process_time()
-            adapted = adapt_run(base / "first", AdaptSettings(out=base / "adapted", steps=steps,
-                                                              threads=args.threads))
-            cpu_min = (time.process_time() - c0) / 60.0
+            adapted = adapt_run(base / "first", AdaptSettings(out=base / "adapted", steps=steps, threads=args.threads),
+                                resume=(base / "adapted" / "last.pt").is_file())  # a killed benchmark continues
+            cpu_min = adapted.report["cpu_minutes"]  # (process time of the adaptation, kept across a resume)
             before = mapped(seq, base / "before", network, None, None)
             after = mapped(seq, base / "after", network, adapted.weights, None)
             held = held_out_scores(seq, network, {"before": None, "after": adapted.weights},
