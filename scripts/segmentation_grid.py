@@ -19,6 +19,7 @@ label that lies on the floor, a table label on table-height surfaces, two networ
 from __future__ import annotations
 
 import argparse
+import itertools
 import json
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -210,17 +211,21 @@ def main() -> None:
     segs = [make_segmenter(args.segmenter, weights=args.weights, input_size=args.input_size),
             *(make_segmenter(name) for name in compare)]
     wanted = set(args.frames)
-    frames = [f for i, f in enumerate(open_dataset(args.dataset, raw_color=False)) if i in wanted]
+    frames = [f for i, f in enumerate(itertools.islice(open_dataset(args.dataset, raw_color=False), max(wanted) + 1))
+              if i in wanted]
     if not frames:
         raise SystemExit(f"none of frames {sorted(wanted)} exists in {args.dataset}")
     up, floor = up_and_floor(frames)
     tallies = [Tally(s.label_set.names) for s in segs]
     agree = [np.zeros((len(pairs(segs[0].label_set.names, s.label_set.names)), 3)) for s in segs[1:]]
     rows = []
+    # a segmenter that needs depth (structure, NAME+structure) sees the frame as semmap run gives it, colour
+    # registered onto depth, and so do the others beside it; else each sees the colour camera's whole view
+    framed = any(not hasattr(seg, "predict") for seg in segs)
     for frame in frames:
-        # a network sees the colour camera's whole view (7-Scenes colour is registered onto depth for mapping)
-        view = frame.raw_color.image if frame.raw_color is not None else frame.rgb
-        tops = [seg.predict(view) for seg in segs]
+        framed_view = frame.rgb if framed or frame.raw_color is None else None
+        view = framed_view if framed_view is not None else frame.raw_color.image
+        tops = [seg.segment(frame) if framed else seg.predict(view) for seg in segs]
         labels = [t.labels[..., 0].astype(np.int64) for t in tops]
         for top, lab, tally in zip(tops, labels, tallies, strict=True):
             count(tally, frame, lab, top.probs[..., 0], up, floor)

@@ -7,6 +7,10 @@ pose-list reading, colour-camera move and rotation comparison of
 
 from __future__ import annotations
 
+import json
+import sys
+
+import cv2
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
@@ -230,6 +234,21 @@ def test_segmentation_grid_agreement_pairs_the_same_things_of_two_label_sets():
     assert grid.pairs(voc, ours) == ["chair ~ chair", "diningtable ~ table/desk"]
     rows = grid.agreement(a, b, voc, ours)  # intersection, pixels of a, pixels of b
     assert rows.tolist() == [[1, 2, 2], [2, 2, 2]]
+
+
+@pytest.mark.slow
+def test_segmentation_grid_draws_segmenters_that_need_depth_beside_networks(seven_scenes, tmp_path, monkeypatch):
+    """``--segmenter structure --compare fcn+structure``: segmenters that need depth see the frame as semmap run
+    gives it, and the picture has a column each (the colour view and two segmenters, one row per frame)."""
+    grid = load_script("scripts/segmentation_grid.py")
+    out = tmp_path / "grid.png"
+    monkeypatch.setattr(sys, "argv", ["segmentation_grid.py", "--dataset", str(seven_scenes), "--frames", "0",
+                                      "--segmenter", "structure", "--compare", "fcn+structure", "--out", str(out)])
+    grid.main()
+    picture = cv2.imread(str(out))
+    assert picture.shape[1] == 3 * round(picture.shape[0] * 4 / 3)  # one 4:3 row: the view and two segmenters
+    summary = json.loads(out.with_suffix(".json").read_text())
+    assert [s["segmenter"] for s in summary["segmenters"]][:2] == ["structure", "fcn+structure"]
 
 
 def test_temperature_check_recovers_the_temperature_that_made_the_probabilities() -> None:
