@@ -57,6 +57,7 @@ def local_cluster():
     ray.shutdown()
 
 
+@pytest.mark.slow
 def test_local_cluster_maps_every_sequence_like_separate_runs_and_resumes(sequences, separate, tmp_path,
                                                                           local_cluster):
     out = tmp_path / "batch"
@@ -80,6 +81,7 @@ def test_local_cluster_maps_every_sequence_like_separate_runs_and_resumes(sequen
     assert not is_complete(config_for(changed, items[0]))  # outputs of another configuration are not "done"
 
 
+@pytest.mark.slow
 def test_two_ray_nodes_joined_by_address_share_the_batch(sequences, separate, tmp_path):
     from ray.cluster_utils import Cluster
 

@@ -23,6 +23,7 @@ def test_default_realism_is_kinect(name):
     assert bench(name).DEFAULT_REALISM == "kinect"
 
 
+@pytest.mark.slow
 def test_tracking_sequences_follow_the_preset():
     tracking = bench("bench_tracking")
     clean = tracking.load_sequence("sim-desk", 2, "clean")
@@ -32,6 +33,7 @@ def test_tracking_sequences_follow_the_preset():
     assert (kinect[1].depth == 0).mean() > (clean[1].depth == 0).mean()
 
 
+@pytest.mark.slow
 def test_fusion_render_follows_the_preset():
     fusion = bench("bench_fusion")
     tiny = CameraIntrinsics(80, 60, 65.6, 65.6, 39.5, 29.5)

@@ -30,6 +30,7 @@ def frames_of(path) -> list:
     return list(open_dataset(path))
 
 
+@pytest.mark.slow
 def test_formats_are_detected(exports):
     assert detect_format(exports["scannet"]) == "scannet" and detect_format(exports["replica"]) == "replica"
 

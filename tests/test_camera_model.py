@@ -57,6 +57,7 @@ def plain(office):
     return Renderer(office, SMALL, noise=True)
 
 
+@pytest.mark.slow
 def test_clean_render_is_unchanged(office, loop, plain):
     poses = loop
     clean = Renderer(office, SMALL, noise=True, colour=colour_params("clean"))

@@ -152,6 +152,7 @@ def test_diff_command(tmp_path):
     assert r.exit_code != 0 and "different resolutions" in str(r.exception)
 
 
+@pytest.mark.slow
 def test_diff_finds_the_simulated_changes():
     """Two walks through one simulated room, the second after `simulate --changes`: the moved object's voxels
     disappear where it stood and appear where it went, as changes.json records."""

@@ -67,6 +67,7 @@ def test_every_command_has_a_recorded_help() -> None:
                                                           "(python tests/test_cli_help.py) and commit it"
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("path", sorted(recorded()))
 def test_help_is_unchanged(path: str) -> None:
     assert help_text(path) == recorded()[path], (f"`semmap {path} --help` changed; if that is meant, rewrite "

@@ -19,6 +19,7 @@ def sequence(tmp_path_factory) -> Path:
     return simulate_sequence(tmp_path_factory.mktemp("seq") / "seq", frames=2, image_size=(80, 60), scene_seed=3)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(("section", "values", "named"), [
     ("mapping", {"resolution": 1e300}, "resolution"),
     ("semantics", {"k": 99}, "semantics.k"),

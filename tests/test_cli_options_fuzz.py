@@ -279,6 +279,7 @@ def _no_budget_left_behind():
     limits.set_memory_budget(None)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("command, option, kind", NUMERIC, ids=[f"{c} {o}" for c, o, _ in NUMERIC])
 def test_every_numeric_option_is_refused_in_one_line_or_accepted_within_its_limit(command, option, kind) -> None:
     rule = limits.option_rule(option, command)

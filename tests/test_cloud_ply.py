@@ -73,6 +73,7 @@ def test_colored_cloud_ply_round_trips_through_plyfile(tmp_path):
     assert np.array_equal(np.stack([v["red"], v["green"], v["blue"]], 1), rgb)
 
 
+@pytest.mark.slow
 def test_a_resumed_run_writes_the_same_cloud(room, tmp_path):
     """The cloud is part of the mapper's checkpoint: a run killed after three frames and resumed writes the same
     cloud.ply as one that never stopped."""

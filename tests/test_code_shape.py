@@ -8,6 +8,8 @@ import ast
 import functools
 from pathlib import Path
 
+import pytest
+
 SRC = Path(__file__).resolve().parents[1] / "src" / "semmap"
 MAX_FUNCTION_LINES = 80
 MAX_PIPELINE_LINES = 250
@@ -56,6 +58,7 @@ def _long_functions() -> list[str]:
     return found
 
 
+@pytest.mark.slow
 def test_no_function_is_over_80_lines_outside_kernels_algorithms_and_cli_options():
     assert _long_functions() == []
 

@@ -104,6 +104,7 @@ def prior_run(tmp_path_factory, scene):
     return run_config(_config(out, maps=(MapKind.OCTOMAP, MapKind.POINTS)), dataset=first)
 
 
+@pytest.mark.slow
 def test_a_continued_run_localizes_the_recording_and_keeps_the_priors_evidence(tmp_path, scene, prior_run):
     rec, T0 = _tiny(scene, 2, 12, relative=True)
     cont = run_config(_config(tmp_path / "cont"), dataset=rec, continue_from=prior_run.out_dir)
@@ -120,6 +121,7 @@ def test_a_continued_run_localizes_the_recording_and_keeps_the_priors_evidence(t
     assert "## Continued from a prior map" in md and "converged after" in md
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("seed", [3, 4])
 def test_a_recording_starting_elsewhere_is_aligned_within_2_cm_and_1_degree(scene, prior_run, seed):
     from semmap.localization.align import align_recording

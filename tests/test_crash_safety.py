@@ -45,6 +45,7 @@ def _interrupt(sig: str, at: int, *args: str) -> subprocess.CompletedProcess:
                           timeout=300)
 
 
+@pytest.mark.slow
 def test_a_run_killed_with_kill_9_resumes_to_the_same_map(sim, uninterrupted, tmp_path):
     out = tmp_path / "out"
     r = _interrupt("KILL", 7, str(sim), "--out", str(out), *OPTIONS, "--checkpoint-every", "2")
@@ -61,6 +62,7 @@ def test_a_run_killed_with_kill_9_resumes_to_the_same_map(sim, uninterrupted, tm
     assert not staging_folder(out).exists()
 
 
+@pytest.mark.slow
 def test_ctrl_c_prints_one_line_exits_130_and_writes_nothing(sim, tmp_path):
     out = tmp_path / "out"
     r = _interrupt("INT", 5, str(sim), "--out", str(out), *OPTIONS)

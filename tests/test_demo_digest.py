@@ -8,6 +8,8 @@ import hashlib
 import json
 from pathlib import Path
 
+import pytest
+
 from semmap.runner import run_demo
 
 DIGEST = Path(__file__).parent / "data" / "demo_digest.json"
@@ -17,6 +19,7 @@ TIMINGS = {"ms_per_frame", "startup_s", "segmenter_startup_s", "peak_rss_mb", "f
 MEMORY = ("bytes_in_memory", "bytes_per_voxel_in_memory")
 
 
+@pytest.mark.slow
 def test_demo_writes_the_stored_map_bytes_and_report_numbers(tmp_path):
     stored = json.loads(DIGEST.read_text())
     result = run_demo(out=tmp_path / "demo", frames=20, oracle=True, cloud=True)  # (the digest has cloud.ply)

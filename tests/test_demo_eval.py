@@ -59,6 +59,7 @@ def short_demo(tmp_path_factory):
                     ground_truth=ground_truth).run()
 
 
+@pytest.mark.slow
 def test_demo_reports_3d_accuracy_above_single_frame_segmentation(short_demo):
     r = short_demo.report
     for key in ("miou_3d", "oracle_miou_2d", "per_class_iou_3d", "geometric_precision_3d", "gt_coverage_3d"):
@@ -71,6 +72,7 @@ def test_demo_reports_3d_accuracy_above_single_frame_segmentation(short_demo):
     assert json.loads((short_demo.out_dir / "report.json").read_text())["miou_3d"] == r["miou_3d"]
 
 
+@pytest.mark.slow
 def test_a_simulated_folder_regenerates_its_scene_for_ground_truth(tmp_path):
     from semmap.sim.export import simulate_sequence
 

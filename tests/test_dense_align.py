@@ -23,6 +23,7 @@ def desk_frames() -> list[Frame]:
     return list(itertools.islice(iter(ds), 9))
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("method", METHODS)
 def test_every_cost_recovers_a_relative_pose_from_a_rough_guess(desk_frames, method):
     f0, f8 = desk_frames[0], desk_frames[8]
@@ -37,6 +38,7 @@ def test_every_cost_recovers_a_relative_pose_from_a_rough_guess(desk_frames, met
     assert np.allclose(out.T[:3, :3] @ out.T[:3, :3].T, np.eye(3), atol=1e-9)  # a rigid transform
 
 
+@pytest.mark.slow
 def test_a_target_prepared_once_serves_many_sources_unchanged(desk_frames):
     aligner = OdometryConfig().aligner(desk_frames[0].intrinsics)
     target = aligner.image(desk_frames[0].rgb, desk_frames[0].depth)

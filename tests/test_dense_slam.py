@@ -29,6 +29,7 @@ def _gt(frames: list[Frame], names: tuple[str, ...]) -> np.ndarray:
     return np.array([by_name[n] for n in names])
 
 
+@pytest.mark.slow
 def test_tracks_the_simulated_desk_to_a_millimetre(desk_frames):
     slam = DenseSlam()
     assert isinstance(slam, PoseTracker) and slam.name == "slam"
@@ -48,6 +49,7 @@ def test_tracks_the_simulated_desk_to_a_millimetre(desk_frames):
         assert kf.grey.nbytes + kf.depth.nbytes < 0.4 * (depth.nbytes + depth.size)
 
 
+@pytest.mark.slow
 def test_the_same_frames_give_the_same_trajectory_on_every_run(desk_frames):
     """Dense alignment sums in a fixed order, so nothing depends on thread timing: two trackers fed the same frames
     agree to the last bit."""
@@ -57,6 +59,7 @@ def test_the_same_frames_give_the_same_trajectory_on_every_run(desk_frames):
     assert np.array_equal(first.trajectory().poses, second.trajectory().poses)
 
 
+@pytest.mark.slow
 def test_a_revisit_closes_an_accurate_loop(desk_frames, monkeypatch):
     """Out along the desk and back the same way: the way back revisits the first keyframes, which is found as a
     loop; its measured relative pose matches the truth, and the optimised trajectory stays accurate (with room
@@ -84,6 +87,7 @@ def test_a_revisit_closes_an_accurate_loop(desk_frames, monkeypatch):
         assert dist < 0.003 and angle < 0.2
 
 
+@pytest.mark.slow
 def test_keyframes_are_tied_to_older_keyframes_by_accurate_dense_edges(desk_frames):
     """Besides the odometry chain, each keyframe is aligned to the keyframe before its predecessor; those edges
     measure the true relative pose, and the pose graph they join keeps the trajectory accurate."""
@@ -104,6 +108,7 @@ def test_keyframes_are_tied_to_older_keyframes_by_accurate_dense_edges(desk_fram
     assert not [e for e in chain._edges if e[1] - e[0] != 1]
 
 
+@pytest.mark.slow
 def test_frames_between_keyframes_share_the_next_keyframes_correction(desk_frames):
     """When the graph moves a keyframe, the frames aligned to the keyframe before it move by a growing part of
     that correction, so the trajectory has no jump where the moved keyframe starts."""
@@ -123,6 +128,7 @@ def test_frames_between_keyframes_share_the_next_keyframes_correction(desk_frame
     assert np.allclose(moved[first : second + 1], along[:, None] * shift, atol=1e-9)
 
 
+@pytest.mark.slow
 def test_relocalises_after_the_sensor_goes_blind(desk_frames):
     slam = DenseSlam(DenseSlamConfig(loop_closure=False))
     for f in desk_frames[:20]:

@@ -36,6 +36,7 @@ def _error_std(sensor: StructuredLight, z: float, cos: float = 1.0) -> float:
     return float(np.std(out[ok] - z))
 
 
+@pytest.mark.slow
 def test_axial_noise_grows_with_the_square_of_the_depth():
     stds = {z: _error_std(PLAIN, z) for z in (1.0, 2.0, 3.0)}
     assert 3.0 < stds[2.0] / stds[1.0] < 5.0  # 4 for z^2
@@ -151,6 +152,7 @@ def test_presets_clean_is_todays_noise_and_others_differ():
         realism("photoreal")
 
 
+@pytest.mark.slow
 def test_clean_frames_are_exactly_todays():
     scene = generate_scene(0, "office", "small")
     poses = make_trajectory(scene, "loop", 2, seed=0)
@@ -164,6 +166,7 @@ def test_clean_frames_are_exactly_todays():
         list(simulate_frames(scene, poses, noise=False, realism="kinect"))
 
 
+@pytest.mark.slow
 def test_simulate_records_the_preset(tmp_path):
     root = simulate_sequence(tmp_path / "seq", frames=1, size="small", intrinsics=ROOM_CAMERA, realism="hard")
     assert json.loads((root / "scene.json").read_text())["realism"] == "hard"
@@ -246,6 +249,7 @@ def test_distortion_field_is_smooth_fixed_per_unit_and_seeded():
         StructuredLight(focal_error=0.5)
 
 
+@pytest.mark.slow
 def test_the_renderer_looks_through_the_true_intrinsics_and_publishes_the_nominal_ones():
     from semmap.sim.render import Renderer
 

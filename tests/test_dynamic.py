@@ -71,6 +71,7 @@ def _held_at(m, centres: np.ndarray) -> int:
     return int(np.isin(pack_keys(coords_to_keys(centres, RES)), _occupied(m)).sum())
 
 
+@pytest.mark.slow
 def test_the_walker_is_seen_and_labelled_person(walk):
     with_person, without, only = walk
     seen = [int((f.labels == PERSON).sum()) for f in with_person]
@@ -78,6 +79,7 @@ def test_the_walker_is_seen_and_labelled_person(walk):
     assert not any((f.labels == PERSON).any() for f in without)
 
 
+@pytest.mark.slow
 def test_a_walking_person_never_occupies_a_voxel_and_the_static_map_stays(walk, reference):
     with_person, _, only = walk
     m, most = _map(with_person, (PERSON,), watch=only)
@@ -88,6 +90,7 @@ def test_a_walking_person_never_occupies_a_voxel_and_the_static_map_stays(walk, 
     assert most_without > 50
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("kind", ["points", "voxelgrid"])
 def test_the_grids_leave_dynamic_points_out(walk, reference, kind):
     with_person, without, only = walk
@@ -134,6 +137,7 @@ def test_an_unknown_dynamic_class_is_refused_in_one_line(tmp_path):
     assert dynamic_classes(default, INDOOR_LABELS) == (PERSON,) and dynamic_classes(default, None) == ()
 
 
+@pytest.mark.slow
 def test_simulate_people_keeps_the_static_scene_and_its_ground_truth(tmp_path):
     import json
 

@@ -173,6 +173,7 @@ def test_real_frame_finds_kitchen_furniture(model_s1: ESPNetv2Seg) -> None:
     assert share[[1, 3, 8, 10, 12, 13, 17, 19]].sum() < 0.02  # no aeroplanes, animals or trains in a kitchen
 
 
+@pytest.mark.slow
 def test_onnx_export_holds_the_pooling_weights_as_constants(tmp_path: Path) -> None:
     # filling the adaptive-pooling matrices row by row inside forward traced every row as a scatter: 72k graph
     # nodes for s=2.0 at 432x320 and about 30 s of CPU to open each ONNX Runtime session

@@ -112,6 +112,7 @@ def test_eval_traj_compares_several_estimates_in_one_table(room, tmp_path, capsy
     assert rows["a vs b"].startswith("0.00 cm apart")
 
 
+@pytest.mark.slow
 def test_track_prints_a_table_and_writes_its_trajectory(sim, tmp_path, capsys, monkeypatch) -> None:
     out = tmp_path / "traj.txt"
     code, stdout, err = cli(capsys, monkeypatch, "track", sim, "--out", out, "--method", "odometry")
@@ -275,6 +276,7 @@ def test_ctrl_c_in_track_localize_and_simulate_is_one_line_and_130(command, room
     assert code == 130 and err.strip() == expected
 
 
+@pytest.mark.slow
 def test_ctrl_c_after_the_last_frame_keeps_the_complete_outputs_and_exits_0(room, tmp_path, capsys,
                                                                            monkeypatch) -> None:
     from semmap.pipeline import Pipeline

@@ -73,6 +73,7 @@ def box_run(boxes, tmp_path_factory):
 
 
 # ---------------------------------------------------------------------------------------------- semantics source
+@pytest.mark.slow
 def test_a_run_without_a_segmenter_names_the_ground_truth_labels_in_summary_and_reports(box_run):
     out, printed = box_run
     report = json.loads((out / "report.json").read_text())
@@ -264,6 +265,7 @@ def test_the_trajectory_plot_uses_the_previews_axes_and_names_them(monkeypatch, 
 
 
 # ---------------------------------------------------------------------------------------------- precomputed names
+@pytest.mark.slow
 def test_precomputed_npy_predictions_take_the_datasets_class_names(boxes, tmp_path):
     preds = tmp_path / "preds"
     preds.mkdir()

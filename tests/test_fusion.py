@@ -31,6 +31,7 @@ def fuse(map_set, meas_set, lam=0.9, max_confidence=1.0):
     return out_l[0], out_p[0]
 
 
+@pytest.mark.slow
 @settings(max_examples=300, deadline=None)
 @given(semantic_sets(), semantic_sets(), st.floats(0.0, 1.0))
 def test_fused_distribution_sums_to_one_and_keeps_sorted_top3(map_set, meas_set, lam):

@@ -101,6 +101,7 @@ def test_bayes_prior_divides_every_measurement_by_the_class_prior(case):
                                logodds_to_probs(run_bayes(labels, probs, K)), rtol=1e-4, atol=1e-7)
 
 
+@pytest.mark.slow
 @settings(max_examples=100, deadline=None)
 @given(st.integers(2, 12).flatmap(lambda K: st.tuples(st.just(K), measurement_sequences(K, max_len=10))),
        st.randoms())

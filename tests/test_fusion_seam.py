@@ -142,6 +142,7 @@ def states_by_key(m) -> dict[int, tuple]:
     return {int(k): (a.set_labels[i].tolist(), values[i].tolist()) for i, k in enumerate(a.packed)}
 
 
+@pytest.mark.slow
 @settings(max_examples=8, deadline=None)
 @given(st.integers(0, 2**31 - 1), st.integers(1, 6))
 def test_every_rule_on_the_octomap_equals_the_same_rule_on_the_voxel_grid(seed, frames):

@@ -48,6 +48,7 @@ def _summary_rows(output: str) -> list[str]:
     return [line for line in output.splitlines() if line.count("│") >= 3]
 
 
+@pytest.mark.slow
 def test_demo_summary_leads_with_the_same_pixels_and_keeps_units_apart(demo):
     out, output = demo
     rows = _summary_rows(output)

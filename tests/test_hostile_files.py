@@ -43,6 +43,7 @@ def hostile(tmp_path_factory):
     return folder, json.loads(r.stdout.strip().splitlines()[-1])
 
 
+@pytest.mark.slow
 def test_every_hostile_file_is_one_clear_error_in_bounded_memory(hostile):
     folder, result = hostile
     assert len(result["outcomes"]) >= 20
@@ -98,6 +99,7 @@ def test_poses_a_million_metres_away_warn_why_the_map_is_empty(room, tmp_path, c
             "hold at --resolution 0.2 m") in str(info.value)
 
 
+@pytest.mark.slow
 def test_opencv_says_nothing_of_its_own_about_a_corrupt_image(room, tmp_path):
     seq = tmp_path / "seq"
     shutil.copytree(room, seq)

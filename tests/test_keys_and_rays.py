@@ -43,6 +43,7 @@ def _octomap_ray_free_cells(origin, end, resolution):
     return free
 
 
+@pytest.mark.slow
 def test_ray_cells_match_octomap_compute_ray_keys_on_random_rays():
     rng = np.random.default_rng(3)
     for i in range(150):

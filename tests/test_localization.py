@@ -229,6 +229,7 @@ def _run(prior, frames, *, init, mode=MotionMode.SIX_DOF, model=ObservationKind.
                     tilt_of=lambda f: GroundTilt.from_pose(f.T_world_cam), seed=seed, points=300)
 
 
+@pytest.mark.slow
 def test_tracking_follows_the_camera_to_a_few_centimetres(office):
     _, prior, frames = office
     s = _run(prior, frames, init=InitMode.TRACKING, particles=500).summary()
@@ -366,6 +367,7 @@ def small_office_map(tmp_path_factory, office):
     return root / "map.semmap", seq
 
 
+@pytest.mark.slow
 def test_localize_command_writes_the_trajectory_report_and_pictures(small_office_map, tmp_path):
     from semmap.io.trajectory import read_trajectory
 
@@ -389,6 +391,7 @@ def test_localize_command_writes_the_trajectory_report_and_pictures(small_office
     assert "Converged after" in (out / "report.md").read_text()
 
 
+@pytest.mark.slow
 def test_localize_command_reports_bad_input_in_one_line(small_office_map, tmp_path):
     from semmap.localization.sequence import LocalizeOptions, localize_sequence
 

@@ -119,6 +119,7 @@ def mapped(tmp_path_factory):
     return reports
 
 
+@pytest.mark.slow
 def test_a_tracked_map_scores_within_two_points_of_the_ground_truth_posed_map(mapped):
     gt, est = mapped["gt"], mapped["odometry"]
     assert "map_alignment" not in gt

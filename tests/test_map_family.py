@@ -22,6 +22,7 @@ def run_cli(*args: str) -> subprocess.CompletedProcess:
     return subprocess.run([sys.executable, "-m", "semmap.cli", *args], capture_output=True, text=True, timeout=600)
 
 
+@pytest.mark.slow
 def test_run_builds_every_map_side_by_side_and_info_reads_every_file(tmp_path):
     seq, out = tmp_path / "room", tmp_path / "out"
     write_tum_sequence(seq, make_room_frames(8), label_set=room_label_set())

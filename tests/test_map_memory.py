@@ -110,6 +110,7 @@ def small_maps() -> dict[float, SemanticOctoMap]:
     return out
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("resolution", [0.05, 0.02])
 def test_a_small_map_costs_at_most_40_bytes_per_leaf(small_maps, resolution):
     m = small_maps[resolution]

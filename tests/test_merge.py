@@ -80,6 +80,7 @@ def agreement(x, y) -> tuple[float, float]:
     return float(same[known].mean()), float(same[ox | oy].mean())
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("kind", ["octomap", "voxelgrid"])
 def test_two_halves_merged_equal_the_whole_recording(recording, kind):
     half = FRAMES // 2
@@ -94,6 +95,7 @@ def test_two_halves_merged_equal_the_whole_recording(recording, kind):
     assert agreement(whole, merge_maps(a, b, alignment.transform))[0] >= 0.99
 
 
+@pytest.mark.slow
 def test_point_maps_merge_too(recording):
     half = FRAMES // 2
     whole = build(recording, "points", slice(None))

@@ -107,6 +107,7 @@ def run_folder(tmp_path_factory):
     return root / "out"
 
 
+@pytest.mark.slow
 def test_run_writes_a_mesh_open3d_and_plyfile_read_with_the_octomaps_classes(run_folder):
     import open3d as o3d
     import plyfile

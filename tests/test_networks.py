@@ -63,6 +63,7 @@ def test_full_resolution_forward_matches_input_size() -> None:
         assert net(torch.zeros(1, 3, 40, 56)).shape == (1, K, 40, 56)  # not a multiple of 32: skips still fuse
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("model,depth", [("pspnet", 50), ("cbam-pspnet", 50), ("fcn", 50), ("rgbd-net", 0)])
 def test_the_papers_full_sizes_build_and_run(model: str, depth: int) -> None:
     net = build_network(NetworkSpec(model, 150, width=1.0, depth=depth or 50)).eval()
@@ -131,6 +132,7 @@ def test_matmul_adaptive_pooling_equals_torch(h: int, w: int, bins: int) -> None
     torch.testing.assert_close(adaptive_avg_pool(x, bins), F.adaptive_avg_pool2d(x, bins), rtol=1e-5, atol=1e-6)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("model", list(MODELS))
 def test_onnx_export_agrees_with_pytorch(model: str, tmp_path) -> None:
     import onnxruntime as ort
@@ -169,6 +171,7 @@ def test_weight_file_round_trip_and_errors(tmp_path) -> None:
         NetworkSpec("segnet", K)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("model", ["pspnet", "rgbd-net"])
 @pytest.mark.parametrize("backend", ["torch", "onnx"])
 def test_segmenter_runs_a_weight_file_on_frames(model: str, backend: str, tmp_path) -> None:
@@ -190,6 +193,7 @@ def test_missing_shipped_weights_say_how_to_get_them(tmp_path, monkeypatch) -> N
         make_segmenter("cbam-pspnet")
 
 
+@pytest.mark.slow
 def test_a_mapping_run_segments_with_an_rgbd_network(tmp_path) -> None:
     from helpers import room_label_set
     from semmap.config import InputConfig, MappingConfig, OutputConfig, RunConfig, SemanticsConfig
@@ -240,6 +244,7 @@ def test_shipped_weights_match_their_manifest() -> None:
     assert manifest["demo"]["miou"] == onnx[manifest["demo"]["network"]]["miou"]
 
 
+@pytest.mark.slow
 def test_demo_segments_with_the_shipped_network(tmp_path) -> None:
     import json
 

@@ -33,6 +33,7 @@ def box_sequence(tmp_path_factory):
     return root
 
 
+@pytest.mark.slow
 def test_run_with_instances_writes_the_objects(box_sequence, tmp_path):
     out = tmp_path / "out"
     r = run_cli("run", str(box_sequence), "--out", str(out), "--resolution", "0.05", "--instances", "oracle",
@@ -54,6 +55,7 @@ def test_run_with_instances_writes_the_objects(box_sequence, tmp_path):
     assert report["bytes_on_disk"]["objects.json"] > 0 and "objects" in report["ms_per_frame"]
 
 
+@pytest.mark.slow
 def test_components_of_label_images_give_objects_too(box_sequence, tmp_path):
     out = tmp_path / "out"
     r = run_cli("run", str(box_sequence), "--out", str(out), "--resolution", "0.05", "--instances", "components")
@@ -62,6 +64,7 @@ def test_components_of_label_images_give_objects_too(box_sequence, tmp_path):
     assert sorted(r["class"] for r in records) == ["chair", "chair", "table"]
 
 
+@pytest.mark.slow
 def test_a_run_with_object_constrained_poses_reports_its_object_edges(box_sequence, tmp_path):
     out = tmp_path / "o"
     r = run_cli("run", str(box_sequence), "--out", str(out), "--resolution", "0.05", "--poses", "odometry-objects",
@@ -73,6 +76,7 @@ def test_a_run_with_object_constrained_poses_reports_its_object_edges(box_sequen
     assert edges["keyframes"] >= 2 and report["poses"] == "odometry-objects"
 
 
+@pytest.mark.slow
 def test_object_poses_need_an_instance_source(box_sequence, tmp_path):
     r = run_cli("run", str(box_sequence), "--out", str(tmp_path / "o"), "--poses", "slam-objects")
     assert r.returncode == 1 and "needs an instance source" in r.stderr and "Traceback" not in r.stderr
@@ -138,6 +142,7 @@ def there_and_back_frames():
     return there + [f.with_(index=30 + f.index, timestamp=1.0 + f.timestamp, name=f"{30 + f.index:04d}") for f in back]
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("drift_cm", [0.0, 0.05])
 def test_object_constraints_leave_a_good_trajectory_alone_and_correct_drift(there_and_back_frames, drift_cm):
     """No drift: every object edge agrees with the tracker within its noise and nothing changes. A drift of 3 cm
@@ -180,6 +185,7 @@ def _box_surface(lo: np.ndarray, hi: np.ndarray, step: float = 0.01) -> np.ndarr
     return np.vstack(faces)
 
 
+@pytest.mark.slow
 def test_object_icp_finds_a_drift_that_overlapping_parts_would_confirm():
     """Three boxes, each seen as its top and the two faces towards a camera, from two cameras: started 2.4 cm and
     1 degree off (a drift; 4-6 cm at the boxes), the object-level ICP comes back to the true relative pose within

@@ -44,6 +44,7 @@ def _pyoctomap_leaves(tree):
     return out
 
 
+@pytest.mark.slow
 def test_pyoctomap_reads_our_ot_and_bt_with_the_same_leaves(semantic_map, tmp_path):
     nodes = semantic_map.tree()
     write_ot(tmp_path / "m.ot", nodes, semantic_map.resolution)

@@ -87,6 +87,7 @@ def _same_maps(a, b) -> None:
     assert np.array_equal(va.probs, vb.probs)
 
 
+@pytest.mark.slow
 def test_online_map_equals_the_offline_map_of_the_same_poses(room, tmp_path):
     offline = _run(room, tmp_path / "off", LoopMode.OFFLINE)
     online = _run(room, tmp_path / "on", LoopMode.ONLINE)
@@ -97,6 +98,7 @@ def test_online_map_equals_the_offline_map_of_the_same_poses(room, tmp_path):
     assert o["drift_left_in"]["max_mm"] == 0.0  # ground-truth poses never move
 
 
+@pytest.mark.slow
 def test_online_tracking_maps_with_live_poses_and_reports_the_drift_left_in(room, tmp_path):
     online = _run(room, tmp_path / "on", LoopMode.ONLINE, poses="odometry")
     used = read_trajectory(tmp_path / "on" / "trajectory.txt")
@@ -166,6 +168,7 @@ def test_submit_blocks_while_the_queue_is_full():
         assert int(second.result()[0].labels[0, 0, 0]) == 1
 
 
+@pytest.mark.slow
 def test_online_flag_on_the_command_line(room, tmp_path):
     out = tmp_path / "cli"
     r = run_cli("run", str(room), "--out", str(out), "--resolution", "0.1", "--online", "--poses", "odometry")
@@ -254,6 +257,7 @@ def test_an_online_run_at_a_camera_rate_measures_latency_from_each_due_time(room
     assert result.report["online"]["fps"] <= 21
 
 
+@pytest.mark.slow
 def test_a_rate_needs_an_online_run(room, tmp_path):
     with pytest.raises(ValueError, match="--online"):
         RunConfig(input=InputConfig(dataset=room), online=OnlineConfig(rate=10.0), output=OutputConfig(out=tmp_path))

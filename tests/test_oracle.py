@@ -32,6 +32,7 @@ def test_is_a_segmenter_with_the_label_set():
     assert seg.label_set is INDOOR_LABELS
 
 
+@pytest.mark.slow
 def test_bad_arguments_raise(frames):
     with pytest.raises(ConfigError):
         OracleSegmenter(INDOOR_LABELS, preset="perfect")

@@ -131,6 +131,7 @@ def test_d9_d10_simulate_never_mixes_into_another_folder(seq, tmp_path):
     assert _bytes(run) == {"map.ot": b"map", "report.md": b"# report"}
 
 
+@pytest.mark.slow
 def test_d9_an_earlier_simulation_is_replaced_as_a_whole(tmp_path):
     out = _simulate(tmp_path / "sim", scene_seed=1)
     (out / "rgb" / "stale.png").write_bytes(b"from the other scene")
@@ -139,6 +140,7 @@ def test_d9_an_earlier_simulation_is_replaced_as_a_whole(tmp_path):
     assert not staging_folder(out).exists()
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("failure", [KeyboardInterrupt(), OSError(errno.ENOSPC, "No space left on device")])
 def test_d11_d12_an_interrupted_or_failed_simulation_leaves_nothing(tmp_path, failure):
     def progress(i: int, n: int) -> None:
@@ -199,6 +201,7 @@ def _cli(*args: str) -> subprocess.CompletedProcess:
     return subprocess.run([sys.executable, "-m", "semmap.cli", *args], capture_output=True, text=True, timeout=120)
 
 
+@pytest.mark.slow
 def test_cli_refusals_are_one_line_with_exit_code_1(seq):
     before = _bytes(seq)
     r = _cli("run", str(seq), "--out", str(seq))

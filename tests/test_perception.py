@@ -259,6 +259,7 @@ def test_eval_folders_resize_ignore_and_report_missing(tmp_path):
 
 
 # ------------------------------------------------------------------ end to end
+@pytest.mark.slow
 def test_run_with_precomputed_segmentation_every_second_frame(tmp_path):
     from semmap.datasets import open_dataset
     from semmap.io.tum_writer import write_tum_sequence
@@ -282,6 +283,7 @@ def test_run_with_precomputed_segmentation_every_second_frame(tmp_path):
     assert report["precomputed_miou_2d"] == 1.0  # predictions are the ground truth
 
 
+@pytest.mark.slow
 def test_eval_seg_command(tmp_path):
     gt = np.zeros((4, 6), np.uint8)
     gt[:, 3:] = 1

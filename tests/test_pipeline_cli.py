@@ -35,6 +35,7 @@ def _occupied_leaves(tree) -> int:
     return sum(1 for leaf in tree.begin_leafs() if tree.isNodeOccupied(leaf))
 
 
+@pytest.mark.slow
 def test_run_writes_every_output_and_octomap_agrees_with_the_report(room_sequence, tmp_path):
     out = tmp_path / "out"
     r = run_cli("run", str(room_sequence), "--out", str(out), "--resolution", "0.1")
@@ -67,6 +68,7 @@ def test_labelled_room_is_mapped_with_the_right_classes(room_sequence, tmp_path)
     assert result.report["occupied_voxels"] == result.octomap.num_occupied
 
 
+@pytest.mark.slow
 def test_missing_and_corrupt_frames_are_skipped_named_and_counted(room_sequence, tmp_path):
     import shutil
 
@@ -84,6 +86,7 @@ def test_missing_and_corrupt_frames_are_skipped_named_and_counted(room_sequence,
     assert {Path(s["path"]).name for s in report["skipped"]} == {depth_files[3].name, rgb_files[5].name}
 
 
+@pytest.mark.slow
 def test_bad_inputs_give_one_clear_line_and_exit_code_1(room_sequence, tmp_path):
     r = run_cli("run", str(tmp_path / "nowhere"), "--out", str(tmp_path / "o"))
     assert r.returncode == 1 and r.stderr.strip().startswith("semmap: error:") and "nowhere" in r.stderr
@@ -107,6 +110,7 @@ def test_bad_inputs_give_one_clear_line_and_exit_code_1(room_sequence, tmp_path)
     assert r.returncode == 1 and "groundtruth.txt" in r.stderr and "Traceback" not in r.stderr
 
 
+@pytest.mark.slow
 def test_info_describes_written_maps(room_sequence, tmp_path):
     out = tmp_path / "out"
     assert run_cli("run", str(room_sequence), "--out", str(out), "--resolution", "0.2").returncode == 0
@@ -118,6 +122,7 @@ def test_info_describes_written_maps(room_sequence, tmp_path):
     assert d["occupied"] == report["occupied_voxels"]
 
 
+@pytest.mark.slow
 def test_seven_scenes_frames_map_end_to_end(seven_scenes, tmp_path):
     config = RunConfig(input=InputConfig(dataset=seven_scenes, max_frames=3, stride=20),
                        mapping=MappingConfig(resolution=0.05), output=OutputConfig(out=tmp_path / "o"))
@@ -127,6 +132,7 @@ def test_seven_scenes_frames_map_end_to_end(seven_scenes, tmp_path):
     assert result.report["points_integrated"] > 3 * 250_000
 
 
+@pytest.mark.slow
 def test_simulate_then_run_evaluates_against_the_scenes_ground_truth(tmp_path):
     seq, out = tmp_path / "seq", tmp_path / "out"
     r = run_cli("simulate", "--out", str(seq), "--frames", "12", "--kind", "kitchen", "--size", "small")

@@ -28,6 +28,7 @@ def _shifted(traj: Trajectory) -> Trajectory:
     return Trajectory(traj.timestamps, np.array([W @ T for T in traj.poses]), traj.names)
 
 
+@pytest.mark.slow
 def test_run_with_a_trajectory_file_maps_and_scores_it(room, tmp_path):
     est = tmp_path / "est.txt"
     write_trajectory(est, _shifted(read_trajectory(room / "groundtruth.txt")))
@@ -41,6 +42,7 @@ def test_run_with_a_trajectory_file_maps_and_scores_it(room, tmp_path):
     np.testing.assert_allclose(used.poses, read_trajectory(est).poses, atol=1e-6)
 
 
+@pytest.mark.slow
 def test_bad_pose_source_is_one_clear_line(room, tmp_path):
     r = run_cli("run", str(room), "--out", str(tmp_path / "o"), "--poses", str(tmp_path / "missing.txt"))
     assert r.returncode == 1 and "missing.txt does not exist" in r.stderr and "Traceback" not in r.stderr
@@ -50,6 +52,7 @@ def test_bad_pose_source_is_one_clear_line(room, tmp_path):
     assert r.returncode == 1 and "bad.txt" in r.stderr and "Traceback" not in r.stderr
 
 
+@pytest.mark.slow
 def test_eval_traj_scores_a_file_against_a_dataset_or_a_file(room, tmp_path):
     est = tmp_path / "est.txt"
     write_trajectory(est, _shifted(read_trajectory(room / "groundtruth.txt")))
@@ -61,6 +64,7 @@ def test_eval_traj_scores_a_file_against_a_dataset_or_a_file(room, tmp_path):
     assert (tmp_path / "plot.png").stat().st_size > 1000
 
 
+@pytest.mark.slow
 def test_eval_traj_compares_several_estimates_against_two_references(room, tmp_path):
     gt = read_trajectory(room / "groundtruth.txt")
     a, b = tmp_path / "a" / "est.txt", tmp_path / "b" / "est.txt"

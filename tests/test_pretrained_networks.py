@@ -144,6 +144,7 @@ def test_every_architecture_on_the_espnet_encoder(model: str) -> None:
     assert espnet_spec(model).describe() == f"{model}-{BACKBONE}-w0.125"
 
 
+@pytest.mark.slow
 @NEEDS_TORCHVISION
 def test_torchvision_resnet_and_vgg_layouts_load_without_download() -> None:
     from semmap.perception.instances._torchvision_ops import import_torchvision
@@ -187,6 +188,7 @@ def test_offline_torchvision_says_so_in_one_line(monkeypatch: pytest.MonkeyPatch
 
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("model", ["cbam-pspnet", "rgbd-net"])
 def test_onnx_export_of_the_espnet_heads_agrees_with_pytorch(model: str, tmp_path: Path) -> None:
     import onnxruntime as ort
@@ -286,6 +288,7 @@ def test_calibrate_weights_writes_a_copy_with_its_temperature(tmp_path: Path) ->
         calibrate_weights(src, [data], src)
 
 
+@pytest.mark.slow
 def test_calibrate_weights_on_rendered_validation_scenes_writes_the_fitted_temperature(tmp_path: Path) -> None:
     """``calibrate_weights.py --scenes``: the temperature is fitted on validation scenes rendered as `semmap run`
     meets frames (through the segmenter), and the copy carries it with the record of where it was fitted."""

@@ -84,6 +84,7 @@ def _nan(a: np.ndarray) -> np.ndarray:
     return np.full_like(a, np.nan)
 
 
+@pytest.mark.slow
 def test_s3_a_voxel_grid_with_nan_log_odds_is_refused_by_info_and_view(maps, tmp_path, capsys, monkeypatch):
     bad = _rewrite_npz(maps / "voxelgrid.semmap", tmp_path / "all_nan_vg.semmap", logodds=_nan)
     for args in (["info", bad], ["view", bad, "--save", tmp_path / "v.rrd"]):
@@ -134,6 +135,7 @@ def test_u22_a_semmap_resolution_outside_the_limits_names_the_file(maps, tmp_pat
     assert str(bad) in line and "resolution must be from 0.001 to 10" in line
 
 
+@pytest.mark.slow
 def test_the_good_map_files_still_read(maps, capsys, monkeypatch):
     for name in ("map.ot", "map.bt", "map.semmap", "voxelgrid.semmap", "voxelgrid.ply"):
         code, _out, err = cli(capsys, monkeypatch, "info", maps / name)
@@ -208,6 +210,7 @@ def test_u24_eval_traj_on_a_folder_without_poses_names_the_folder(seq, tmp_path,
     assert str(bare) in line and "no ground-truth poses" in line
 
 
+@pytest.mark.slow
 def test_u2_u4_a_static_camera_is_scored_with_a_warning_not_refused(tmp_path, capsys, monkeypatch):
     static = _static(tmp_path / "tum_static")
     gt = static / "groundtruth.txt"
@@ -234,6 +237,7 @@ def _move_gt_row(bad: Path, row: int, position: str) -> None:
     (bad / "groundtruth.txt").write_text("\n".join(lines) + "\n")
 
 
+@pytest.mark.slow
 def test_s2_u1_u8_bad_frames_are_skipped_or_named_and_the_others_mapped(tmp_path, capsys, monkeypatch):
     """One sequence with one of each: frame 0's time repeated in rgb.txt and depth.txt (U1), frame 1 posed 10^6 m
     away (S2), frame 2 posed at 1e300 (U8), frame 3 without depth in range (S2); frame 4 is good."""

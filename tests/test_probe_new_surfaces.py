@@ -62,6 +62,7 @@ def world(tmp_path_factory) -> Path:
 
 
 # ------------------------------------------------------------------ D1: an export never replaces another kind's
+@pytest.mark.slow
 @pytest.mark.parametrize(("first", "second"), [
     (["export", "grid", "{run}", "--out", "{out}"], ["diff", "{run}", "{run}", "--out", "{out}"]),  # df_out_overgrid
     (["diff", "{run}", "{run}", "--out", "{out}"], ["export", "grid", "{run}", "--out", "{out}"]),  # gr_out_diffdir
@@ -310,6 +311,7 @@ def test_u5_every_class_dynamic_is_refused_naming_dynamic(world, tmp_path, capsy
 
 
 # ------------------------------------------------------------------ S6, U6: the ESDF's slice and empty regions
+@pytest.mark.slow
 def test_s6_a_slice_height_outside_the_field_is_refused(world, tmp_path, capsys, monkeypatch):
     line = one_error(*semmap(capsys, monkeypatch, "export", "esdf", world / "run", "--out", tmp_path / "e",
                              "--slice-z", "1000")[::2])  # es_slice_far
@@ -493,6 +495,7 @@ def _entities(path: Path) -> set[str]:
     return {str(chunk.entity_path) for chunk in RrdReader(path).stream()}
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", sorted(PRODUCT_FILES))
 def test_info_and_view_open_every_product(products, tmp_path, capsys, monkeypatch, name):
     kind, counted, entity = PRODUCT_FILES[name]

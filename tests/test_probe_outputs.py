@@ -88,6 +88,7 @@ def _commands(w: Path, out: Path) -> dict[str, list]:
             "run --rerun": ["run", seq, "--out", w / "elsewhere", "--rerun", out / "x.rrd"]}
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("command", list(_commands(Path(), Path())))
 def test_t1_t9_h2_h3_a_full_disk_is_refused_before_any_work(command, inputs, tmp_path, capsys, monkeypatch):
     full = tmp_path / "full"

@@ -174,6 +174,7 @@ def test_esdf_signed_and_queries(room):
         e.distance_at(np.array([[np.nan, 0, 0]]))
 
 
+@pytest.mark.slow
 def test_incremental_matches_full_recompute():
     rng = np.random.default_rng(3)
     shape = (24, 20, 12)

@@ -155,6 +155,7 @@ def test_save_map_and_load_map_round_trip_every_kind(kind, tmp_path):
         semmap.load_map(tmp_path / "x.semmap")
 
 
+@pytest.mark.slow
 def test_the_python_api_example_builds_and_queries_a_map(tmp_path):
     spec = importlib.util.spec_from_file_location("python_api_example", ROOT / "examples" / "python_api.py")
     example = importlib.util.module_from_spec(spec)

@@ -42,6 +42,7 @@ def still_frames(tmp_path_factory):
     return root
 
 
+@pytest.mark.slow
 def test_a_folder_of_still_frames_reads_as_nyu40_frames(still_frames) -> None:
     assert detect_format(still_frames) == "stills"
     frames = list(open_dataset(still_frames))

@@ -107,6 +107,7 @@ def _literals() -> list[tuple[str, int, str]]:
     return found
 
 
+@pytest.mark.slow
 def test_no_family_name_is_spelled_outside_its_registry() -> None:
     homes: dict[str, set[str]] = {}  # name -> files that may spell it (a word two families share has both homes)
     families: dict[str, list[str]] = {}

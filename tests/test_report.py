@@ -35,6 +35,7 @@ def _picture(path) -> np.ndarray:
     return image
 
 
+@pytest.mark.slow
 def test_run_writes_plots_that_report_md_shows(run):
     md = (run / "report.md").read_text()
     for section in ("trajectory", "storage", "timings"):

@@ -89,6 +89,7 @@ def test_a_run_without_rerun_uses_the_null_visualizer(tmp_path):
     assert isinstance(get_visualizer(OutputConfig(out=tmp_path)), NoVisualizer)
 
 
+@pytest.mark.slow
 def test_semmap_view_writes_a_finished_map_for_rerun(logged_run, tmp_path):
     result, _ = logged_run
     for name in ("map.semmap", "map.ot"):
@@ -104,6 +105,7 @@ def test_semmap_view_writes_a_finished_map_for_rerun(logged_run, tmp_path):
     assert r.returncode == 1 and "not a JSON file semmap view shows" in r.stderr  # a report is no map
 
 
+@pytest.mark.slow
 def test_spawning_a_viewer_without_a_display_is_one_clear_line(room, tmp_path):
     import os
     import subprocess
@@ -116,6 +118,7 @@ def test_spawning_a_viewer_without_a_display_is_one_clear_line(room, tmp_path):
     assert "Traceback" not in r.stderr and not (tmp_path / "o").exists()
 
 
+@pytest.mark.slow
 def test_objects_are_logged_as_labelled_boxes_when_the_run_builds_them(tmp_path):
     from object_helpers import box_frames
     from semmap.config import ObjectsConfig

@@ -293,6 +293,7 @@ def test_fusion_gaps_check_measures_the_crf_unary_gap_of_each_voxel() -> None:
     assert gaps.margin_shares(Fused(), 12.0)[0] == pytest.approx(1 / 3)
 
 
+@pytest.mark.slow
 def test_network_fit_check_scores_a_one_class_network_by_that_class_share(tmp_path) -> None:
     """``network_fit_check.py`` scores a folder as the trainer validates: a network calling every pixel class c
     gets the pixel accuracy of c's share of the labelled pixels, and IoU only for c."""

@@ -128,6 +128,7 @@ def test_transform_tree_composes_and_interpolates_a_chain():
     assert T is None and "no chain" in why
 
 
+@pytest.mark.slow
 def test_semmap_run_maps_a_bag(frames, tmp_path):
     path = write_bag(tmp_path / "rec", frames, kind="sqlite3", depth="compressedDepth")
     out = tmp_path / "out"

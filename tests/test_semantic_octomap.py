@@ -30,6 +30,7 @@ def semmap_states(m: SemanticOctoMap) -> dict:
     return {tuple(k): bool(o) for k, o in zip(unpack_keys(c.packed).tolist(), occ, strict=True)}
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("resolution", [0.05, 0.1])
 def test_occupancy_matches_octomap_discretized_insert_cell_for_cell(resolution):
     rng = np.random.default_rng(0)
@@ -154,6 +155,7 @@ def test_non_finite_points_are_ignored():
     assert m.num_occupied == 1
 
 
+@pytest.mark.slow
 def test_hash_table_growth_keeps_every_cell():
     rng = np.random.default_rng(4)
     m = SemanticOctoMap(0.02)
@@ -256,6 +258,7 @@ def _octomap_cells(tree) -> tuple[np.ndarray, np.ndarray]:
     return packed[order], leaves.occupied(tree.getOccupancyThresLog())[src][order]
 
 
+@pytest.mark.slow
 def test_threaded_and_serial_insertion_give_identical_maps(monkeypatch):
     # big scans run the ray, table and attribute passes on all threads; with the threshold out of reach the same
     # scans run serially: every cell, log-odds, colour and class set must come out the same, and match OctoMap
@@ -288,6 +291,7 @@ def test_threaded_and_serial_insertion_give_identical_maps(monkeypatch):
     assert np.array_equal(keys, a.packed) and np.array_equal(occupied, threaded.is_occupied(a.logodds))
 
 
+@pytest.mark.slow
 def test_occupancy_only_reference_of_the_benchmark_matches_the_map_cell_for_cell():
     # the benchmark's yardstick must do the same work: same cells, same log-odds as SemanticOctoMap
     import importlib.util

@@ -105,6 +105,7 @@ def test_same_seed_same_scene_and_different_seed_differs():
     assert a.vertices.shape != c.vertices.shape or not np.array_equal(a.vertices, c.vertices)
 
 
+@pytest.mark.slow
 def test_kinds_cover_at_least_15_object_classes_with_plausible_placement():
     classes = set()
     for i, kind in enumerate(KINDS):
@@ -144,6 +145,7 @@ def _surface_samples(points: np.ndarray, rng: np.random.Generator, n: int = 120)
     return np.concatenate([points, np.einsum("nk,nkd->nd", w, faces)])
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("seed,kind,size", [(0, "office", "medium"), (1, "kitchen", "medium"),
                                             (2, "living_room", "large"), (3, "bedroom", "small"),
                                             (4, "office", "small")])
@@ -183,6 +185,7 @@ def test_objects_never_interpenetrate(seed, kind, size):
 # --------------------------------------------------------------------------------------------------
 # rendering and noise
 # --------------------------------------------------------------------------------------------------
+@pytest.mark.slow
 def test_render_channels_and_instance_classes(office, office_views):
     r = Renderer(office)
     v = r.render(office_views[0])
@@ -195,6 +198,7 @@ def test_render_channels_and_instance_classes(office, office_views):
     assert np.array_equal(mapped, v.labels[things])
 
 
+@pytest.mark.slow
 def test_rasteriser_matches_ray_casting(office, office_views):
     fast = Renderer(office, SMALL, backend="raster")
     ref = Renderer(office, SMALL, backend="raycast")
@@ -259,6 +263,7 @@ def _scene(*args):
     return _SCENES[args]
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("kind", TRAJECTORY_KINDS)
 @pytest.mark.parametrize("scene_args", [(0, "office", "medium"), (2, "bedroom", "large")])
 def test_trajectories_stay_inside_outside_objects_and_look_at_something(kind, scene_args):
@@ -301,6 +306,7 @@ def test_keys_follow_octomap_convention():
     assert np.array_equal(coords_to_keys(pts, res), expect)
 
 
+@pytest.mark.slow
 def test_backprojected_pixels_land_on_ground_truth_surfaces_of_their_class():
     s = generate_scene(0, "office", "small")
     res = 0.02
@@ -338,6 +344,7 @@ def test_gt_voxels_are_deterministic_and_floor_is_on_both_sides_of_z0():
 # --------------------------------------------------------------------------------------------------
 # export
 # --------------------------------------------------------------------------------------------------
+@pytest.mark.slow
 def test_export_is_byte_identical_and_reads_back_through_tum_dataset(tmp_path):
     from semmap.datasets import TumDataset
 

@@ -110,6 +110,7 @@ def test_pose_graph_with_a_loop_edge_removes_injected_drift():
 
 
 # ------------------------------------------------------------------------------------------ sequences
+@pytest.mark.slow
 def test_short_simulated_sequence_is_tracked_accurately(desk_frames):
     slam = RgbdSlam(SlamConfig(loop_closure=True))
     assert isinstance(slam, PoseTracker) and slam.name == "slam-orb"
@@ -127,6 +128,7 @@ def test_short_simulated_sequence_is_tracked_accurately(desk_frames):
     assert slam.stats.keyframes >= 2 and slam.stats.lost == 0
 
 
+@pytest.mark.slow
 def test_relocalises_after_blank_frames(desk_frames):
     slam = RgbdSlam(SlamConfig(loop_closure=False))
     for f in desk_frames[:20]:
@@ -168,6 +170,7 @@ def test_dense_aligner_recovers_a_relative_pose(desk_frames):
     assert result is None or result.fitness < 0.3  # nothing to align: rejected by the fitness gate
 
 
+@pytest.mark.slow
 def test_dense_fallback_carries_tracking_through_textureless_frames(desk_frames):
     # frames 20..24 lose all texture (a flat grey image, depth intact): features cannot track them
     frames = [f.with_(rgb=np.full_like(f.rgb, 128)) if 20 <= i < 25 else f for i, f in enumerate(desk_frames)]
@@ -187,6 +190,7 @@ def test_dense_fallback_carries_tracking_through_textureless_frames(desk_frames)
     assert without.stats.lost >= 3
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("refine", ["off", "keyframes", "frames"])
 def test_dense_refinement_modes_track_the_desk(desk_frames, refine):
     slam = RgbdSlam(SlamConfig(loop_closure=False, dense_refine=refine))
@@ -251,6 +255,7 @@ def test_wrong_input_raises_clear_errors(desk_frames):
 
 
 # ------------------------------------------------------------------------------------------ real data
+@pytest.mark.slow
 def test_seven_scenes_start_is_tracked(seven_scenes):
     from semmap.datasets import open_dataset
 

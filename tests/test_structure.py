@@ -61,6 +61,7 @@ def _true_up(frame: Frame, T: np.ndarray) -> np.ndarray:
     return T[:3, :3].T @ WORLD_UP
 
 
+@pytest.mark.slow
 def test_single_frames_of_a_clean_room_get_wall_floor_and_ceiling_right(bedroom) -> None:
     """No pose, up estimated from each frame alone: IoU >= 0.9 for all three over views that see them."""
     views = [_view(bedroom, yaw, pitch) for yaw in (0, 200) for pitch in (-25, 20, 0)]
@@ -188,6 +189,7 @@ class _FixedNetwork:
         return TopKProbs(labels, probs)
 
 
+@pytest.mark.slow
 def test_structure_owns_the_shell_where_sure_and_the_network_the_rest(bedroom) -> None:
     frame = _view(bedroom, 0, -25)
     block = (slice(100, 160), slice(300, 400))
@@ -274,6 +276,7 @@ def test_a_simulator_network_on_a_real_recording_warns_once_naming_the_default(t
 
 
 # ------------------------------------------------------------------ the room yardstick (real frames, no hand labels)
+@pytest.mark.slow
 def test_the_room_yardstick_finds_a_simulated_rooms_shell_and_labels_its_frames() -> None:
     """Fitted on a posed walk through a clean simulated room, the yardstick's labels agree with the simulator's
     own wall and floor labels (wall-mounted things left out: they lie on the wall plane)."""

@@ -102,6 +102,7 @@ def test_resume_after_an_interruption_continues_exactly(tmp_path: Path) -> None:
         Trainer(settings(tmp_path / "b", data, iterations=4, lr=0.5), resume=True)
 
 
+@pytest.mark.slow
 def test_rgbd_net_trains_on_a_simulated_folder(tmp_path: Path) -> None:
     from semmap.sim.export import simulate_sequence
 
@@ -135,6 +136,7 @@ def test_bad_data_errors_name_the_file(tmp_path: Path) -> None:
         gather([nodepth], SIZE, need_depth=True)
 
 
+@pytest.mark.slow
 def test_cli_train_and_its_one_line_errors(tmp_path: Path) -> None:
     data = write_plain(tmp_path / "data")
     out = tmp_path / "run"

@@ -337,6 +337,7 @@ def test_unknown_tracker_is_a_config_error():
         make_tracker("magic")
 
 
+@pytest.mark.slow
 def test_dense_odometry_tracks_a_short_simulated_sequence():
     from semmap.datasets.simulated import SimulatedDataset
     from semmap.poses.odometry import DenseOdometry

@@ -157,6 +157,7 @@ def test_a_hostile_pickle_is_refused_by_every_loader_in_semmaps_own_words(tmp_pa
     assert "weights_only" not in str(e.value) and "\n" not in str(e.value)
 
 
+@pytest.mark.slow
 def test_a_hostile_training_checkpoint_is_refused_on_resume(tmp_path) -> None:
     from semmap.train.trainer import Trainer
     from test_train import settings, write_plain
@@ -330,6 +331,7 @@ def room_map(tmp_path_factory) -> tuple[Path, Path]:
     return root / "map.semmap", root / "seq"
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(("args", "message"), [
     (["--mode", "ground", "--height", "nan"], "--height must be a finite number"),  # T34: was SIGSEGV
     (["--init", "tracking", "--init-pose", "nan 0 0 0 0 0 1"], "--init-pose must be 7 finite numbers"),  # S7

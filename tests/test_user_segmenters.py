@@ -88,6 +88,7 @@ def _map_labels(out: Path) -> np.ndarray:
 # --------------------------------------------------------------------------------------------------
 # end to end
 # --------------------------------------------------------------------------------------------------
+@pytest.mark.slow
 def test_a_users_onnx_model_maps_a_simulated_sequence(sim_seq, tmp_path):
     model = _export(_Biased(len(ADE20K), RUG_ADE), tmp_path / "ade.onnx", torch.zeros(1, 96, 128, 3),
                     names=("pixels",), dynamic={"pixels": {0: "n"}})
@@ -127,6 +128,7 @@ def _tiny_segformer(folder: Path, id2label: dict[int, str], favourite: int, size
     return folder
 
 
+@pytest.mark.slow
 def test_a_tiny_offline_transformers_model_maps_a_simulated_sequence(sim_seq, tmp_path):
     pytest.importorskip("transformers")
     folder = _tiny_segformer(tmp_path / "segformer", dict(enumerate(ADE20K)), FLOOR_ADE)
@@ -320,6 +322,7 @@ def test_a_class_map_adds_the_probabilities_of_classes_it_folds_together(tmp_pat
         read_class_map(path, ["floor", "rug"])
 
 
+@pytest.mark.slow
 def test_an_exported_network_runs_as_semmap_runs_it_itself(tmp_path):
     """ESPNetv2 (random weights, small) through ``onnx:`` and a sidecar gives the probabilities semmap's own network
     runner gives: the same resize, normalisation and sampling of a half-resolution, corner-aligned output."""
