@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import subprocess
+import sys
 from collections.abc import Iterable
 from pathlib import Path
 
@@ -11,6 +13,43 @@ import numpy as np
 from semmap.types import CameraIntrinsics, Frame, make_pose
 
 SMALL_CAMERA = CameraIntrinsics(32, 24, 30.0, 30.0, 15.5, 11.5)
+
+
+def run_cli(*args: object) -> subprocess.CompletedProcess:
+    """``semmap ARGS`` run in this process as the ``semmap`` entry point runs it: the exit code, stdout and stderr
+    a finished process would give, without the seconds a new interpreter spends importing semmap and loading its
+    kernels. A bug's exception propagates, so the test fails with its traceback. Killing a run, Ctrl-C and the
+    entry point itself need a real process: :func:`run_cli_process`."""
+    import contextlib
+    import io
+    import logging
+
+    from semmap.cli import main
+
+    out, err = io.StringIO(), io.StringIO()
+    root = logging.getLogger()
+    handlers, level, argv = root.handlers[:], root.level, sys.argv
+    code = 0
+    sys.argv = ["semmap", *map(str, args)]
+    try:
+        with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+            try:
+                main()
+            except SystemExit as exc:
+                if isinstance(exc.code, str):  # as the interpreter does: the text on stderr, exit code 1
+                    print(exc.code, file=sys.stderr)
+                code = exc.code if isinstance(exc.code, int) else (0 if exc.code is None else 1)
+    finally:  # the command's logging set-up and arguments stay with it
+        sys.argv = argv
+        root.handlers[:] = handlers
+        root.setLevel(level)
+    return subprocess.CompletedProcess(["semmap", *map(str, args)], code, out.getvalue(), err.getvalue())
+
+
+def run_cli_process(*args: object, timeout: float = 300) -> subprocess.CompletedProcess:
+    """``python -m semmap.cli ARGS`` in a new process (exit code, stdout, stderr)."""
+    return subprocess.run([sys.executable, "-m", "semmap.cli", *map(str, args)], capture_output=True, text=True,
+                          timeout=timeout)
 
 
 def rotation_z(angle: float) -> np.ndarray:

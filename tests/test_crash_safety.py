@@ -11,14 +11,13 @@ from pathlib import Path
 
 import pytest
 
-from helpers import make_room_frames, room_label_set
+from helpers import make_room_frames, room_label_set, run_cli
 from semmap.config import InputConfig, MappingConfig, OutputConfig, RunConfig, SemanticsConfig
 from semmap.errors import ConfigError
 from semmap.io.staged_run import staging_folder
 from semmap.io.tum_writer import write_tum_sequence
 from semmap.pipeline import Pipeline
 from semmap.sim.export import simulate_sequence
-from test_pipeline_cli import run_cli
 
 SCRIPT = Path(__file__).with_name("interrupt_run.py")
 MAP_FILES = ("map.ot", "map.bt", "map.semmap", "trajectory.txt")

@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from helpers import make_room_frames, room_label_set, write_7scenes_sequence, write_png
+from helpers import make_room_frames, room_label_set, run_cli, write_7scenes_sequence, write_png
 from hostile import MAX_RSS_MB
 from semmap import pipeline
 from semmap.config import InputConfig, MappingConfig, OutputConfig, RunConfig
@@ -22,7 +22,6 @@ from semmap.errors import ConfigError, DatasetError
 from semmap.eval.segmentation import evaluate_label_folders
 from semmap.io.tum_writer import write_tum_sequence
 from semmap.pipeline import Pipeline
-from test_pipeline_cli import run_cli
 
 HOSTILE = Path(__file__).with_name("hostile.py")
 

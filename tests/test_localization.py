@@ -11,6 +11,7 @@ from hypothesis import strategies as st
 from scipy.spatial.transform import Rotation
 
 import naive
+from helpers import run_cli
 from semmap.datasets.simulated import SimulatedDataset
 from semmap.errors import ConfigError
 from semmap.keys import keys_to_coords
@@ -329,13 +330,6 @@ def test_ground_mode_needs_the_camera_height_and_tilt(office):
 
 
 # ---------------------------------------------------------------------------------------------- command line
-def run_cli(*args: str):
-    import subprocess
-    import sys
-
-    return subprocess.run([sys.executable, "-m", "semmap.cli", *args], capture_output=True, text=True, timeout=300)
-
-
 @pytest.fixture(scope="module")
 def small_office_map(tmp_path_factory, office):
     """map.semmap of the small office built from the fixture's frames, and a simulated sequence of the same scene."""

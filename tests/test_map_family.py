@@ -3,23 +3,17 @@
 from __future__ import annotations
 
 import json
-import subprocess
-import sys
 
 import numpy as np
 import pytest
 
-from helpers import make_room_frames, room_label_set
+from helpers import make_room_frames, room_label_set, run_cli
 from semmap.eval.semantic import cloud_keys_and_labels
 from semmap.fusion.crf import CrfParams, refine_map
 from semmap.geometry import backproject_world, pixel_normals
 from semmap.io.tum_writer import write_tum_sequence
 from semmap.maps.voxel_grid import SemanticVoxelGrid
 from semmap.types import EMPTY_LABEL, CameraIntrinsics, LabelSet, Observation, TopKProbs, make_pose
-
-
-def run_cli(*args: str) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "semmap.cli", *args], capture_output=True, text=True, timeout=600)
 
 
 @pytest.mark.slow

@@ -248,8 +248,8 @@ def test_shipped_weights_match_their_manifest() -> None:
 def test_demo_segments_with_the_shipped_network(tmp_path) -> None:
     import json
 
+    from helpers import run_cli
     from semmap.perception.registry import demo_network
-    from test_pipeline_cli import run_cli
 
     name = demo_network()
     if name is None:

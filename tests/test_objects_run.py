@@ -9,6 +9,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from helpers import run_cli
 from object_helpers import box_frames
 from semmap.eval.trajectory import evaluate_trajectory
 from semmap.io.objects import read_objects_json, read_objects_ply
@@ -18,7 +19,6 @@ from semmap.object_slam import ObjectConstrainedTracker
 from semmap.perception.instances.oracle import OracleInstances
 from semmap.poses.object_graph import ObjectEdge, apply_corrections, fit_rigid, optimise_with_object_edges
 from semmap.types import Trajectory, invert_pose, make_pose
-from test_pipeline_cli import run_cli
 
 CHAIR, TABLE = INDOOR_LABELS.id_of("chair"), INDOOR_LABELS.id_of("table")
 BOXES = [(np.array([-0.2, -0.8, 0.0]), np.array([0.2, -0.4, 0.8])),

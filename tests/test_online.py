@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 import torch
 
-from helpers import make_room_frames, room_label_set
+from helpers import make_room_frames, room_label_set, run_cli
 from semmap.config import (
     InputConfig,
     LoopMode,
@@ -35,7 +35,6 @@ from semmap.perception.schedule import (
 )
 from semmap.pipeline import Pipeline
 from semmap.types import TopKProbs
-from test_pipeline_cli import run_cli
 
 
 class _Net(torch.nn.Module):

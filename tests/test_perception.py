@@ -9,14 +9,13 @@ import numpy as np
 import pytest
 import torch
 
-from helpers import make_room_frames, room_label_set, write_png
+from helpers import make_room_frames, room_label_set, run_cli, write_png
 from semmap.errors import ConfigError, DatasetError, FormatError
 from semmap.eval.segmentation import evaluate_label_folders, segmentation_scores
 from semmap.perception.network import NetworkInput, NetworkSegmenter
 from semmap.perception.precomputed import PrecomputedSegmenter
 from semmap.perception.schedule import Scheduler, SegmentationSchedule, with_semantics
 from semmap.types import EMPTY_LABEL, LabelSet, TopKProbs, make_pose
-from test_pipeline_cli import run_cli
 
 LABELS = LabelSet.generic(5)
 

@@ -3,15 +3,13 @@
 from __future__ import annotations
 
 import json
-import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
 import pyoctomap
 import pytest
 
-from helpers import make_room_frames, room_label_set
+from helpers import make_room_frames, room_label_set, run_cli, run_cli_process
 from semmap.config import InputConfig, MappingConfig, OutputConfig, RunConfig
 from semmap.io.tum_writer import write_tum_sequence
 from semmap.pipeline import Pipeline
@@ -27,18 +25,15 @@ def room_sequence(tmp_path_factory) -> Path:
     return root
 
 
-def run_cli(*args: str) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "semmap.cli", *args], capture_output=True, text=True, timeout=300)
-
-
 def _occupied_leaves(tree) -> int:
     return sum(1 for leaf in tree.begin_leafs() if tree.isNodeOccupied(leaf))
 
 
 @pytest.mark.slow
 def test_run_writes_every_output_and_octomap_agrees_with_the_report(room_sequence, tmp_path):
+    """Through a new ``python -m semmap.cli`` process, as a user runs it (the other CLI tests run in-process)."""
     out = tmp_path / "out"
-    r = run_cli("run", str(room_sequence), "--out", str(out), "--resolution", "0.1")
+    r = run_cli_process("run", str(room_sequence), "--out", str(out), "--resolution", "0.1")
     assert r.returncode == 0, r.stderr
     for name in ("map.ot", "map.bt", "map.semmap", "preview.png", "report.json", "config.json"):
         assert (out / name).stat().st_size > 0, name

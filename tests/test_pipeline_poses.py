@@ -7,11 +7,10 @@ import json
 import numpy as np
 import pytest
 
-from helpers import make_room_frames, room_label_set
+from helpers import make_room_frames, room_label_set, run_cli
 from semmap.io.trajectory import read_trajectory, write_trajectory
 from semmap.io.tum_writer import write_tum_sequence
 from semmap.types import Trajectory, make_pose
-from test_pipeline_cli import run_cli
 
 
 @pytest.fixture(scope="module")

@@ -8,12 +8,11 @@ import json
 import numpy as np
 import pytest
 
-from helpers import make_room_frames, room_label_set
+from helpers import make_room_frames, room_label_set, run_cli
 from semmap.config import InputConfig, MappingConfig, OutputConfig, RunConfig
 from semmap.io.tum_writer import write_tum_sequence
 from semmap.pipeline import Pipeline
 from semmap.viz.rerun_log import NoVisualizer, class_colors, get_visualizer
-from test_pipeline_cli import run_cli
 
 FRAMES = 7
 

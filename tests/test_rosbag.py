@@ -8,13 +8,12 @@ import json
 import numpy as np
 import pytest
 
-from helpers import make_room_frames
+from helpers import make_room_frames, run_cli
 from ros_helpers import DEPTH, RGB, write_bag
 from semmap.datasets import open_dataset
 from semmap.datasets._ros_tf import TransformTree
 from semmap.errors import DatasetError
 from semmap.types import make_pose
-from test_pipeline_cli import run_cli
 
 T0 = 1700000000.0
 

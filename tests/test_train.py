@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 import torch
 
-from helpers import write_png
+from helpers import run_cli, write_png
 from semmap.errors import ConfigError, DatasetError
 from semmap.perception.networks.registry import load_weights
 from semmap.perception.registry import make_segmenter
@@ -18,7 +18,6 @@ from semmap.train.class_weights import median_frequency_weights
 from semmap.train.data import gather
 from semmap.train.trainer import Trainer, TrainSettings, batch_indices, poly_lr, train
 from semmap.types import LabelSet
-from test_pipeline_cli import run_cli
 
 K = 4
 SIZE = (32, 24)
