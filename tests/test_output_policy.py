@@ -7,13 +7,11 @@ from __future__ import annotations
 import errno
 import os
 import stat
-import subprocess
-import sys
 from pathlib import Path
 
 import pytest
 
-from helpers import ROOM_CAMERA, make_room_frames, room_label_set
+from helpers import ROOM_CAMERA, make_room_frames, room_label_set, run_cli
 from semmap.config import InputConfig, MappingConfig, OutputConfig, RunConfig, SemanticsConfig
 from semmap.errors import OutputError
 from semmap.files.atomic import write_bytes_atomic
@@ -197,18 +195,14 @@ def test_localize_train_and_batch_refuse_an_input_as_output(seq):
     assert _bytes(seq) == before
 
 
-def _cli(*args: str) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "semmap.cli", *args], capture_output=True, text=True, timeout=120)
-
-
 @pytest.mark.slow
 def test_cli_refusals_are_one_line_with_exit_code_1(seq):
     before = _bytes(seq)
-    r = _cli("run", str(seq), "--out", str(seq))
+    r = run_cli("run", str(seq), "--out", str(seq))
     assert r.returncode == 1 and r.stderr.strip().splitlines()[-1].startswith("semmap: error: --out ")
     assert "Traceback" not in r.stderr and _bytes(seq) == before
     gt = str(seq / "groundtruth.txt")
-    r = _cli("eval-traj", gt, gt, "--plot", "/dev/full")
+    r = run_cli("eval-traj", gt, gt, "--plot", "/dev/full")
     assert r.returncode == 1 and "semmap: error: --plot /dev/full: is a device" in r.stderr
     assert stat.S_ISCHR(os.stat("/dev/full").st_mode)
 
