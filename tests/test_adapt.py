@@ -227,6 +227,7 @@ def _last_state(out: Path) -> dict:
     return torch.load(out / "last.pt", weights_only=True)["model"]
 
 
+@pytest.mark.slow
 def test_an_adaptation_killed_after_a_checkpoint_resumes_to_the_same_weights(room, trained, tmp_path):
     weights = _weights(tmp_path, trained)
     source = _source(room, weights, tmp_path / "run")

@@ -46,6 +46,7 @@ def test_axial_noise_grows_with_the_square_of_the_depth():
         assert s == pytest.approx(expect, rel=0.3), z
 
 
+@pytest.mark.slow
 def test_axial_noise_grows_with_the_angle_of_incidence():
     assert _error_std(PLAIN, 2.0, cos=np.cos(np.radians(82))) > 1.4 * _error_std(PLAIN, 2.0, cos=1.0)
 

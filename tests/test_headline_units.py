@@ -62,6 +62,7 @@ def test_demo_summary_leads_with_the_same_pixels_and_keeps_units_apart(demo):
     assert f"{report['pixel_miou_map']:.3f}" in named[0] and f"{report['pixel_miou_network']:.3f}" in named[0]
 
 
+@pytest.mark.slow
 def test_report_md_leads_with_the_same_pixels_and_no_table_row_mixes_units(demo):
     out, _ = demo
     md = (out / "report.md").read_text()
@@ -88,6 +89,7 @@ def test_readme_headline_keeps_units_apart_and_leads_with_the_same_pixels():
     assert "geometric precision" in demo_rows[1] and "coverage" in demo_rows[1]
 
 
+@pytest.mark.slow
 def test_readme_names_the_realism_preset_the_demo_renders_with(demo):
     out, _ = demo
     realism = json.loads((out / "report.json").read_text())["realism"]

@@ -59,6 +59,7 @@ def test_ray_cells_match_octomap_compute_ray_keys_on_random_rays():
         assert ours == _octomap_ray_free_cells(o, e, res), f"ray {i}: {o} -> {e} at {res}"
 
 
+@pytest.mark.slow
 @settings(max_examples=200, deadline=None)
 @given(st.lists(st.floats(-5, 5, width=32), min_size=6, max_size=6), st.sampled_from([0.02, 0.05, 0.2]))
 def test_ray_is_a_connected_walk_from_the_origin_cell_that_never_enters_the_end_cell(coords, res):

@@ -380,6 +380,7 @@ def budget_2m():
     limits.set_memory_budget(None)
 
 
+@pytest.mark.slow
 def test_h1_m3_the_maps_are_checked_against_the_budget_after_every_frame(budget_2m):
     from semmap.limits import MemoryBudgetError
     from semmap.maps.voxel_grid import SemanticVoxelGrid

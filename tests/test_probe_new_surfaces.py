@@ -322,6 +322,7 @@ def test_s6_a_slice_height_outside_the_field_is_refused(world, tmp_path, capsys,
                                                                                                            abs=0.1)
 
 
+@pytest.mark.slow
 def test_u6_a_region_without_obstacles_says_so(world, tmp_path, capsys, monkeypatch):
     code, out, _ = semmap(capsys, monkeypatch, "export", "esdf", world / "run", "--out", tmp_path / "e",
                           "--region", "50 50 0 51 51 1")  # es_region_empty

@@ -70,6 +70,7 @@ def test_single_frames_of_a_clean_room_get_wall_floor_and_ceiling_right(bedroom)
     assert all(v >= 0.9 for v in ious.values()), ious
 
 
+@pytest.mark.slow
 def test_a_tilted_camera_finds_up_and_the_floor(bedroom) -> None:
     frame = _view(bedroom, 300, -20, roll=20, posed=True)
     view = StructureSegmenter().analyse(frame.with_(T_world_cam=None))

@@ -143,6 +143,7 @@ def test_a_tiny_offline_transformers_model_maps_a_simulated_sequence(sim_seq, tm
     assert len(labels) > 50 and set(labels.tolist()) == {1 + FLOOR_ADE}
 
 
+@pytest.mark.slow
 def test_transformers_classes_fold_through_a_class_map(tmp_path):
     pytest.importorskip("transformers")
     folder = _tiny_segformer(tmp_path / "segformer", dict(enumerate(ADE20K)), RUG_ADE)
