@@ -59,7 +59,15 @@ from semmap.train.pseudo_labels import (
 )
 from semmap.train.replay import REPLAY_FRAMES, REPLAY_SCENES, find_replay
 from semmap.train.trainable import Trainable, load_trainable
-from semmap.train.trainer import batch_indices, batch_tensors, normalise, poly_lr, seed_of, seeded
+from semmap.train.trainer import (
+    batch_indices,
+    batch_tensors,
+    normalise,
+    poly_lr,
+    refuse_other_settings,
+    seed_of,
+    seeded,
+)
 from semmap.types import Frame, Trajectory
 
 log = logging.getLogger("semmap")
@@ -656,11 +664,7 @@ class Adapter:
         blob = read_torch_file(self.last_path, "adaptation checkpoint")
         if not isinstance(blob, dict) or blob.get("format") != CHECKPOINT_FORMAT:
             raise FormatError(f"{self.last_path}: not a semmap adaptation checkpoint")
-        saved, now = blob["settings"], self._resume_settings()
-        diff = [k for k in RESUME_KEYS if saved.get(k) != now.get(k)]
-        if diff:
-            raise ConfigError(f"{self.last_path}: cannot resume with different settings: "
-                              + ", ".join(f"{k} {saved.get(k)!r} -> {now.get(k)!r}" for k in diff))
+        refuse_other_settings(self.last_path, blob["settings"], self._resume_settings(), RESUME_KEYS)
         if blob.get("weights") != self.weights_sha256:
             raise ConfigError(f"{self.last_path}: this adaptation started from other weights than "
                               f"{self.source.weights}")

@@ -18,7 +18,7 @@ import json
 import logging
 import math
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 
@@ -204,6 +204,15 @@ def normalise(rgb: torch.Tensor) -> torch.Tensor:
     mean = torch.tensor(IMAGENET_MEAN, dtype=rgb.dtype, device=rgb.device).view(1, 3, 1, 1)
     std = torch.tensor(IMAGENET_STD, dtype=rgb.dtype, device=rgb.device).view(1, 3, 1, 1)
     return (rgb - mean) / std
+
+
+def refuse_other_settings(path: Path, saved: dict, now: dict, keys: Iterable[str]) -> None:
+    """A ConfigError naming each of ``keys`` whose value in a checkpoint's ``saved`` settings differs from ``now``
+    (a run resumes only as it started)."""
+    diff = [k for k in keys if saved.get(k) != now.get(k)]
+    if diff:
+        raise ConfigError(f"{path}: cannot resume with different settings: "
+                          + ", ".join(f"{k} {saved.get(k)!r} -> {now.get(k)!r}" for k in diff))
 
 
 def batch_indices(seed: int, iteration: int, batch: int, n: int) -> np.ndarray:
@@ -408,11 +417,7 @@ class Trainer:
         blob = read_torch_file(path, "training checkpoint")
         if not isinstance(blob, dict) or blob.get("format") != CHECKPOINT_FORMAT:
             raise FormatError(f"{path}: not a semmap training checkpoint")
-        saved, now = blob["config"], self._config()
-        diff = [k for k in RESUME_KEYS if saved.get(k) != now.get(k)]
-        if diff:
-            raise ConfigError(f"{path}: cannot resume with different settings: "
-                              + ", ".join(f"{k} {saved.get(k)!r} -> {now.get(k)!r}" for k in diff))
+        refuse_other_settings(path, blob["config"], self._config(), RESUME_KEYS)
         self.model.load_state_dict(blob["model"])
         self.model.to(self.device)
         self.optimizer.load_state_dict(blob["optimizer"])
